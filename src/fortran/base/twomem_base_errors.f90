@@ -1,0 +1,48 @@
+!> Errors travel as values. Library code never stops the program: it allocates an `error_t`
+!> naming where and what went wrong, and returns; only the program turns it into the one-line
+!> message and the exit code of INTERFACE.md. The category fixes the exit code, so a routine deep
+!> down decides whether a failure is bad input (2) or the environment's fault (3).
+module twomem_base_errors
+   implicit none
+   private
+
+   public :: error_t, make_error, prefix_error
+   public :: exit_ok, exit_not_converged, exit_bad_input, exit_io
+
+   integer, parameter :: exit_ok = 0
+   integer, parameter :: exit_not_converged = 1
+   integer, parameter :: exit_bad_input = 2
+   integer, parameter :: exit_io = 3
+
+   type :: error_t
+      !> exit code category (`exit_bad_input` or `exit_io`)
+      integer :: code = exit_bad_input
+      character(len=:), allocatable :: message
+   end type error_t
+
+contains
+
+   !> Allocate `err` with a message; `where` names the file, group or key when known.
+   subroutine make_error(err, code, where, what)
+      type(error_t), allocatable, intent(out) :: err
+      integer, intent(in) :: code
+      character(len=*), intent(in) :: where
+      character(len=*), intent(in) :: what
+
+      allocate (err)
+      err%code = code
+      if (len_trim(where) > 0) then
+         err%message = trim(where)//': '//trim(what)
+      else
+         err%message = trim(what)
+      end if
+   end subroutine make_error
+
+   !> Put context in front of an existing message (e.g. the file name a reader did not know).
+   subroutine prefix_error(err, where)
+      type(error_t), intent(inout) :: err
+      character(len=*), intent(in) :: where
+
+      err%message = trim(where)//': '//err%message
+   end subroutine prefix_error
+end module twomem_base_errors

@@ -1,0 +1,304 @@
+!> A conforming triangulation with everything the solver asks of it: counter-clockwise triangles,
+!> edges with their one or two neighbours, the boundary (edges that belong to one triangle), vertex
+!> patches, element sizes and the domain diameter. `init` is the single gate every mesh passes
+!> through, whoever made it (generator, Gmsh reader, refinement): it orients, validates and
+!> derives, and rejects what would later break the discretization (zero areas, non-manifold
+!> edges, unused or out-of-range vertices) with an error rather than a crash.
+module twomem_mesh_triangulation
+   use twomem_base_kinds, only: dp, ip
+   use twomem_base_errors, only: error_t, make_error, exit_bad_input
+   implicit none
+   private
+
+   public :: mesh_t, signed_area
+
+   type :: mesh_t
+      integer(ip) :: nv = 0, nt = 0, ne = 0
+      !> vertex coordinates, (2, nv)
+      real(dp), allocatable :: vertices(:, :)
+      !> triangle vertices, (3, nt), counter-clockwise
+      integer(ip), allocatable :: triangles(:, :)
+      !> edge end points, (2, ne), first < second
+      integer(ip), allocatable :: edges(:, :)
+      !> edge of triangle t opposite its local vertex i, (3, nt)
+      integer(ip), allocatable :: triangle_edges(:, :)
+      !> triangles on either side of an edge, (2, ne); the second is 0 on the boundary
+      integer(ip), allocatable :: edge_triangles(:, :)
+      logical, allocatable :: boundary_vertex(:), boundary_edge(:)
+      !> vertex patches in CSR form: the triangles around vertex a are
+      !> patch_triangles(patch_ptr(a):patch_ptr(a+1)-1)
+      integer(ip), allocatable :: patch_ptr(:), patch_triangles(:)
+      !> triangle areas and diameters (longest edge)
+      real(dp), allocatable :: area(:), h(:)
+      !> diameter of the domain (largest distance between boundary vertices)
+      real(dp) :: diameter = 0.0_dp
+      !> triangles whose orientation `init` reversed
+      integer(ip) :: n_flipped = 0
+   contains
+      procedure :: init => mesh_init
+      procedure :: free => mesh_free
+      procedure :: n_boundary_vertices
+      procedure :: total_area
+   end type mesh_t
+
+contains
+
+   pure function signed_area(p1, p2, p3) result(a)
+      real(dp), intent(in) :: p1(2), p2(2), p3(2)
+      real(dp) :: a
+
+      a = 0.5_dp*((p2(1) - p1(1))*(p3(2) - p1(2)) - (p3(1) - p1(1))*(p2(2) - p1(2)))
+   end function signed_area
+
+   !> Build a mesh from coordinates and connectivity. `source` names the origin in messages
+   !> (a file name, 'disk generator', ...).
+   subroutine mesh_init(self, vertices, triangles, source, err)
+      class(mesh_t), intent(inout) :: self
+      real(dp), intent(in) :: vertices(:, :)
+      integer(ip), intent(in) :: triangles(:, :)
+      character(len=*), intent(in) :: source
+      type(error_t), allocatable, intent(out) :: err
+
+      integer(ip) :: t, i, swap
+      real(dp) :: a, hmax
+      character(len=160) :: msg
+
+      call self%free()
+      if (size(vertices, 1) /= 2 .or. size(triangles, 1) /= 3) then
+         call make_error(err, exit_bad_input, source, 'mesh arrays have the wrong shape')
+         return
+      end if
+      self%nv = int(size(vertices, 2), ip)
+      self%nt = int(size(triangles, 2), ip)
+      if (self%nt == 0) then
+         call make_error(err, exit_bad_input, source, 'the mesh has no triangles')
+         return
+      end if
+      if (.not. all(abs(vertices) <= huge(1.0_dp))) then
+         call make_error(err, exit_bad_input, source, 'vertex coordinates are not finite')
+         return
+      end if
+      if (any(triangles < 1) .or. any(triangles > self%nv)) then
+         call make_error(err, exit_bad_input, source, 'a triangle refers to a vertex that does not exist')
+         return
+      end if
+      self%vertices = vertices
+      self%triangles = triangles
+      allocate (self%area(self%nt), self%h(self%nt))
+      self%n_flipped = 0
+      do t = 1, self%nt
+         associate (v => self%triangles(:, t))
+            if (v(1) == v(2) .or. v(2) == v(3) .or. v(1) == v(3)) then
+               write (msg, '(a,i0,a)') 'triangle ', t, ' repeats a vertex'
+               call make_error(err, exit_bad_input, source, msg)
+               return
+            end if
+            hmax = max(norm2(self%vertices(:, v(2)) - self%vertices(:, v(1))), &
+                       norm2(self%vertices(:, v(3)) - self%vertices(:, v(2))), &
+                       norm2(self%vertices(:, v(1)) - self%vertices(:, v(3))))
+            a = signed_area(self%vertices(:, v(1)), self%vertices(:, v(2)), self%vertices(:, v(3)))
+            ! A sliver this thin has no usable gradient: its stiffness would be round-off.
+            if (abs(a) <= 1.0e3_dp*epsilon(1.0_dp)*hmax**2) then
+               write (msg, '(a,i0,a)') 'triangle ', t, ' has zero area (degenerate)'
+               call make_error(err, exit_bad_input, source, msg)
+               return
+            end if
+            if (a < 0.0_dp) then
+               swap = v(2)
+               self%triangles(2, t) = v(3)
+               self%triangles(3, t) = swap
+               self%n_flipped = self%n_flipped + 1
+            end if
+            self%area(t) = abs(a)
+            self%h(t) = hmax
+         end associate
+      end do
+
+      call build_patches(self)
+      do i = 1, self%nv
+         if (self%patch_ptr(i + 1) == self%patch_ptr(i)) then
+            write (msg, '(a,i0,a)') 'vertex ', i, ' belongs to no triangle (unused node)'
+            call make_error(err, exit_bad_input, source, msg)
+            return
+         end if
+      end do
+      call build_edges(self, source, err)
+      if (allocated(err)) return
+      self%diameter = boundary_diameter(self)
+   end subroutine mesh_init
+
+   subroutine mesh_free(self)
+      class(mesh_t), intent(inout) :: self
+
+      self%nv = 0
+      self%nt = 0
+      self%ne = 0
+      self%diameter = 0.0_dp
+      self%n_flipped = 0
+      if (allocated(self%vertices)) deallocate (self%vertices)
+      if (allocated(self%triangles)) deallocate (self%triangles)
+      if (allocated(self%edges)) deallocate (self%edges)
+      if (allocated(self%triangle_edges)) deallocate (self%triangle_edges)
+      if (allocated(self%edge_triangles)) deallocate (self%edge_triangles)
+      if (allocated(self%boundary_vertex)) deallocate (self%boundary_vertex)
+      if (allocated(self%boundary_edge)) deallocate (self%boundary_edge)
+      if (allocated(self%patch_ptr)) deallocate (self%patch_ptr)
+      if (allocated(self%patch_triangles)) deallocate (self%patch_triangles)
+      if (allocated(self%area)) deallocate (self%area)
+      if (allocated(self%h)) deallocate (self%h)
+   end subroutine mesh_free
+
+   pure integer(ip) function n_boundary_vertices(self)
+      class(mesh_t), intent(in) :: self
+
+      n_boundary_vertices = int(count(self%boundary_vertex), ip)
+   end function n_boundary_vertices
+
+   pure real(dp) function total_area(self)
+      class(mesh_t), intent(in) :: self
+
+      total_area = sum(self%area)
+   end function total_area
+
+   subroutine build_patches(self)
+      type(mesh_t), intent(inout) :: self
+
+      integer(ip) :: t, i, a
+      integer(ip), allocatable :: fill(:)
+
+      allocate (self%patch_ptr(self%nv + 1))
+      self%patch_ptr = 0
+      do t = 1, self%nt
+         do i = 1, 3
+            a = self%triangles(i, t)
+            self%patch_ptr(a + 1) = self%patch_ptr(a + 1) + 1
+         end do
+      end do
+      self%patch_ptr(1) = 1
+      do a = 1, self%nv
+         self%patch_ptr(a + 1) = self%patch_ptr(a + 1) + self%patch_ptr(a)
+      end do
+      allocate (self%patch_triangles(self%patch_ptr(self%nv + 1) - 1))
+      allocate (fill(self%nv))
+      fill = self%patch_ptr(1:self%nv)
+      do t = 1, self%nt
+         do i = 1, 3
+            a = self%triangles(i, t)
+            self%patch_triangles(fill(a)) = t
+            fill(a) = fill(a) + 1
+         end do
+      end do
+   end subroutine build_patches
+
+   !> Edges are found vertex by vertex: each edge is owned by its smaller end point, so it is
+   !> discovered from that vertex's patch only, without a global sort.
+   subroutine build_edges(self, source, err)
+      type(mesh_t), intent(inout) :: self
+      character(len=*), intent(in) :: source
+      type(error_t), allocatable, intent(out) :: err
+
+      integer(ip) :: a, k, t, i, j, b, e, n_local, max_edges
+      integer(ip), allocatable :: local_b(:), local_e(:)
+      integer(ip), allocatable :: edges(:, :), edge_tris(:, :)
+      character(len=160) :: msg
+
+      max_edges = 3*self%nt
+      allocate (edges(2, max_edges), edge_tris(2, max_edges))
+      edge_tris = 0
+      allocate (self%triangle_edges(3, self%nt))
+      allocate (local_b(2*maxval(self%patch_ptr(2:) - self%patch_ptr(:self%nv)) + 2))
+      allocate (local_e(size(local_b)))
+      self%ne = 0
+      do a = 1, self%nv
+         n_local = 0
+         do k = self%patch_ptr(a), self%patch_ptr(a + 1) - 1
+            t = self%patch_triangles(k)
+            do i = 1, 3
+               b = self%triangles(i, t)
+               if (b <= a) cycle
+               e = 0
+               do j = 1, n_local
+                  if (local_b(j) == b) then
+                     e = local_e(j)
+                     exit
+                  end if
+               end do
+               if (e == 0) then
+                  self%ne = self%ne + 1
+                  e = self%ne
+                  edges(:, e) = [a, b]
+                  edge_tris(1, e) = t
+                  n_local = n_local + 1
+                  local_b(n_local) = b
+                  local_e(n_local) = e
+               else if (edge_tris(2, e) == 0) then
+                  edge_tris(2, e) = t
+               else
+                  write (msg, '(a,i0,a,i0,a)') 'edge between vertices ', a, ' and ', b, &
+                     ' belongs to more than two triangles (non-manifold or duplicate triangles)'
+                  call make_error(err, exit_bad_input, source, msg)
+                  return
+               end if
+               ! the edge (a, b) is opposite the third vertex of t
+               do j = 1, 3
+                  if (self%triangles(j, t) /= a .and. self%triangles(j, t) /= b) then
+                     self%triangle_edges(j, t) = e
+                  end if
+               end do
+            end do
+         end do
+      end do
+      self%edges = edges(:, 1:self%ne)
+      self%edge_triangles = edge_tris(:, 1:self%ne)
+      allocate (self%boundary_edge(self%ne), self%boundary_vertex(self%nv))
+      self%boundary_edge = self%edge_triangles(2, :) == 0
+      self%boundary_vertex = .false.
+      do e = 1, self%ne
+         if (self%boundary_edge(e)) self%boundary_vertex(self%edges(:, e)) = .true.
+      end do
+      ! Two triangles sharing an edge must lie on opposite sides of it once both are
+      ! counter-clockwise; the same side means they overlap (a folded mesh).
+      do e = 1, self%ne
+         if (self%boundary_edge(e)) cycle
+         if (same_side(self, e)) then
+            write (msg, '(a,i0,a,i0,a)') 'triangles ', self%edge_triangles(1, e), ' and ', &
+               self%edge_triangles(2, e), ' overlap (folded mesh)'
+            call make_error(err, exit_bad_input, source, msg)
+            return
+         end if
+      end do
+   end subroutine build_edges
+
+   logical function same_side(self, e)
+      type(mesh_t), intent(in) :: self
+      integer(ip), intent(in) :: e
+
+      integer(ip) :: k, t, i, apex(2)
+      real(dp) :: s(2)
+
+      do k = 1, 2
+         t = self%edge_triangles(k, e)
+         do i = 1, 3
+            if (self%triangle_edges(i, t) == e) apex(k) = self%triangles(i, t)
+         end do
+         s(k) = signed_area(self%vertices(:, self%edges(1, e)), self%vertices(:, self%edges(2, e)), &
+                            self%vertices(:, apex(k)))
+      end do
+      same_side = s(1)*s(2) > 0.0_dp
+   end function same_side
+
+   real(dp) function boundary_diameter(self) result(d)
+      type(mesh_t), intent(in) :: self
+
+      integer(ip), allocatable :: b(:)
+      integer(ip) :: i, j
+
+      b = pack([(i, i=1, self%nv)], self%boundary_vertex)
+      d = 0.0_dp
+      do i = 1, size(b)
+         do j = i + 1, size(b)
+            d = max(d, norm2(self%vertices(:, b(i)) - self%vertices(:, b(j))))
+         end do
+      end do
+   end function boundary_diameter
+end module twomem_mesh_triangulation
