@@ -1,0 +1,82 @@
+/* Thin glue to UMFPACK (SuiteSparse): one opaque handle per matrix pattern.
+ *
+ * The Fortran side stores matrices in CSR with 1-based indices. UMFPACK reads compressed
+ * columns, so the CSR arrays of A are handed over as the CSC arrays of A^T and the solve asks
+ * for A x = b through UMFPACK_At. The symbolic factorization depends only on the pattern, so
+ * it is kept in the handle and reused for every numeric factorization until the pattern
+ * changes (a new handle). Every function returns an UMFPACK status code (0 = ok); nothing here
+ * prints or stops. */
+#include <stdlib.h>
+#include <string.h>
+#include <umfpack.h>
+
+typedef struct {
+  int n;
+  int *ap; /* 0-based row pointers (as UMFPACK column pointers) */
+  int *ai; /* 0-based column indices */
+  void *symbolic;
+  void *numeric;
+  double control[UMFPACK_CONTROL];
+  double info[UMFPACK_INFO];
+} twomem_umf_t;
+
+/* Analyse the pattern (n, row_ptr, col: 1-based CSR). On success *handle owns copies. */
+int twomem_umf_analyse(int n, const int *row_ptr, const int *col, const double *val, void **handle) {
+  *handle = NULL;
+  twomem_umf_t *h = calloc(1, sizeof *h);
+  if (!h) return UMFPACK_ERROR_out_of_memory;
+  int nnz = row_ptr[n] - 1;
+  h->n = n;
+  h->ap = malloc(sizeof(int) * (size_t)(n + 1));
+  h->ai = malloc(sizeof(int) * (size_t)(nnz > 0 ? nnz : 1));
+  if (!h->ap || !h->ai) {
+    free(h->ap);
+    free(h->ai);
+    free(h);
+    return UMFPACK_ERROR_out_of_memory;
+  }
+  for (int i = 0; i <= n; ++i) h->ap[i] = row_ptr[i] - 1;
+  for (int k = 0; k < nnz; ++k) h->ai[k] = col[k] - 1;
+  umfpack_di_defaults(h->control);
+  int status = umfpack_di_symbolic(n, n, h->ap, h->ai, val, &h->symbolic, h->control, h->info);
+  if (status != UMFPACK_OK) {
+    free(h->ap);
+    free(h->ai);
+    free(h);
+    return status;
+  }
+  *handle = h;
+  return UMFPACK_OK;
+}
+
+/* Numeric factorization for new values on the analysed pattern. */
+int twomem_umf_factor(void *handle, const double *val) {
+  twomem_umf_t *h = handle;
+  if (!h) return UMFPACK_ERROR_argument_missing;
+  if (h->numeric) umfpack_di_free_numeric(&h->numeric);
+  return umfpack_di_numeric(h->ap, h->ai, val, h->symbolic, &h->numeric, h->control, h->info);
+}
+
+/* Solve A x = b with the last factorization (val must be the factored values, for refinement). */
+int twomem_umf_solve(void *handle, const double *val, const double *b, double *x) {
+  twomem_umf_t *h = handle;
+  if (!h || !h->numeric) return UMFPACK_ERROR_argument_missing;
+  return umfpack_di_solve(UMFPACK_At, h->ap, h->ai, val, x, b, h->numeric, h->control, h->info);
+}
+
+/* Reciprocal condition number estimate of the last factorization (UMFPACK_RCOND). */
+double twomem_umf_rcond(void *handle) {
+  twomem_umf_t *h = handle;
+  return h ? h->info[UMFPACK_RCOND] : 0.0;
+}
+
+void twomem_umf_free(void **handle) {
+  twomem_umf_t *h = *handle;
+  if (!h) return;
+  if (h->numeric) umfpack_di_free_numeric(&h->numeric);
+  if (h->symbolic) umfpack_di_free_symbolic(&h->symbolic);
+  free(h->ap);
+  free(h->ai);
+  free(h);
+  *handle = NULL;
+}

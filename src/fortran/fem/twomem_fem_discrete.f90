@@ -1,0 +1,114 @@
+!> The algebraic two-membrane problem on one mesh (DESIGN.md §1): unknowns at interior vertices
+!> only, S the P1 stiffness restricted to them, D = diag(|ω_a|/3), and the right-hand sides
+!> F1 = (f1, ψ_a) − μ1 S_IB g (the lifting of u1 = g) and F2 = (f2, ψ_a). It also maps between
+!> interior vectors and nodal fields on the whole mesh, boundary values included.
+module twomem_fem_discrete
+   use twomem_base_kinds, only: dp, ip
+   use twomem_base_errors, only: error_t, make_error, exit_bad_input
+   use twomem_mesh_triangulation, only: mesh_t
+   use twomem_linalg_csr, only: csr_t
+   use twomem_fem_problem, only: problem_data_t
+   use twomem_fem_assembly, only: assemble_stiffness, lumped_mass, assemble_load
+   implicit none
+   private
+
+   public :: discrete_problem_t
+
+   type :: discrete_problem_t
+      !> number of interior vertices (unknowns per field)
+      integer(ip) :: n = 0
+      !> interior(i) is the mesh vertex of unknown i; unknown(a) is 0 on the boundary
+      integer(ip), allocatable :: interior(:), unknown(:)
+      !> S restricted to interior vertices, unit coefficient
+      type(csr_t) :: stiffness
+      !> lumped mass |ω_a|/3 at interior vertices
+      real(dp), allocatable :: mass(:)
+      !> right-hand sides with the Dirichlet lifting
+      real(dp), allocatable :: f1(:), f2(:)
+      real(dp) :: mu1 = 1.0_dp, mu2 = 1.0_dp, g = 0.0_dp
+   contains
+      procedure :: init => discrete_init
+      procedure :: to_nodal
+   end type discrete_problem_t
+
+contains
+
+   subroutine discrete_init(self, mesh, data, err)
+      class(discrete_problem_t), intent(inout) :: self
+      type(mesh_t), intent(in) :: mesh
+      class(problem_data_t), intent(in) :: data
+      type(error_t), allocatable, intent(out) :: err
+
+      type(csr_t) :: k_full
+      real(dp), allocatable :: d_full(:), f1_full(:), f2_full(:)
+      integer(ip), allocatable :: row_ptr(:), col(:)
+      integer(ip) :: a, i, m, nnz, b
+
+      self%mu1 = data%mu1
+      self%mu2 = data%mu2
+      self%g = data%g
+      if (allocated(self%unknown)) deallocate (self%unknown)
+      allocate (self%unknown(mesh%nv))
+      self%unknown = 0
+      self%n = 0
+      do a = 1, mesh%nv
+         if (.not. mesh%boundary_vertex(a)) then
+            self%n = self%n + 1
+            self%unknown(a) = self%n
+         end if
+      end do
+      if (self%n == 0) then
+         call make_error(err, exit_bad_input, 'mesh', 'the mesh has no interior vertex: refine it')
+         return
+      end if
+      self%interior = pack([(a, a=1, mesh%nv)], .not. mesh%boundary_vertex)
+
+      call assemble_stiffness(mesh, k_full)
+      d_full = lumped_mass(mesh)
+      f1_full = assemble_load(mesh, data, 1)
+      f2_full = assemble_load(mesh, data, 2)
+
+      ! restrict the stiffness to interior rows and columns; boundary columns of u1 go to the
+      ! right-hand side as the lifting of g (u2 = 0 there, so F2 needs none)
+      allocate (row_ptr(self%n + 1), col(k_full%nnz()))
+      self%f1 = f1_full(self%interior)
+      self%f2 = f2_full(self%interior)
+      self%mass = d_full(self%interior)
+      nnz = 0
+      row_ptr(1) = 1
+      do i = 1, self%n
+         a = self%interior(i)
+         do m = k_full%row_ptr(a), k_full%row_ptr(a + 1) - 1
+            b = k_full%col(m)
+            if (self%unknown(b) > 0) then
+               nnz = nnz + 1
+               col(nnz) = self%unknown(b)
+            else
+               self%f1(i) = self%f1(i) - self%mu1*k_full%val(m)*self%g
+            end if
+         end do
+         row_ptr(i + 1) = nnz + 1
+      end do
+      call self%stiffness%init_pattern(row_ptr, col(1:nnz))
+      do i = 1, self%n
+         a = self%interior(i)
+         do m = k_full%row_ptr(a), k_full%row_ptr(a + 1) - 1
+            b = k_full%col(m)
+            if (self%unknown(b) > 0) then
+               self%stiffness%val(self%stiffness%find(i, self%unknown(b))) = k_full%val(m)
+            end if
+         end do
+      end do
+   end subroutine discrete_init
+
+   !> Nodal field on the whole mesh from interior values and a boundary value.
+   function to_nodal(self, x, boundary_value) result(u)
+      class(discrete_problem_t), intent(in) :: self
+      real(dp), intent(in) :: x(:)
+      real(dp), intent(in) :: boundary_value
+      real(dp) :: u(size(self%unknown))
+
+      u = boundary_value
+      u(self%interior) = x
+   end function to_nodal
+end module twomem_fem_discrete

@@ -1,0 +1,66 @@
+!> Problem data as an extensible type: tensions, the Dirichlet value g of u1, the loads f1, f2
+!> as functions of position and, when known, the exact solution. The assembly and the error
+!> computation see only `problem_data_t`, so constant data, the built-in verification cases and
+!> (later) user-defined data are interchangeable.
+module twomem_fem_problem
+   use twomem_base_kinds, only: dp
+   implicit none
+   private
+
+   public :: problem_data_t, constant_data_t
+
+   type, abstract :: problem_data_t
+      real(dp) :: mu1 = 1.0_dp, mu2 = 1.0_dp, g = 0.05_dp
+      character(len=16) :: name = ''
+   contains
+      procedure(load_interface), deferred :: load
+      procedure :: has_exact
+      procedure :: exact
+   end type problem_data_t
+
+   abstract interface
+      !> f_alpha(x), alpha = 1 or 2
+      pure real(dp) function load_interface(self, alpha, x)
+         import :: problem_data_t, dp
+         class(problem_data_t), intent(in) :: self
+         integer, intent(in) :: alpha
+         real(dp), intent(in) :: x(2)
+      end function load_interface
+   end interface
+
+   !> Constant loads, no known solution.
+   type, extends(problem_data_t) :: constant_data_t
+      real(dp) :: f1 = -0.25_dp, f2 = 0.25_dp
+   contains
+      procedure :: load => constant_load
+   end type constant_data_t
+
+contains
+
+   pure logical function has_exact(self)
+      class(problem_data_t), intent(in) :: self
+
+      has_exact = .false.
+   end function has_exact
+
+   !> Exact u1, u2, λ and the gradients of u1, u2 at x. Only called when `has_exact`.
+   pure subroutine exact(self, x, u, grad)
+      class(problem_data_t), intent(in) :: self
+      real(dp), intent(in) :: x(2)
+      !> u1, u2, lambda
+      real(dp), intent(out) :: u(3)
+      !> grad(:, alpha) = ∇u_alpha
+      real(dp), intent(out) :: grad(2, 2)
+
+      u = [self%g, 0.0_dp, 0.0_dp]
+      grad = 0.0_dp
+   end subroutine exact
+
+   pure real(dp) function constant_load(self, alpha, x)
+      class(constant_data_t), intent(in) :: self
+      integer, intent(in) :: alpha
+      real(dp), intent(in) :: x(2)
+
+      constant_load = merge(self%f1, self%f2, alpha == 1)
+   end function constant_load
+end module twomem_fem_problem

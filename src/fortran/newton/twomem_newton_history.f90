@@ -1,0 +1,65 @@
+!> The run's history, one row per recorded point (a Newton step now; blocks of GMRES iterations
+!> once iterative solvers record inside a step). Columns are those of `/history` in
+!> INTERFACE.md plus the residuals; estimators and errors not computed are NaN, so a missing
+!> value is never mistaken for a zero.
+module twomem_newton_history
+   use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
+   use twomem_base_kinds, only: dp
+   implicit none
+   private
+
+   public :: history_row_t, history_t, not_computed
+
+   type :: history_row_t
+      integer :: newton_it = 0
+      !> cumulative linear-solver iterations (0 for direct solves)
+      integer :: gmres_it = 0
+      real(dp) :: eta_disc, eta_lin, eta_alg, eta_total, energy_error
+      !> ‖R_lin‖/‖[F;0]‖ and ‖B − A X‖/‖B‖
+      real(dp) :: lin_residual, alg_residual
+      !> vertices where the a-row (contact) is chosen, and how many changed since the last step
+      integer :: active = 0, active_changed = 0
+      real(dp) :: wall_time = 0.0_dp
+   end type history_row_t
+
+   type :: history_t
+      integer :: n = 0
+      type(history_row_t), allocatable :: rows(:)
+   contains
+      procedure :: append
+   end type history_t
+
+contains
+
+   !> A row whose estimator and error columns are NaN until someone computes them.
+   function not_computed() result(row)
+      type(history_row_t) :: row
+
+      real(dp) :: nan
+
+      nan = ieee_value(1.0_dp, ieee_quiet_nan)
+      row%eta_disc = nan
+      row%eta_lin = nan
+      row%eta_alg = nan
+      row%eta_total = nan
+      row%energy_error = nan
+      row%lin_residual = nan
+      row%alg_residual = nan
+   end function not_computed
+
+   subroutine append(self, row)
+      class(history_t), intent(inout) :: self
+      type(history_row_t), intent(in) :: row
+
+      type(history_row_t), allocatable :: grown(:)
+
+      if (.not. allocated(self%rows)) allocate (self%rows(16))
+      if (self%n == size(self%rows)) then
+         allocate (grown(2*self%n))
+         grown(1:self%n) = self%rows(1:self%n)
+         call move_alloc(grown, self%rows)
+      end if
+      self%n = self%n + 1
+      self%rows(self%n) = row
+   end subroutine append
+end module twomem_newton_history

@@ -1,0 +1,98 @@
+!> Exact Newton-min: the discrete solution satisfies the discrete equations and the
+!> complementarity conditions to round-off, the stopping test is the paper's, and failures come
+!> back as a status rather than a crash.
+module test_newton
+   use twomem_base_kinds, only: dp, ip
+   use twomem_mesh_hierarchy, only: mesh_hierarchy_t
+   use twomem_fem_problem, only: constant_data_t
+   use twomem_fem_discrete, only: discrete_problem_t
+   use twomem_newton_cfun, only: cfun_min
+   use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_solve
+   use twomem_testing, only: unittest_t, new_unittest, check, check_close, error_t
+   use test_refinement, only: square_hierarchy
+   implicit none
+   private
+
+   public :: collect_newton
+
+contains
+
+   subroutine collect_newton(tests)
+      type(unittest_t), allocatable, intent(out) :: tests(:)
+
+      tests = [new_unittest('cfun_min_jacobian', test_cfun_min), &
+               new_unittest('discrete_equations_roundoff', test_discrete_equations), &
+               new_unittest('iteration_limit_reported', test_limit)]
+   end subroutine collect_newton
+
+   subroutine test_cfun_min(err)
+      type(error_t), allocatable, intent(out) :: err
+      real(dp) :: c, da, db
+
+      call cfun_min(0.3_dp, 0.5_dp, c, da, db)
+      call check(err, c == 0.3_dp .and. da == 1 .and. db == 0, 'a-row where a < b')
+      call cfun_min(0.5_dp, -0.1_dp, c, da, db)
+      call check(err, c == -0.1_dp .and. da == 0 .and. db == 1, 'b-row where b < a')
+      call cfun_min(0.2_dp, 0.2_dp, c, da, db)
+      call check(err, da == 1 .and. db == 0, 'ties take the a-row')
+   end subroutine test_cfun_min
+
+   subroutine solve_square(levels, max_it, p, res, err)
+      integer, intent(in) :: levels, max_it
+      type(discrete_problem_t), intent(out) :: p
+      type(newton_result_t), intent(out) :: res
+      type(error_t), allocatable, intent(out) :: err
+
+      type(mesh_hierarchy_t) :: h
+      type(constant_data_t) :: data
+      type(newton_options_t) :: opt
+
+      call square_hierarchy(levels, h, err)
+      if (allocated(err)) return
+      data%mu1 = 1.0_dp
+      data%mu2 = 2.0_dp
+      call p%init(h%meshes(levels), data, err)
+      if (allocated(err)) return
+      opt%verbose = .false.
+      opt%max_it = max_it
+      call newton_solve(p, opt, [spread(data%g, 1, p%n), spread(0.0_dp, 1, 2*p%n)], res, err)
+   end subroutine solve_square
+
+   subroutine test_discrete_equations(err)
+      type(error_t), allocatable, intent(out) :: err
+      type(discrete_problem_t) :: p
+      type(newton_result_t) :: res
+      real(dp), allocatable :: s1(:), s2(:), w(:), lam(:)
+      integer(ip) :: n
+
+      call solve_square(4, 100, p, res, err)
+      if (allocated(err)) return
+      call check(err, res%converged, 'converged: '//res%status)
+      n = p%n
+      allocate (s1(n), s2(n))
+      call p%stiffness%matvec(res%x(1:n), s1)
+      call p%stiffness%matvec(res%x(n + 1:2*n), s2)
+      lam = res%x(2*n + 1:)
+      w = res%x(1:n) - res%x(n + 1:2*n)
+      call check(err, maxval(abs(p%mu1*s1 - p%mass*lam - p%f1)) < 1.0e-13_dp*maxval(abs(p%f1)) + 1e-15_dp, &
+                 'first membrane equation')
+      call check(err, maxval(abs(p%mu2*s2 + p%mass*lam - p%f2)) < 1.0e-13_dp*maxval(abs(p%f2)) + 1e-15_dp, &
+                 'second membrane equation')
+      call check(err, minval(w) > -1.0e-14_dp, 'u1 - u2 >= 0')
+      call check(err, minval(lam) > -1.0e-14_dp, 'lambda >= 0')
+      call check(err, maxval(abs(min(w, lam))) < 1.0e-14_dp, 'complementarity')
+      call check(err, count(lam > 0) > 0 .and. count(w > 0) > 0, 'both contact and no contact')
+      call check(err, res%history%rows(res%history%n)%lin_residual <= 1.0e-10_dp, 'paper stopping test')
+   end subroutine test_discrete_equations
+
+   subroutine test_limit(err)
+      type(error_t), allocatable, intent(out) :: err
+      type(discrete_problem_t) :: p
+      type(newton_result_t) :: res
+
+      call solve_square(4, 1, p, res, err)
+      if (allocated(err)) return
+      call check(err, .not. res%converged, 'one step is not enough')
+      call check(err, index(res%status, 'iteration limit') > 0, 'status names the limit: '//res%status)
+   end subroutine test_limit
+end module test_newton
