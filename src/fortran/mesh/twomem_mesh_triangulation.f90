@@ -5,6 +5,7 @@
 !> derives, and rejects what would later break the discretization (zero areas, non-manifold
 !> edges, unused or out-of-range vertices) with an error rather than a crash.
 module twomem_mesh_triangulation
+   use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_bad_input
    implicit none
@@ -74,8 +75,13 @@ contains
          call make_error(err, exit_bad_input, source, 'the mesh has no triangles')
          return
       end if
-      if (.not. all(abs(vertices) <= huge(1.0_dp))) then
+      ! 1e150 keeps squared distances finite; ieee_is_finite does not trap on NaN
+      if (.not. all(ieee_is_finite(vertices))) then
          call make_error(err, exit_bad_input, source, 'vertex coordinates are not finite')
+         return
+      end if
+      if (any(abs(vertices) > 1.0e150_dp)) then
+         call make_error(err, exit_bad_input, source, 'vertex coordinates exceed 1e150')
          return
       end if
       if (any(triangles < 1) .or. any(triangles > self%nv)) then

@@ -1,0 +1,599 @@
+!> Reader for meshes written by Gmsh: MSH 2.2 and MSH 4.1, ASCII. It keeps the linear triangles
+!> (element type 2), ignores points and lines (the boundary is recovered from the triangles) and
+!> every section other than $MeshFormat, $Nodes and $Elements, and rejects anything it cannot
+!> solve on (quadrangles, curved or 3D elements, binary files, other versions) rather than
+!> guessing. Node tags are arbitrary positive integers, possibly sparse and in any order; vertices
+!> are numbered 1..nv in the order the file lists the nodes. Every defect is reported as bad input
+!> naming the file and, where there is one, the line; geometric checks (orientation, zero areas,
+!> non-manifold edges) are left to `mesh_t%init`, the gate every mesh passes.
+module twomem_mesh_gmsh
+   use twomem_base_kinds, only: dp, ip, i8
+   use twomem_base_errors, only: error_t, make_error, exit_bad_input
+   use twomem_mesh_triangulation, only: mesh_t
+   use twomem_mesh_gmsh_text, only: text_reader_t, str
+   implicit none
+   private
+
+   public :: read_gmsh
+
+   integer, parameter :: msh22 = 22, msh41 = 41
+   integer, parameter :: type_line = 1, type_triangle = 2, type_point = 15
+   integer(i8), parameter :: max_count = huge(1_ip)
+   integer(i8), parameter :: max_tag = 10_i8**18 - 1
+   real(dp), parameter :: max_coordinate = 1.0e150_dp
+
+   !> The file's content in its own numbering, before tags become vertex indices. Line numbers are
+   !> kept so that problems found only once everything is read can still point into the file.
+   type :: raw_mesh_t
+      integer :: version = 0
+      integer(ip) :: n_nodes = 0, n_triangles = 0
+      logical :: have_nodes = .false., have_elements = .false.
+      integer(i8), allocatable :: node_tag(:)
+      real(dp), allocatable :: xyz(:, :)
+      integer, allocatable :: node_line(:)
+      integer(i8), allocatable :: triangle_nodes(:, :), triangle_tag(:)
+      integer, allocatable :: triangle_line(:)
+   end type raw_mesh_t
+
+contains
+
+   !> Read the Gmsh file `path` into `mesh`. On error `mesh` is left empty.
+   subroutine read_gmsh(path, mesh, err)
+      character(len=*), intent(in) :: path
+      type(mesh_t), intent(inout) :: mesh
+      type(error_t), allocatable, intent(out) :: err
+
+      type(text_reader_t) :: reader
+      type(raw_mesh_t) :: raw
+      real(dp), allocatable :: vertices(:, :)
+      integer(ip), allocatable :: triangles(:, :)
+
+      call mesh%free()
+      call reader%open(path, err)
+      if (allocated(err)) return
+      call read_sections(reader, raw, err)
+      call reader%close()
+      if (allocated(err)) return
+      call number_vertices(raw, path, vertices, triangles, err)
+      if (allocated(err)) return
+      call mesh%init(vertices, triangles, path, err)
+      if (allocated(err)) call mesh%free()
+   end subroutine read_gmsh
+
+   !> Sections may come in any order: tags are resolved only once everything is read.
+   subroutine read_sections(reader, raw, err)
+      type(text_reader_t), intent(inout) :: reader
+      type(raw_mesh_t), intent(inout) :: raw
+      type(error_t), allocatable, intent(out) :: err
+
+      logical :: eof
+      character(len=:), allocatable :: name
+
+      call read_format(reader, raw%version, err)
+      if (allocated(err)) return
+      do
+         call reader%next(eof, err)
+         if (allocated(err) .or. eof) exit
+         if (reader%n_tokens == 0) cycle
+         name = reader%token(1)
+         if (name(1:1) /= '$') then
+            call reader%fail(err, 'expected a section such as $Nodes, found "'//name//'"')
+            return
+         end if
+         select case (name)
+         case ('$Nodes')
+            if (raw%have_nodes) then
+               call reader%fail(err, 'a second $Nodes section')
+            else if (raw%version == msh22) then
+               call read_nodes_22(reader, raw, err)
+            else
+               call read_nodes_41(reader, raw, err)
+            end if
+            raw%have_nodes = .true.
+         case ('$Elements')
+            if (raw%have_elements) then
+               call reader%fail(err, 'a second $Elements section')
+            else if (raw%version == msh22) then
+               call read_elements_22(reader, raw, err)
+            else
+               call read_elements_41(reader, raw, err)
+            end if
+            raw%have_elements = .true.
+         case ('$MeshFormat')
+            call reader%fail(err, 'a second $MeshFormat section')
+         case default
+            call skip_section(reader, name, err)
+         end select
+         if (allocated(err)) return
+      end do
+      if (allocated(err)) return
+      if (.not. raw%have_nodes) then
+         call make_error(err, exit_bad_input, reader%path, 'the file has no $Nodes section')
+      else if (.not. raw%have_elements) then
+         call make_error(err, exit_bad_input, reader%path, 'the file has no $Elements section')
+      else if (raw%n_triangles == 0) then
+         call make_error(err, exit_bad_input, reader%path, &
+                         'the file holds no triangles (element type 2): nothing to solve on')
+      end if
+   end subroutine read_sections
+
+   !> The header decides everything else: only ASCII MSH 2.2 and 4.1 are read. MSH 2.0 and 2.1
+   !> share the 2.2 layout of $Nodes and $Elements and are read as 2.2; 4.0 differs from 4.1.
+   subroutine read_format(reader, version, err)
+      type(text_reader_t), intent(inout) :: reader
+      integer, intent(out) :: version
+      type(error_t), allocatable, intent(out) :: err
+
+      logical :: eof
+      real(dp) :: number
+      integer(i8) :: file_type, data_size
+      integer :: tenths
+
+      version = 0
+      do
+         call reader%next(eof, err)
+         if (allocated(err)) return
+         if (eof) then
+            call make_error(err, exit_bad_input, reader%path, 'the file is empty')
+            return
+         end if
+         if (reader%n_tokens > 0) exit
+      end do
+      if (reader%token(1) /= '$MeshFormat') then
+         call reader%fail(err, 'not a Gmsh mesh: the file must start with $MeshFormat, found "'// &
+                          reader%token(1)//'"')
+         return
+      end if
+      call reader%next_data('$MeshFormat', 'the version line', err)
+      if (allocated(err)) return
+      call reader%get_real(1, 'MSH version', number, err)
+      if (.not. allocated(err)) call reader%get_int(2, 0_i8, max_tag, 'file type', file_type, err)
+      if (.not. allocated(err)) call reader%get_int(3, 0_i8, max_tag, 'data size', data_size, err)
+      if (allocated(err)) return
+      if (file_type /= 0) then
+         call reader%fail(err, 'binary MSH files are not supported: write the mesh as ASCII '// &
+                          '(Gmsh option Mesh.Binary = 0)')
+         return
+      end if
+      ! nint of a huge number would trap, so only plausible versions are rounded
+      tenths = 0
+      if (abs(number) < 100.0_dp) then
+         if (abs(10*number - nint(10*number)) < 1.0e-6_dp) tenths = nint(10*number)
+      end if
+      select case (tenths)
+      case (20, 21, 22)
+         version = msh22
+      case (41)
+         version = msh41
+      end select
+      if (version == 0) then
+         call reader%fail(err, 'MSH version '//reader%token(1)//' is not supported: write the '// &
+                          'mesh as MSH 4.1 or 2.2 (Gmsh option Mesh.MshFileVersion)')
+         return
+      end if
+      call reader%expect_tokens(3, 'version, file type, data size', err)
+      if (allocated(err)) return
+      call reader%expect_end('$MeshFormat', err)
+   end subroutine read_format
+
+   !> Sections the solver does not need ($PhysicalNames, $Entities, $NodeData, ...) are skipped
+   !> whole; they must still be closed, or the file is truncated.
+   subroutine skip_section(reader, name, err)
+      type(text_reader_t), intent(inout) :: reader
+      character(len=*), intent(in) :: name
+      type(error_t), allocatable, intent(out) :: err
+
+      logical :: eof
+      integer :: start
+
+      start = reader%line_no
+      if (index(name, '$End') == 1) then
+         call reader%fail(err, name//' closes a section that was never opened')
+         return
+      end if
+      do
+         call reader%next(eof, err)
+         if (allocated(err)) return
+         if (eof) then
+            call make_error(err, exit_bad_input, reader%path//':'//str(start), &
+                            'section '//name//' is never closed by $End'//name(2:))
+            return
+         end if
+         if (reader%n_tokens == 0) cycle
+         if (reader%token(1) == '$End'//name(2:)) return
+      end do
+   end subroutine skip_section
+
+   !> MSH 2.2: a count, then one "tag x y z" line per node.
+   subroutine read_nodes_22(reader, raw, err)
+      type(text_reader_t), intent(inout) :: reader
+      type(raw_mesh_t), intent(inout) :: raw
+      type(error_t), allocatable, intent(out) :: err
+
+      integer(i8) :: n
+      integer(ip) :: k
+      integer :: stat
+
+      call reader%next_data('$Nodes', 'the number of nodes', err, 1, 'the number of nodes')
+      if (allocated(err)) return
+      call reader%get_int(1, 0_i8, max_count, 'number of nodes', n, err)
+      if (allocated(err)) return
+      raw%n_nodes = int(n, ip)
+      allocate (raw%node_tag(n), raw%xyz(3, n), raw%node_line(n), stat=stat)
+      if (stat /= 0) call reader%fail(err, 'cannot allocate memory for '//str(n)//' nodes')
+      if (allocated(err)) return
+      do k = 1, raw%n_nodes
+         call reader%next_data('$Nodes', 'node', err, 4, 'node tag, x, y, z', int(k, i8), n)
+         if (allocated(err)) return
+         call reader%get_int(1, 1_i8, max_tag, 'node tag', raw%node_tag(k), err)
+         if (allocated(err)) return
+         call read_coordinates(reader, 2, raw, k, err)
+         if (allocated(err)) return
+      end do
+      call reader%expect_end('$Nodes', err)
+   end subroutine read_nodes_22
+
+   !> MSH 4.1: a header, then blocks per geometric entity, each listing all its node tags first and
+   !> then their coordinates (followed by parametric coordinates, which are not needed).
+   subroutine read_nodes_41(reader, raw, err)
+      type(text_reader_t), intent(inout) :: reader
+      type(raw_mesh_t), intent(inout) :: raw
+      type(error_t), allocatable, intent(out) :: err
+
+      integer(i8) :: n_blocks, n, block, entity_dim, parametric, in_block, unused
+      integer(ip) :: k, done
+      integer :: header_line, stat
+
+      call reader%next_data('$Nodes', 'the header', err, &
+                            4, 'numEntityBlocks numNodes minNodeTag maxNodeTag')
+      if (allocated(err)) return
+      call reader%get_int(1, 0_i8, max_count, 'number of entity blocks', n_blocks, err)
+      if (.not. allocated(err)) call reader%get_int(2, 0_i8, max_count, 'number of nodes', n, err)
+      ! the tag range is not needed: tags are looked up by sorting
+      if (.not. allocated(err)) call reader%get_int(3, 0_i8, max_tag, 'smallest tag', unused, err)
+      if (.not. allocated(err)) call reader%get_int(4, 0_i8, max_tag, 'largest tag', unused, err)
+      if (allocated(err)) return
+      header_line = reader%line_no
+      raw%n_nodes = int(n, ip)
+      allocate (raw%node_tag(n), raw%xyz(3, n), raw%node_line(n), stat=stat)
+      if (stat /= 0) call reader%fail(err, 'cannot allocate memory for '//str(n)//' nodes')
+      if (allocated(err)) return
+      done = 0
+      do block = 1, n_blocks
+         call reader%next_data('$Nodes', 'entity block', err, &
+                               4, 'entityDim entityTag parametric numNodesInBlock', block, n_blocks)
+         if (allocated(err)) return
+         call reader%get_int(1, 0_i8, 3_i8, 'entity dimension', entity_dim, err)
+         if (.not. allocated(err)) &
+            call reader%get_int(3, 0_i8, 1_i8, 'parametric flag', parametric, err)
+         if (.not. allocated(err)) &
+            call reader%get_int(4, 0_i8, n - done, 'number of nodes in the block', in_block, err)
+         if (allocated(err)) return
+         do k = done + 1, done + int(in_block, ip)
+            call reader%next_data('$Nodes', 'the tag of node', err, 1, 'a node tag', int(k, i8), n)
+            if (allocated(err)) return
+            call reader%get_int(1, 1_i8, max_tag, 'node tag', raw%node_tag(k), err)
+            if (allocated(err)) return
+         end do
+         do k = done + 1, done + int(in_block, ip)
+            ! parametric coordinates follow x y z: one per dimension of the entity
+            call reader%next_data('$Nodes', 'the coordinates of node', err, &
+                                  3 + int(parametric*entity_dim), 'x y z (u v)', int(k, i8), n)
+            if (allocated(err)) return
+            call read_coordinates(reader, 1, raw, k, err)
+            if (allocated(err)) return
+         end do
+         done = done + int(in_block, ip)
+      end do
+      if (done /= n) then
+         call make_error(err, exit_bad_input, reader%path//':'//str(header_line), 'the header '// &
+                         'announces '//str(n)//' nodes but the entity blocks hold '//str(done))
+         return
+      end if
+      call reader%expect_end('$Nodes', err)
+   end subroutine read_nodes_41
+
+   !> x, y, z of node k from the tokens starting at `first`.
+   subroutine read_coordinates(reader, first, raw, k, err)
+      type(text_reader_t), intent(in) :: reader
+      integer, intent(in) :: first
+      type(raw_mesh_t), intent(inout) :: raw
+      integer(ip), intent(in) :: k
+      type(error_t), allocatable, intent(out) :: err
+
+      character(len=*), parameter :: axis = 'xyz'
+      integer :: i
+
+      do i = 1, 3
+         call reader%get_real(first + i - 1, axis(i:i)//' coordinate', raw%xyz(i, k), err)
+         if (allocated(err)) return
+         ! mesh_t squares coordinate differences; beyond this they would overflow
+         if (abs(raw%xyz(i, k)) > max_coordinate) then
+            call reader%fail(err, axis(i:i)//' coordinate '//reader%token(first + i - 1)// &
+                             ' is too large for a mesh (limit 1e150)')
+            return
+         end if
+      end do
+      raw%node_line(k) = reader%line_no
+   end subroutine read_coordinates
+
+   !> MSH 2.2: a count, then "tag type numTags tag... node..." per element.
+   subroutine read_elements_22(reader, raw, err)
+      type(text_reader_t), intent(inout) :: reader
+      type(raw_mesh_t), intent(inout) :: raw
+      type(error_t), allocatable, intent(out) :: err
+
+      integer(i8) :: n, element_type, n_tags, tag
+      integer(ip) :: k
+      integer :: n_nodes, stat
+
+      call reader%next_data('$Elements', 'the number of elements', err, 1, 'the number of elements')
+      if (allocated(err)) return
+      call reader%get_int(1, 0_i8, max_count, 'number of elements', n, err)
+      if (allocated(err)) return
+      ! every element might be a triangle
+      allocate (raw%triangle_nodes(3, n), raw%triangle_tag(n), raw%triangle_line(n), stat=stat)
+      if (stat /= 0) call reader%fail(err, 'cannot allocate memory for '//str(n)//' elements')
+      if (allocated(err)) return
+      do k = 1, int(n, ip)
+         call reader%next_data('$Elements', 'element', err, item=int(k, i8), total=n)
+         if (allocated(err)) return
+         call reader%get_int(1, 1_i8, max_tag, 'element tag', tag, err)
+         if (.not. allocated(err)) &
+            call reader%get_int(2, 1_i8, huge(1_i8), 'element type', element_type, err)
+         if (.not. allocated(err)) &
+            call reader%get_int(3, 0_i8, 1000_i8, 'number of element tags', n_tags, err)
+         if (allocated(err)) return
+         call element_nodes(reader, element_type, -1, n_nodes, err)
+         if (allocated(err)) return
+         call reader%expect_tokens(3 + int(n_tags) + n_nodes, 'tag, type, number of tags, '// &
+                                   'tags, node tags', err)
+         if (allocated(err)) return
+         if (element_type == type_triangle) &
+            call add_triangle(reader, 3 + int(n_tags), tag, raw, err)
+         if (allocated(err)) return
+      end do
+      call reader%expect_end('$Elements', err)
+   end subroutine read_elements_22
+
+   !> MSH 4.1: a header, then blocks of one element type per geometric entity, one
+   !> "tag node..." line per element.
+   subroutine read_elements_41(reader, raw, err)
+      type(text_reader_t), intent(inout) :: reader
+      type(raw_mesh_t), intent(inout) :: raw
+      type(error_t), allocatable, intent(out) :: err
+
+      integer(i8) :: n_blocks, n, block, entity_dim, element_type, in_block, unused, tag, k, done
+      integer :: n_nodes, header_line, stat
+
+      call reader%next_data('$Elements', 'the header', err, &
+                            4, 'numEntityBlocks numElements minElementTag maxElementTag')
+      if (allocated(err)) return
+      call reader%get_int(1, 0_i8, max_count, 'number of entity blocks', n_blocks, err)
+      if (.not. allocated(err)) &
+         call reader%get_int(2, 0_i8, max_count, 'number of elements', n, err)
+      if (.not. allocated(err)) call reader%get_int(3, 0_i8, max_tag, 'smallest tag', unused, err)
+      if (.not. allocated(err)) call reader%get_int(4, 0_i8, max_tag, 'largest tag', unused, err)
+      if (allocated(err)) return
+      header_line = reader%line_no
+      ! every element might be a triangle
+      allocate (raw%triangle_nodes(3, n), raw%triangle_tag(n), raw%triangle_line(n), stat=stat)
+      if (stat /= 0) call reader%fail(err, 'cannot allocate memory for '//str(n)//' elements')
+      if (allocated(err)) return
+      done = 0
+      do block = 1, n_blocks
+         call reader%next_data('$Elements', 'entity block', err, 4, &
+                               'entityDim entityTag elementType numElementsInBlock', &
+                               block, n_blocks)
+         if (allocated(err)) return
+         call reader%get_int(1, 0_i8, 3_i8, 'entity dimension', entity_dim, err)
+         if (.not. allocated(err)) &
+            call reader%get_int(3, 1_i8, huge(1_i8), 'element type', element_type, err)
+         if (.not. allocated(err)) &
+            call reader%get_int(4, 0_i8, n - done, 'number of elements in the block', in_block, err)
+         if (allocated(err)) return
+         call element_nodes(reader, element_type, int(entity_dim), n_nodes, err)
+         if (allocated(err)) return
+         do k = done + 1, done + in_block
+            call reader%next_data('$Elements', 'element', err, 1 + n_nodes, &
+                                  'element tag, node tags', k, n)
+            if (allocated(err)) return
+            call reader%get_int(1, 1_i8, max_tag, 'element tag', tag, err)
+            if (allocated(err)) return
+            if (element_type == type_triangle) call add_triangle(reader, 1, tag, raw, err)
+            if (allocated(err)) return
+         end do
+         done = done + in_block
+      end do
+      if (done /= n) then
+         call make_error(err, exit_bad_input, reader%path//':'//str(header_line), 'the header '// &
+                         'announces '//str(n)//' elements but the entity blocks hold '//str(done))
+         return
+      end if
+      call reader%expect_end('$Elements', err)
+   end subroutine read_elements_41
+
+   !> The node tags of a triangle, tokens after `offset`.
+   subroutine add_triangle(reader, offset, tag, raw, err)
+      type(text_reader_t), intent(in) :: reader
+      integer, intent(in) :: offset
+      integer(i8), intent(in) :: tag
+      type(raw_mesh_t), intent(inout) :: raw
+      type(error_t), allocatable, intent(out) :: err
+
+      integer :: i
+      integer(ip) :: t
+
+      t = raw%n_triangles + 1
+      do i = 1, 3
+         call reader%get_int(offset + i, 1_i8, max_tag, 'node tag', raw%triangle_nodes(i, t), err)
+         if (allocated(err)) return
+      end do
+      raw%triangle_tag(t) = tag
+      raw%triangle_line(t) = reader%line_no
+      raw%n_triangles = t
+   end subroutine add_triangle
+
+   !> Number of nodes of an element type the reader accepts; any other type is an error that says
+   !> why. `entity_dim` is the dimension of the entity the element lies on (MSH 4.1), -1 if unknown.
+   subroutine element_nodes(reader, element_type, entity_dim, n_nodes, err)
+      type(text_reader_t), intent(in) :: reader
+      integer(i8), intent(in) :: element_type
+      integer, intent(in) :: entity_dim
+      integer, intent(out) :: n_nodes
+      type(error_t), allocatable, intent(out) :: err
+
+      character(len=:), allocatable :: name
+
+      n_nodes = 0
+      select case (element_type)
+      case (type_point)
+         n_nodes = 1
+      case (type_line)
+         n_nodes = 2
+      case (type_triangle)
+         n_nodes = 3
+      end select
+      if (n_nodes > 0) return
+      select case (element_type)
+      case (3)
+         name = '4-node quadrangle'
+      case (9)
+         name = '6-node second-order triangle'
+      case (10, 16)
+         name = 'second-order quadrangle'
+      case (20:25)
+         name = 'higher-order triangle'
+      case (8, 26:28)
+         name = 'higher-order line'
+      case (4)
+         name = '3D element: 4-node tetrahedron'
+      case (5)
+         name = '3D element: 8-node hexahedron'
+      case (6)
+         name = '3D element: 6-node prism'
+      case (7)
+         name = '3D element: 5-node pyramid'
+      case (11:14, 17:19, 29:31, 92, 93)
+         name = '3D element: higher-order volume element'
+      case default
+         name = 'unknown to this reader'
+      end select
+      if (entity_dim == 3 .and. index(name, '3D') /= 1) name = '3D element: '//name
+      call reader%fail(err, 'element type '//str(element_type)//' ('//name//') is not '// &
+                       'supported: twomem reads planar meshes of linear triangles (type 2) only')
+   end subroutine element_nodes
+
+   !> Turn tags into indices: vertex k is the k-th node of the file. Every node must be in the
+   !> xy-plane, have a unique tag and belong to a triangle; every triangle node must exist.
+   subroutine number_vertices(raw, path, vertices, triangles, err)
+      type(raw_mesh_t), intent(in) :: raw
+      character(len=*), intent(in) :: path
+      real(dp), allocatable, intent(out) :: vertices(:, :)
+      integer(ip), allocatable, intent(out) :: triangles(:, :)
+      type(error_t), allocatable, intent(out) :: err
+
+      integer(ip), allocatable :: order(:)
+      logical, allocatable :: used(:)
+      integer(ip) :: k, t, i, lo, hi, mid, dup
+      real(dp) :: scale
+
+      ! CAD transformations can leave round-off in z; anything more is a 3D or tilted mesh.
+      scale = max(1.0_dp, maxval(abs(raw%xyz(1:2, :))))
+      do k = 1, raw%n_nodes
+         if (abs(raw%xyz(3, k)) > 1.0e3_dp*epsilon(1.0_dp)*scale) then
+            call make_error(err, exit_bad_input, path//':'//str(raw%node_line(k)), 'node tag '// &
+                            str(raw%node_tag(k))//' has z /= 0: the mesh must lie in the xy-plane')
+            return
+         end if
+      end do
+
+      order = sort_order(raw%node_tag(1:raw%n_nodes))
+      ! report the repeat that comes first in the file
+      dup = huge(dup)
+      do k = 2, raw%n_nodes
+         if (raw%node_tag(order(k)) == raw%node_tag(order(k - 1))) &
+            dup = min(dup, max(order(k), order(k - 1)))
+      end do
+      if (dup < huge(dup)) then
+         call make_error(err, exit_bad_input, path//':'//str(raw%node_line(dup)), &
+                         'duplicate node tag '//str(raw%node_tag(dup)))
+         return
+      end if
+
+      allocate (triangles(3, raw%n_triangles), used(raw%n_nodes))
+      used = .false.
+      do t = 1, raw%n_triangles
+         do i = 1, 3
+            ! binary search for the tag among the sorted node tags
+            lo = 1
+            hi = raw%n_nodes
+            do while (lo < hi)
+               mid = lo + (hi - lo)/2
+               if (raw%node_tag(order(mid)) < raw%triangle_nodes(i, t)) then
+                  lo = mid + 1
+               else
+                  hi = mid
+               end if
+            end do
+            k = 0
+            if (raw%n_nodes > 0) then
+               if (raw%node_tag(order(lo)) == raw%triangle_nodes(i, t)) k = order(lo)
+            end if
+            if (k == 0) then
+               call make_error(err, exit_bad_input, path//':'//str(raw%triangle_line(t)), &
+                               'triangle '//str(raw%triangle_tag(t))//' refers to node tag '// &
+                               str(raw%triangle_nodes(i, t))//', which is not in $Nodes')
+               return
+            end if
+            triangles(i, t) = k
+            used(k) = .true.
+         end do
+      end do
+      do k = 1, raw%n_nodes
+         if (.not. used(k)) then
+            call make_error(err, exit_bad_input, path//':'//str(raw%node_line(k)), &
+                            'node tag '//str(raw%node_tag(k))//' is used by no triangle')
+            return
+         end if
+      end do
+      vertices = raw%xyz(1:2, 1:raw%n_nodes)
+   end subroutine number_vertices
+
+   !> Permutation that sorts `keys` ascending (stable bottom-up merge sort, O(n log n)).
+   function sort_order(keys) result(order)
+      integer(i8), intent(in) :: keys(:)
+      integer(ip), allocatable :: order(:)
+
+      integer(ip), allocatable :: work(:)
+      integer(ip) :: n, width, left, mid, right, i, j, k
+
+      n = int(size(keys), ip)
+      allocate (order(n), work(n))
+      order = [(i, i=1, n)]
+      width = 1
+      do while (width < n)
+         left = 1
+         do while (left <= n)
+            mid = min(left + width, n + 1)
+            right = min(left + 2*width, n + 1)
+            i = left
+            j = mid
+            do k = left, right - 1
+               ! min() keeps the indices valid: Fortran need not short-circuit .and./.or.
+               if (i < mid .and. (j >= right .or. &
+                                  keys(order(min(i, n))) <= keys(order(min(j, n))))) then
+                  work(k) = order(i)
+                  i = i + 1
+               else
+                  work(k) = order(j)
+                  j = j + 1
+               end if
+            end do
+            left = right
+         end do
+         order = work
+         width = 2*width
+      end do
+   end function sort_order
+end module twomem_mesh_gmsh
