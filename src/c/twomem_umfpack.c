@@ -38,6 +38,10 @@ int twomem_umf_analyse(int n, const int *row_ptr, const int *col, const double *
   for (int i = 0; i <= n; ++i) h->ap[i] = row_ptr[i] - 1;
   for (int k = 0; k < nnz; ++k) h->ai[k] = col[k] - 1;
   umfpack_di_defaults(h->control);
+  /* Nested dissection suits 2D finite-element graphs: on the default disk case (111k
+   * unknowns) METIS ordering made each Newton step 3x faster than the default AMD/COLAMD
+   * choice, with less fill (bench/umfpack_ordering.sh). */
+  h->control[UMFPACK_ORDERING] = UMFPACK_ORDERING_METIS;
   int status = umfpack_di_symbolic(n, n, h->ap, h->ai, val, &h->symbolic, h->control, h->info);
   if (status != UMFPACK_OK) {
     free(h->ap);

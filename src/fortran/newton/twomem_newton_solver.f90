@@ -104,10 +104,9 @@ contains
          if (allocated(err)) return
          call direct%solve(sys%a, b, x, err)
          if (allocated(err)) return
+         call linearize(x, row)
          call sys%a%matvec(x, ax)
          row%alg_residual = norm2(b - ax)/max(norm2(b), tiny(1.0_dp))
-
-         call linearize(x, row)
          call record(k, row)
          if (row%lin_residual <= options%tol) then
             why = 'converged'

@@ -1,0 +1,85 @@
+#!/usr/bin/env bash
+# One entry point for a fresh Debian 12 machine (and for every later run: each step is skipped
+# when already done). Installs the missing Debian packages and the Python venv of postproc,
+# builds, then either runs the default case or runs the whole test suite.
+#
+#   scripts/bootstrap.sh run    # install + build + run input/default.nml, print the result path
+#   scripts/bootstrap.sh test   # install + build + ctest (unit, regression, convergence, CLI)
+set -euo pipefail
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
+root=$(pwd)
+mode=${1:-}
+case "$mode" in
+  run|test) ;;
+  *) echo "usage: scripts/bootstrap.sh run|test" >&2; exit 2 ;;
+esac
+
+say() { printf '[bootstrap] %s\n' "$*"; }
+
+# --- Debian packages ---------------------------------------------------------------------
+packages=(gfortran gcc g++ cmake ninja-build pkg-config libsuitesparse-dev libmetis-dev
+          libhdf5-dev libopenmpi-dev openmpi-bin python3 python3-venv python3-pip)
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if ((${#missing[@]})); then
+  say "installing Debian packages: ${missing[*]}"
+  sudo_cmd=()
+  [ "$(id -u)" -eq 0 ] || sudo_cmd=(sudo)
+  export DEBIAN_FRONTEND=noninteractive
+  "${sudo_cmd[@]}" apt-get update -qq
+  "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
+
+# --- Python venv for postproc (h5py, numpy, matplotlib; pytest for the tests) --------------
+venv="$root/.venv"
+req="$root/postproc/requirements.txt"
+stamp="$venv/.requirements.sha256"
+want=$(sha256sum "$req" | cut -d' ' -f1)
+if [ ! -x "$venv/bin/python" ] || [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
+  say "setting up the Python venv in .venv"
+  # Debian's own interpreter: the venv must work on a machine that has nothing else
+  py=/usr/bin/python3
+  [ -x "$py" ] || py=$(command -v python3)
+  "$py" -m venv "$venv"
+  "$venv/bin/pip" install -q --upgrade pip >/dev/null
+  "$venv/bin/pip" install -q -r "$req"
+  "$venv/bin/pip" install -q -e "$root/postproc" >/dev/null
+  echo "$want" >"$stamp"
+fi
+
+# --- build ---------------------------------------------------------------------------------
+build() {
+  local preset=$1
+  if [ ! -f "build/$preset/build.ninja" ]; then
+    say "configuring ($preset)"
+    cmake --preset "$preset" -DTWOMEM_PYTHON="$venv/bin/python" >/dev/null
+  fi
+  say "building ($preset)"
+  cmake --build --preset "$preset" | grep -E "error|warning|FAILED" || true
+  # grep hides ninja's chatter; the build's own status decides
+  cmake --build --preset "$preset" >/dev/null
+}
+
+build release
+case "$mode" in
+  run)
+    say "running input/default.nml"
+    status=0
+    build/release/twomem run input/default.nml || status=$?
+    if [ $status -le 1 ] && [ -f results/default.h5 ]; then
+      say "result: $root/results/default.h5 (ParaView: results/default.xdmf)"
+    fi
+    exit $status
+    ;;
+  test)
+    # strict debug build (-fcheck=all, FPE traps, warnings as errors) for the unit tests,
+    # release build for everything (convergence studies need the speed)
+    build debug
+    say "unit tests under the debug build"
+    ctest --preset debug -L unit -j 2
+    say "all tests under the release build"
+    ctest --preset release -j 2
+    ;;
+esac

@@ -1,0 +1,101 @@
+/* The operating-system calls twomem needs and Fortran lacks, called only from the Fortran module
+ * twomem_base_system: creating directory trees, atomic renames, removing files, the process id
+ * and the peak resident memory, and exiting with a chosen status. Every fallible call returns 0 or an errno value and writes a
+ * one-line reason (with strerror) into the caller's buffer; the Fortran side adds the path. */
+
+#define _POSIX_C_SOURCE 200809L
+
+#include <errno.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/resource.h>
+#include <sys/stat.h>
+#include <sys/types.h>
+#include <unistd.h>
+
+static int fail(char *msg, size_t cap, int err, const char *what, const char *path)
+{
+    char reason[256];
+
+    if (strerror_r(err, reason, sizeof reason) != 0) snprintf(reason, sizeof reason, "errno %d", err);
+    if (path)
+        snprintf(msg, cap, "%s '%s': %s", what, path, reason);
+    else
+        snprintf(msg, cap, "%s: %s", what, reason);
+    return err;
+}
+
+/* mkdir for one directory; an existing directory is success, an existing file is not. */
+static int make_one(const char *dir)
+{
+    struct stat st;
+
+    if (mkdir(dir, 0777) == 0) return 0;
+    if (errno != EEXIST) return errno;
+    if (stat(dir, &st) != 0) return errno;
+    return S_ISDIR(st.st_mode) ? 0 : ENOTDIR;
+}
+
+/* Like mkdir -p: every missing component of path is created. */
+int twomem_sys_make_directories(const char *path, char *msg, size_t cap)
+{
+    size_t n = strlen(path);
+    char *buf;
+    int err = 0;
+
+    if (n == 0) return 0;
+    if (!(buf = malloc(n + 1))) return fail(msg, cap, ENOMEM, "cannot create directory", NULL);
+    memcpy(buf, path, n + 1);
+    for (size_t i = 1; i <= n && err == 0; ++i) {
+        if (buf[i] != '/' && buf[i] != '\0') continue;
+        if (buf[i - 1] == '/') continue; /* root or a doubled slash */
+        char saved = buf[i];
+        buf[i] = '\0';
+        err = make_one(buf);
+        if (err) {
+            if (saved == '\0')
+                fail(msg, cap, err, "cannot create directory", NULL);
+            else
+                fail(msg, cap, err, "cannot create directory", buf);
+        }
+        buf[i] = saved;
+    }
+    free(buf);
+    return err;
+}
+
+int twomem_sys_rename(const char *from, const char *to, char *msg, size_t cap)
+{
+    if (rename(from, to) != 0) return fail(msg, cap, errno, "cannot rename to", to);
+    return 0;
+}
+
+/* A missing file is not an error: removing is how leftovers are cleaned up. */
+int twomem_sys_remove(const char *path, char *msg, size_t cap)
+{
+    if (unlink(path) != 0 && errno != ENOENT) return fail(msg, cap, errno, "cannot remove file", NULL);
+    return 0;
+}
+
+int twomem_sys_exists(const char *path)
+{
+    struct stat st;
+
+    return stat(path, &st) == 0;
+}
+
+/* exit() runs the runtime's destructors, so Fortran units and HDF5 files are flushed. */
+void twomem_sys_exit(int code) { exit(code); }
+
+int twomem_sys_getpid(void) { return (int)getpid(); }
+
+/* ru_maxrss is in KiB on Linux; -1 if the kernel does not say. */
+int64_t twomem_sys_peak_rss_kib(void)
+{
+    struct rusage usage;
+
+    if (getrusage(RUSAGE_SELF, &usage) != 0) return -1;
+    return (int64_t)usage.ru_maxrss;
+}

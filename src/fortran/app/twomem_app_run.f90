@@ -1,0 +1,254 @@
+!> One case from a validated configuration to a result file: build the mesh hierarchy, the
+!> problem data and the discrete problem on the finest level, run Newton, measure the exact
+!> error when the solution is known, and write the result. `check` stops after the mesh. This
+!> is the only place that knows the configuration and the numerical modules at once.
+module twomem_app_run
+   use, intrinsic :: iso_fortran_env, only: output_unit
+   use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
+   use twomem_base_kinds, only: dp, ip
+   use twomem_base_errors, only: error_t, make_error, exit_ok, exit_not_converged, exit_bad_input, exit_io
+   use twomem_base_system, only: make_directories, parent_directory, peak_memory_kib, process_id, remove_file
+   use twomem_base_timer, only: wall_time
+   use twomem_base_version, only: twomem_version
+   use twomem_input_config, only: config_t, config_echo
+   use twomem_mesh_triangulation, only: mesh_t
+   use twomem_mesh_hierarchy, only: mesh_hierarchy_t
+   use twomem_mesh_generators, only: make_disk, make_square, disk_boundary_spacing
+   use twomem_mesh_gmsh, only: read_gmsh
+   use twomem_fem_problem, only: problem_data_t
+   use twomem_fem_cases, only: make_problem
+   use twomem_fem_discrete, only: discrete_problem_t
+   use twomem_fem_error, only: energy_error_per_element
+   use twomem_newton_history, only: history_row_t
+   use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_observer_t, newton_solve
+   use twomem_io_result, only: result_record_t, output_choice_t, write_result, xdmf_path_for
+   implicit none
+   private
+
+   public :: run_case, check_case
+
+   !> Measures the exact energy error of each Newton iterate for the history.
+   type, extends(newton_observer_t) :: error_observer_t
+      type(mesh_t), pointer :: mesh => null()
+      class(problem_data_t), pointer :: data => null()
+      type(discrete_problem_t), pointer :: p => null()
+   contains
+      procedure :: observe => observe_error
+   end type error_observer_t
+
+contains
+
+   !> Validate input and mesh and print the resolved case; solve nothing.
+   subroutine check_case(cfg, err)
+      type(config_t), intent(inout) :: cfg
+      type(error_t), allocatable, intent(out) :: err
+
+      type(mesh_hierarchy_t) :: hierarchy
+
+      call prepare(cfg, err)
+      if (allocated(err)) return
+      call build_hierarchy(cfg, hierarchy, err)
+      if (allocated(err)) return
+      write (output_unit, '(a)') 'check: input and mesh are valid; nothing solved'
+   end subroutine check_case
+
+   subroutine run_case(cfg, exit_code, err)
+      type(config_t), intent(inout) :: cfg
+      integer, intent(out) :: exit_code
+      type(error_t), allocatable, intent(out) :: err
+
+      type(mesh_hierarchy_t), target :: hierarchy
+      class(problem_data_t), allocatable, target :: data
+      type(discrete_problem_t), target :: p
+      type(newton_options_t) :: options
+      type(newton_result_t) :: newton
+      type(error_observer_t) :: observer
+      type(result_record_t) :: rec
+      type(output_choice_t) :: choice
+      real(dp) :: t0, nan
+      integer :: finest
+
+      exit_code = exit_bad_input
+      t0 = wall_time()
+      nan = ieee_value(1.0_dp, ieee_quiet_nan)
+      call prepare(cfg, err)
+      if (allocated(err)) return
+      call check_output_writable(trim(cfg%output%file), err)
+      if (allocated(err)) return
+      call build_hierarchy(cfg, hierarchy, err)
+      if (allocated(err)) return
+      finest = hierarchy%levels
+
+      call make_problem(trim(cfg%problem%exact), cfg%problem%mu1, cfg%problem%mu2, cfg%problem%f1, &
+                        cfg%problem%f2, cfg%problem%g, data, err)
+      if (allocated(err)) return
+      call p%init(hierarchy%meshes(finest), data, err)
+      if (allocated(err)) return
+      write (output_unit, '("problem: ",a,", ",i0," interior vertices, Newton system ",i0," x ",i0)') &
+         trim(data%name), p%n, 3*p%n, 3*p%n
+
+      options%cfun = trim(cfg%newton%cfun)
+      options%linear = trim(cfg%newton%linear)
+      options%max_it = cfg%newton%max_it
+      options%tol = cfg%newton%tol
+      ! the paper's initial guess (u1, u2, λ) = (g, 0, 0)
+      if (data%has_exact() .and. cfg%output%history) then
+         observer%mesh => hierarchy%meshes(finest)
+         observer%data => data
+         observer%p => p
+         call newton_solve(p, options, [spread(data%g, 1, p%n), spread(0.0_dp, 1, 2*p%n)], newton, err, observer)
+      else
+         call newton_solve(p, options, [spread(data%g, 1, p%n), spread(0.0_dp, 1, 2*p%n)], newton, err)
+      end if
+      if (allocated(err)) then
+         exit_code = err%code
+         return
+      end if
+
+      rec%version = twomem_version
+      rec%input_text = config_echo(cfg)
+      rec%status = newton%status
+      rec%levels = hierarchy%levels
+      rec%u1 = p%to_nodal(newton%x(1:p%n), data%g)
+      rec%u2 = p%to_nodal(newton%x(p%n + 1:2*p%n), 0.0_dp)
+      rec%lambda = p%to_nodal(newton%x(2*p%n + 1:), 0.0_dp)
+      rec%history = newton%history
+      rec%newton_iterations = newton%iterations
+      rec%gmres_iterations = newton%linear_iterations
+      rec%eta_total = nan
+      rec%effectivity = nan
+      rec%energy_error_total = nan
+      if (data%has_exact()) then
+         rec%energy_error = energy_error_per_element(hierarchy%meshes(finest), data, rec%u1, rec%u2)
+         rec%energy_error_total = norm2(rec%energy_error)
+      end if
+      rec%wall_time = wall_time() - t0
+      rec%peak_memory_kib = peak_memory_kib()
+      choice%fields = cfg%output%fields
+      choice%estimators = cfg%output%estimators
+      choice%history = cfg%output%history
+      choice%xdmf = cfg%output%xdmf
+
+      call write_result(trim(cfg%output%file), hierarchy%meshes(finest), rec, choice, err)
+      if (allocated(err)) then
+         exit_code = exit_io
+         return
+      end if
+      write (output_unit, '("status: ",a)') rec%status
+      write (output_unit, '("summary: ",i0," Newton steps, ",i0," vertices, ",i0," triangles")') &
+         rec%newton_iterations, hierarchy%meshes(finest)%nv, hierarchy%meshes(finest)%nt
+      if (data%has_exact()) write (output_unit, '("energy error: ",es12.5)') rec%energy_error_total
+      write (output_unit, '("wall time: ",f0.2," s, peak memory: ",f0.1," MiB")') rec%wall_time, &
+         real(rec%peak_memory_kib, dp)/1024
+      write (output_unit, '("result: ",a)') trim(cfg%output%file)
+      if (choice%xdmf .and. (choice%fields .or. data%has_exact())) &
+         write (output_unit, '("paraview: ",a)') xdmf_path_for(trim(cfg%output%file))
+      exit_code = merge(exit_ok, exit_not_converged, newton%converged)
+   end subroutine run_case
+
+   !> Print the resolved input; refuse what this version cannot do yet.
+   subroutine prepare(cfg, err)
+      type(config_t), intent(inout) :: cfg
+      type(error_t), allocatable, intent(out) :: err
+
+      if (trim(cfg%problem%exact) == 'bbbv') then
+         ! the paper's case fixes its data; show the values actually used
+         cfg%problem%mu1 = 1.0_dp
+         cfg%problem%mu2 = 1.0_dp
+         cfg%problem%g = 0.05_dp
+      end if
+      write (output_unit, '(a)') 'twomem '//twomem_version//': case '''//trim(cfg%case_name)// &
+         ''' from '//trim(cfg%source)
+      write (output_unit, '(a)') config_echo(cfg)
+      if (trim(cfg%problem%exact) == 'bbbv') write (output_unit, '(a)') &
+         'note: problem.exact=''bbbv'' sets mu1 = mu2 = 1, g = 0.05 and its own loads (f1, f2 unused)'
+      if (trim(cfg%newton%linear) /= 'direct') then
+         call make_error(err, exit_bad_input, trim(cfg%source)//': &newton: linear', &
+                         '''' //trim(cfg%newton%linear)//''' is not available in this version yet '// &
+                         '(only ''direct''); set newton.linear=direct')
+         return
+      end if
+      if (trim(cfg%newton%cfun) /= 'min') then
+         call make_error(err, exit_bad_input, trim(cfg%source)//': &newton: cfun', &
+                         '''' //trim(cfg%newton%cfun)//''' is not available in this version yet (only ''min'')')
+         return
+      end if
+   end subroutine prepare
+
+   !> Fail before any work when the result cannot be written: create the directory and a probe
+   !> file beside the target, then remove the probe.
+   subroutine check_output_writable(path, err)
+      character(len=*), intent(in) :: path
+      type(error_t), allocatable, intent(out) :: err
+
+      type(error_t), allocatable :: ignored
+      character(len=32) :: pid
+      integer :: unit, ios
+      character(len=256) :: msg
+
+      call make_directories(parent_directory(path), err)
+      if (allocated(err)) then
+         err%code = exit_io
+         return
+      end if
+      write (pid, '(i0)') process_id()
+      open (newunit=unit, file=path//'.probe-'//trim(pid), status='replace', action='write', &
+            iostat=ios, iomsg=msg)
+      if (ios /= 0) then
+         call make_error(err, exit_io, path, 'cannot write the result file: '//trim(msg))
+         return
+      end if
+      close (unit, status='delete', iostat=ios)
+      call remove_file(path//'.probe-'//trim(pid), ignored)
+   end subroutine check_output_writable
+
+   subroutine build_hierarchy(cfg, hierarchy, err)
+      type(config_t), intent(in) :: cfg
+      type(mesh_hierarchy_t), intent(inout) :: hierarchy
+      type(error_t), allocatable, intent(out) :: err
+
+      type(mesh_t) :: coarse
+      real(dp) :: boundary_h
+      integer :: l
+
+      select case (trim(cfg%mesh%domain))
+      case ('disk')
+         boundary_h = cfg%mesh%boundary_h
+         if (boundary_h <= 0.0_dp) boundary_h = disk_boundary_spacing(cfg%mesh%coarse_h, cfg%mesh%levels)
+         write (output_unit, '("mesh: unit disk, coarse_h ",g0.4,", boundary spacing ",g0.4,", ",i0," levels")') &
+            cfg%mesh%coarse_h, boundary_h, cfg%mesh%levels
+         call make_disk(cfg%mesh%coarse_h, boundary_h, coarse, err)
+      case ('square')
+         write (output_unit, '("mesh: square (-1,1)^2, coarse_h ",g0.4,", ",i0," levels")') &
+            cfg%mesh%coarse_h, cfg%mesh%levels
+         call make_square(cfg%mesh%coarse_h, coarse, err)
+      case ('gmsh')
+         write (output_unit, '("mesh: ",a,", ",i0," levels")') trim(cfg%mesh%file), cfg%mesh%levels
+         call read_gmsh(trim(cfg%mesh%file), coarse, err)
+         if (.not. allocated(err) .and. coarse%n_flipped > 0) write (output_unit, &
+            '("  note: ",i0," clockwise triangles reoriented")') coarse%n_flipped
+      end select
+      if (allocated(err)) return
+      call hierarchy%init(coarse, cfg%mesh%levels, err)
+      if (allocated(err)) return
+      do l = 0, hierarchy%levels
+         associate (m => hierarchy%meshes(l))
+            write (output_unit, '("  level ",i2,": ",i9," vertices ",i10," triangles  h ",es9.3," .. ",es9.3)') &
+               l, m%nv, m%nt, minval(m%h), maxval(m%h)
+         end associate
+      end do
+   end subroutine build_hierarchy
+
+   subroutine observe_error(self, x, row)
+      class(error_observer_t), intent(inout) :: self
+      real(dp), intent(in) :: x(:)
+      type(history_row_t), intent(inout) :: row
+
+      integer(ip) :: n
+
+      n = self%p%n
+      row%energy_error = norm2(energy_error_per_element(self%mesh, self%data, &
+                                                        self%p%to_nodal(x(1:n), self%data%g), &
+                                                        self%p%to_nodal(x(n + 1:2*n), 0.0_dp)))
+   end subroutine observe_error
+end module twomem_app_run

@@ -1,0 +1,188 @@
+!> What twomem asks of the operating system: directory trees for output files, the atomic rename
+!> that makes a result file appear only when complete, clean-up of leftovers, the process id (for
+!> unique temporary names) and the peak memory for the run summary. The only Fortran that talks
+!> to src/c/twomem_system.c. It also ends the program with a chosen exit code, which Fortran 2008
+!> cannot do quietly (`stop` takes only a constant, and prints it); only the main program calls it; failures come back as `exit_io` errors naming the path and the
+!> system's reason (strerror). Path arithmetic (`parent_directory`, `base_name`) is plain Fortran.
+module twomem_base_system
+   use, intrinsic :: iso_c_binding, only: c_char, c_int, c_int64_t, c_size_t, c_null_char
+   use, intrinsic :: iso_fortran_env, only: output_unit, error_unit
+   use twomem_base_kinds, only: i8
+   use twomem_base_errors, only: error_t, make_error, exit_io
+   implicit none
+   private
+
+   public :: make_directories, parent_directory, base_name, rename_file, remove_file, file_exists
+   public :: process_id, peak_memory_kib, exit_program
+
+   integer, parameter :: msg_len = 1024
+
+   interface
+      integer(c_int) function c_make_directories(path, msg, cap) bind(C, name='twomem_sys_make_directories')
+         import :: c_char, c_int, c_size_t
+         character(kind=c_char), intent(in) :: path(*)
+         character(kind=c_char), intent(out) :: msg(*)
+         integer(c_size_t), value :: cap
+      end function c_make_directories
+
+      integer(c_int) function c_rename(from, to, msg, cap) bind(C, name='twomem_sys_rename')
+         import :: c_char, c_int, c_size_t
+         character(kind=c_char), intent(in) :: from(*), to(*)
+         character(kind=c_char), intent(out) :: msg(*)
+         integer(c_size_t), value :: cap
+      end function c_rename
+
+      integer(c_int) function c_remove(path, msg, cap) bind(C, name='twomem_sys_remove')
+         import :: c_char, c_int, c_size_t
+         character(kind=c_char), intent(in) :: path(*)
+         character(kind=c_char), intent(out) :: msg(*)
+         integer(c_size_t), value :: cap
+      end function c_remove
+
+      integer(c_int) function c_exists(path) bind(C, name='twomem_sys_exists')
+         import :: c_char, c_int
+         character(kind=c_char), intent(in) :: path(*)
+      end function c_exists
+
+      subroutine c_exit(code) bind(C, name='twomem_sys_exit')
+         import :: c_int
+         integer(c_int), value :: code
+      end subroutine c_exit
+
+      integer(c_int) function c_getpid() bind(C, name='twomem_sys_getpid')
+         import :: c_int
+      end function c_getpid
+
+      integer(c_int64_t) function c_peak_rss_kib() bind(C, name='twomem_sys_peak_rss_kib')
+         import :: c_int64_t
+      end function c_peak_rss_kib
+   end interface
+
+contains
+
+   !> Create `path` and every missing parent, like `mkdir -p`; an existing directory is fine.
+   subroutine make_directories(path, err)
+      character(len=*), intent(in) :: path
+      type(error_t), allocatable, intent(out) :: err
+
+      character(len=msg_len) :: msg
+
+      if (len_trim(path) == 0) return
+      if (c_make_directories(trim(path)//c_null_char, msg, len(msg, c_size_t)) /= 0) &
+         call make_error(err, exit_io, path, c_text(msg))
+   end subroutine make_directories
+
+   !> POSIX rename: atomic when both names are on the same filesystem, and replaces `to`.
+   subroutine rename_file(from, to, err)
+      character(len=*), intent(in) :: from, to
+      type(error_t), allocatable, intent(out) :: err
+
+      character(len=msg_len) :: msg
+
+      if (c_rename(trim(from)//c_null_char, trim(to)//c_null_char, msg, len(msg, c_size_t)) /= 0) &
+         call make_error(err, exit_io, from, c_text(msg))
+   end subroutine rename_file
+
+   !> Remove a file; one that does not exist is not an error. `err` is optional because
+   !> clean-up after another failure has nothing better to do with a second one.
+   subroutine remove_file(path, err)
+      character(len=*), intent(in) :: path
+      type(error_t), allocatable, intent(out), optional :: err
+
+      character(len=msg_len) :: msg
+
+      if (c_remove(trim(path)//c_null_char, msg, len(msg, c_size_t)) /= 0) then
+         if (present(err)) call make_error(err, exit_io, path, c_text(msg))
+      end if
+   end subroutine remove_file
+
+   !> Whether anything (file, directory, ...) exists at `path`.
+   logical function file_exists(path)
+      character(len=*), intent(in) :: path
+
+      file_exists = c_exists(trim(path)//c_null_char) == 1
+   end function file_exists
+
+   !> End the program with exit status `code` (INTERFACE.md), after flushing standard output
+   !> and error so that the last progress line and the error message are not lost.
+   subroutine exit_program(code)
+      integer, intent(in) :: code
+
+      flush (output_unit)
+      flush (error_unit)
+      call c_exit(int(code, c_int))
+   end subroutine exit_program
+
+   integer function process_id()
+      process_id = int(c_getpid())
+   end function process_id
+
+   !> Peak resident set size of this process so far, in KiB; -1 if unknown.
+   integer(i8) function peak_memory_kib()
+      peak_memory_kib = int(c_peak_rss_kib(), i8)
+   end function peak_memory_kib
+
+   !> The directory part of `path`, as dirname(1): 'a/b.h5' -> 'a', 'b.h5' -> '.', '/b' -> '/'.
+   pure function parent_directory(path) result(parent)
+      character(len=*), intent(in) :: path
+      character(len=:), allocatable :: parent
+
+      integer :: n, k
+
+      n = strip_slashes(path, len_trim(path))
+      if (n == 0) then
+         parent = merge('/', '.', len_trim(path) > 0)
+         return
+      end if
+      k = index(path(1:n), '/', back=.true.)
+      if (k == 0) then
+         parent = '.'
+         return
+      end if
+      n = strip_slashes(path, k - 1)
+      if (n == 0) then
+         parent = '/'
+      else
+         parent = path(1:n)
+      end if
+   end function parent_directory
+
+   !> The last component of `path`, as basename(1): 'a/b.h5' -> 'b.h5', 'a/b/' -> 'b'.
+   pure function base_name(path) result(name)
+      character(len=*), intent(in) :: path
+      character(len=:), allocatable :: name
+
+      integer :: n
+
+      n = strip_slashes(path, len_trim(path))
+      if (n == 0) then
+         name = merge('/', ' ', len_trim(path) > 0)
+         name = trim(name)
+         return
+      end if
+      name = path(index(path(1:n), '/', back=.true.) + 1:n)
+   end function base_name
+
+   !> Length of path(1:n) without its trailing slashes.
+   pure integer function strip_slashes(path, n) result(m)
+      character(len=*), intent(in) :: path
+      integer, intent(in) :: n
+
+      m = n
+      do while (m > 0)
+         if (path(m:m) /= '/') exit
+         m = m - 1
+      end do
+   end function strip_slashes
+
+   pure function c_text(buffer) result(text)
+      character(len=*), intent(in) :: buffer
+      character(len=:), allocatable :: text
+
+      integer :: n
+
+      n = index(buffer, c_null_char) - 1
+      if (n < 0) n = len_trim(buffer)
+      text = buffer(1:n)
+   end function c_text
+end module twomem_base_system

@@ -1,0 +1,643 @@
+!> The case description: one derived type per namelist group, with the documented defaults as
+!> default initialization, loaded from a case file plus `GROUP.KEY=VALUE` overrides, validated,
+!> and echoed back as namelist text that reloads to the identical configuration (it heads every
+!> run and is stored in the result file). Values are only read and checked here; turning them
+!> into meshes and solvers is for their constructors. Text components have the fixed length
+!> `config_len` so that defaults can be default initialization; longer values are rejected.
+module twomem_input_config
+   use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
+   use twomem_base_kinds, only: dp
+   use twomem_base_errors, only: error_t, make_error, prefix_error, exit_bad_input
+   use twomem_input_namelist, only: string_t, nml_group_t, read_lines, split_lines, &
+      parse_namelist, line_where
+   use twomem_input_values, only: scan_integer, scan_real, scan_logical, unquote, format_real, &
+      quote, to_lower, itoa
+   implicit none
+   private
+
+   public :: config_t, mesh_config_t, problem_config_t, newton_config_t, gmres_config_t
+   public :: estimate_config_t, output_config_t, string_t, config_len
+   public :: load_config, load_config_text, config_echo
+
+   !> length of every text component (words and file names)
+   integer, parameter :: config_len = 256
+
+   type :: mesh_config_t
+      character(len=config_len) :: domain = 'disk'
+      character(len=config_len) :: file = ''
+      real(dp) :: coarse_h = 0.25_dp
+      integer :: levels = 4
+      !> boundary vertex spacing of the coarse disk; 0 = automatic (from the finest level)
+      real(dp) :: boundary_h = 0.0_dp
+   end type mesh_config_t
+
+   type :: problem_config_t
+      real(dp) :: mu1 = 1.0_dp
+      real(dp) :: mu2 = 1.0_dp
+      real(dp) :: f1 = -0.25_dp
+      real(dp) :: f2 = 0.25_dp
+      real(dp) :: g = 0.05_dp
+      character(len=config_len) :: exact = 'none'
+   end type problem_config_t
+
+   type :: newton_config_t
+      character(len=config_len) :: cfun = 'min'
+      character(len=config_len) :: linear = 'adaptive'
+      integer :: max_it = 100
+      real(dp) :: tol = 1.0e-10_dp
+      real(dp) :: gamma_lin = 0.3_dp
+   end type newton_config_t
+
+   type :: gmres_config_t
+      integer :: restart = 30
+      integer :: max_it = 5000
+      real(dp) :: rtol = 1.0e-10_dp
+      character(len=config_len) :: precond = 'ilu0'
+   end type gmres_config_t
+
+   type :: estimate_config_t
+      real(dp) :: gamma_alg = 0.3_dp
+      logical :: enabled = .true.
+   end type estimate_config_t
+
+   type :: output_config_t
+      !> '' in the input means `results/<case>.h5`; resolved by `load_config`
+      character(len=config_len) :: file = ''
+      logical :: fields = .true.
+      logical :: estimators = .true.
+      logical :: history = .true.
+      logical :: xdmf = .true.
+   end type output_config_t
+
+   type :: config_t
+      !> base name of the case file without directory and extension
+      character(len=config_len) :: case_name = ''
+      !> path of the case file as given
+      character(len=config_len) :: source = ''
+      type(mesh_config_t) :: mesh
+      type(problem_config_t) :: problem
+      type(newton_config_t) :: newton
+      type(gmres_config_t) :: gmres
+      type(estimate_config_t) :: estimate
+      type(output_config_t) :: output
+   end type config_t
+
+   ! The key table: one row per key, in the order of the documentation and of the echo.
+   integer, parameter :: n_groups = 6, n_keys = 27
+   character(len=*), parameter :: group_names(n_groups) = [character(len=8) :: &
+      'mesh', 'problem', 'newton', 'gmres', 'estimate', 'output']
+   integer, parameter :: kind_word = 1, kind_path = 2, kind_real = 3, kind_int = 4, kind_logical = 5
+   integer, parameter :: k_domain = 1, k_mesh_file = 2, k_coarse_h = 3, k_levels = 4, &
+      k_mu1 = 5, k_mu2 = 6, k_f1 = 7, k_f2 = 8, k_g = 9, k_exact = 10, &
+      k_cfun = 11, k_linear = 12, k_newton_max_it = 13, k_tol = 14, k_gamma_lin = 15, &
+      k_restart = 16, k_gmres_max_it = 17, k_rtol = 18, k_precond = 19, &
+      k_gamma_alg = 20, k_enabled = 21, &
+      k_output_file = 22, k_fields = 23, k_estimators = 24, k_history = 25, k_xdmf = 26, &
+      k_boundary_h = 27
+   integer, parameter :: key_group(n_keys) = [1, 1, 1, 1, 2, 2, 2, 2, 2, 2, 3, 3, 3, 3, 3, &
+                                              4, 4, 4, 4, 5, 5, 6, 6, 6, 6, 6, 1]
+   character(len=*), parameter :: key_names(n_keys) = [character(len=10) :: &
+      'domain', 'file', 'coarse_h', 'levels', &
+      'mu1', 'mu2', 'f1', 'f2', 'g', 'exact', &
+      'cfun', 'linear', 'max_it', 'tol', 'gamma_lin', &
+      'restart', 'max_it', 'rtol', 'precond', &
+      'gamma_alg', 'enabled', &
+      'file', 'fields', 'estimators', 'history', 'xdmf', 'boundary_h']
+   integer, parameter :: key_kinds(n_keys) = [kind_word, kind_path, kind_real, kind_int, &
+      kind_real, kind_real, kind_real, kind_real, kind_real, kind_word, &
+      kind_word, kind_word, kind_int, kind_real, kind_real, &
+      kind_int, kind_int, kind_real, kind_word, &
+      kind_real, kind_logical, &
+      kind_path, kind_logical, kind_logical, kind_logical, kind_logical, kind_real]
+
+contains
+
+   !> Read the case file `path`, apply `overrides` (each `GROUP.KEY=VALUE`) in order, validate,
+   !> and resolve the default output file. Every failure is bad input (code 2) with a one-line
+   !> message naming the file and line, or the override, and the group and key.
+   subroutine load_config(path, overrides, cfg, err)
+      character(len=*), intent(in) :: path
+      type(string_t), intent(in) :: overrides(:)
+      type(config_t), intent(out) :: cfg
+      type(error_t), allocatable, intent(out) :: err
+
+      type(string_t), allocatable :: lines(:)
+
+      call read_lines(path, lines, err)
+      if (allocated(err)) return
+      call load_lines(lines, path, overrides, cfg, err)
+   end subroutine load_config
+
+   !> As `load_config`, for namelist text held in memory (lines separated by newlines), e.g. the
+   !> `input` attribute of a result file; `source` stands for the file name in messages and
+   !> gives the case name.
+   subroutine load_config_text(text, source, overrides, cfg, err)
+      character(len=*), intent(in) :: text
+      character(len=*), intent(in) :: source
+      type(string_t), intent(in) :: overrides(:)
+      type(config_t), intent(out) :: cfg
+      type(error_t), allocatable, intent(out) :: err
+
+      type(string_t), allocatable :: lines(:)
+
+      call split_lines(text, lines)
+      call load_lines(lines, source, overrides, cfg, err)
+   end subroutine load_config_text
+
+   subroutine load_lines(lines, path, overrides, cfg, err)
+      type(string_t), intent(in) :: lines(:)
+      character(len=*), intent(in) :: path
+      type(string_t), intent(in) :: overrides(:)
+      type(config_t), intent(inout) :: cfg
+      type(error_t), allocatable, intent(out) :: err
+
+      type(nml_group_t), allocatable :: groups(:)
+      ! where each key's value came from, for validation messages: 'file:line', the override,
+      ! or just the file for a default
+      type(string_t) :: origin(n_keys)
+      integer :: ig, ia, gid, id, i
+
+      if (len(path) > config_len) then
+         call make_error(err, exit_bad_input, path, 'path longer than '//itoa(config_len)//' characters')
+         return
+      end if
+      cfg%source = path
+      cfg%case_name = case_name_of(path)
+      do i = 1, n_keys
+         origin(i)%s = path
+      end do
+
+      call parse_namelist(lines, path, groups, err)
+      if (allocated(err)) return
+      do ig = 1, size(groups)
+         gid = find_group(groups(ig)%name)
+         if (gid == 0) then
+            call make_error(err, exit_bad_input, line_where(path, groups(ig)%line)//': &'//groups(ig)%name, &
+                            'unknown group (valid groups: '//group_list()//')')
+            return
+         end if
+         do ia = 1, groups(ig)%n
+            associate (a => groups(ig)%assignments(ia))
+               id = find_key(gid, a%key)
+               if (id == 0) then
+                  call make_error(err, exit_bad_input, line_where(path, a%line)//': &'//groups(ig)%name &
+                                  //': '//a%key, 'unknown key (valid keys: '//key_list(gid)//')')
+                  return
+               end if
+               call set_value(cfg, id, a%value, a%quoted, err)
+               if (allocated(err)) then
+                  call prefix_error(err, line_where(path, a%line)//': &'//groups(ig)%name//': '//a%key)
+                  return
+               end if
+               origin(id)%s = line_where(path, a%line)
+            end associate
+         end do
+      end do
+
+      do i = 1, size(overrides)
+         call apply_override(cfg, overrides(i)%s, id, err)
+         if (allocated(err)) return
+         origin(id)%s = "override '"//overrides(i)%s//"'"
+      end do
+
+      call validate(cfg, origin, err)
+      if (allocated(err)) return
+      if (len_trim(cfg%output%file) == 0) cfg%output%file = 'results/'//trim(cfg%case_name)//'.h5'
+   end subroutine load_lines
+
+   !> One `GROUP.KEY=VALUE`; the value uses namelist syntax but text may go unquoted, so
+   !> `output.file=out/a.h5` works from a shell. Returns the key's row in `id`.
+   subroutine apply_override(cfg, text, id, err)
+      type(config_t), intent(inout) :: cfg
+      character(len=*), intent(in) :: text
+      integer, intent(out) :: id
+      type(error_t), allocatable, intent(out) :: err
+
+      character(len=:), allocatable :: where, name, group, key, raw, value, what
+      integer :: eq, dot, gid
+      logical :: quoted
+
+      id = 0
+      where = "override '"//text//"'"
+      eq = index(text, '=')
+      if (eq == 0) then
+         call make_error(err, exit_bad_input, where, "expected GROUP.KEY=VALUE (no '=')")
+         return
+      end if
+      name = to_lower(trim(adjustl(text(1:eq - 1))))
+      dot = index(name, '.')
+      if (dot == 0) then
+         call make_error(err, exit_bad_input, where, "expected GROUP.KEY=VALUE (no '.' in the key)")
+         return
+      end if
+      group = name(1:dot - 1)
+      key = name(dot + 1:)
+      gid = find_group(group)
+      if (gid == 0) then
+         call make_error(err, exit_bad_input, where, "unknown group '"//group//"' (valid groups: " &
+                         //group_list()//')')
+         return
+      end if
+      id = find_key(gid, key)
+      if (id == 0) then
+         call make_error(err, exit_bad_input, where, '&'//group//": unknown key '"//key &
+                         //"' (valid keys: "//key_list(gid)//')')
+         return
+      end if
+      raw = trim(adjustl(text(eq + 1:)))
+      if (len(raw) == 0) then
+         call make_error(err, exit_bad_input, where, "missing value after '=' (write '' for empty text)")
+         return
+      end if
+      call unquote(raw, value, quoted, what)
+      if (allocated(what)) then
+         call make_error(err, exit_bad_input, where, what)
+         return
+      end if
+      call set_value(cfg, id, value, quoted, err)
+      if (allocated(err)) call prefix_error(err, where)
+   end subroutine apply_override
+
+   !> Convert `value` to the type of key `id` and store it. Words are stored lower-case, file
+   !> names verbatim. Range and word checks wait for `validate`, so an override can still fix
+   !> a bad file value; only what cannot be converted fails here.
+   subroutine set_value(cfg, id, value, quoted, err)
+      type(config_t), intent(inout) :: cfg
+      integer, intent(in) :: id
+      character(len=*), intent(in) :: value
+      logical, intent(in) :: quoted
+      type(error_t), allocatable, intent(out) :: err
+
+      character(len=:), allocatable :: what
+      real(dp) :: x
+      integer :: n
+      logical :: b
+
+      select case (key_kinds(id))
+      case (kind_word, kind_path)
+         if (len(value) > config_len) then
+            what = 'text longer than '//itoa(config_len)//' characters'
+         else if (key_kinds(id) == kind_word) then
+            call store_text(cfg, id, to_lower(trim(adjustl(value))))
+         else
+            call store_text(cfg, id, value)
+         end if
+      case (kind_real)
+         if (quoted) then
+            what = 'expected a real number, got the string '//quote(value)
+         else
+            call scan_real(value, x, what)
+            if (.not. allocated(what)) call store_real(cfg, id, x)
+         end if
+      case (kind_int)
+         if (quoted) then
+            what = 'expected an integer, got the string '//quote(value)
+         else
+            call scan_integer(value, n, what)
+            if (.not. allocated(what)) call store_int(cfg, id, n)
+         end if
+      case (kind_logical)
+         if (quoted) then
+            what = 'expected a logical (.true. or .false.), got the string '//quote(value)
+         else
+            call scan_logical(value, b, what)
+            if (.not. allocated(what)) call store_logical(cfg, id, b)
+         end if
+      end select
+      if (allocated(what)) call make_error(err, exit_bad_input, '', what)
+   end subroutine set_value
+
+   subroutine store_text(cfg, id, s)
+      type(config_t), intent(inout) :: cfg
+      integer, intent(in) :: id
+      character(len=*), intent(in) :: s
+
+      select case (id)
+      case (k_domain); cfg%mesh%domain = s
+      case (k_mesh_file); cfg%mesh%file = s
+      case (k_exact); cfg%problem%exact = s
+      case (k_cfun); cfg%newton%cfun = s
+      case (k_linear); cfg%newton%linear = s
+      case (k_precond); cfg%gmres%precond = s
+      case (k_output_file); cfg%output%file = s
+      end select
+   end subroutine store_text
+
+   subroutine store_real(cfg, id, x)
+      type(config_t), intent(inout) :: cfg
+      integer, intent(in) :: id
+      real(dp), intent(in) :: x
+
+      select case (id)
+      case (k_coarse_h); cfg%mesh%coarse_h = x
+      case (k_boundary_h); cfg%mesh%boundary_h = x
+      case (k_mu1); cfg%problem%mu1 = x
+      case (k_mu2); cfg%problem%mu2 = x
+      case (k_f1); cfg%problem%f1 = x
+      case (k_f2); cfg%problem%f2 = x
+      case (k_g); cfg%problem%g = x
+      case (k_tol); cfg%newton%tol = x
+      case (k_gamma_lin); cfg%newton%gamma_lin = x
+      case (k_rtol); cfg%gmres%rtol = x
+      case (k_gamma_alg); cfg%estimate%gamma_alg = x
+      end select
+   end subroutine store_real
+
+   subroutine store_int(cfg, id, n)
+      type(config_t), intent(inout) :: cfg
+      integer, intent(in) :: id, n
+
+      select case (id)
+      case (k_levels); cfg%mesh%levels = n
+      case (k_newton_max_it); cfg%newton%max_it = n
+      case (k_restart); cfg%gmres%restart = n
+      case (k_gmres_max_it); cfg%gmres%max_it = n
+      end select
+   end subroutine store_int
+
+   subroutine store_logical(cfg, id, b)
+      type(config_t), intent(inout) :: cfg
+      integer, intent(in) :: id
+      logical, intent(in) :: b
+
+      select case (id)
+      case (k_enabled); cfg%estimate%enabled = b
+      case (k_fields); cfg%output%fields = b
+      case (k_estimators); cfg%output%estimators = b
+      case (k_history); cfg%output%history = b
+      case (k_xdmf); cfg%output%xdmf = b
+      end select
+   end subroutine store_logical
+
+   !> The rules of docs/input.md, in table order; the first violation is reported where the
+   !> offending value came from. Each check does nothing once `err` is set.
+   subroutine validate(cfg, origin, err)
+      type(config_t), intent(in) :: cfg
+      type(string_t), intent(in) :: origin(:)
+      type(error_t), allocatable, intent(out) :: err
+
+      associate (m => cfg%mesh, p => cfg%problem, n => cfg%newton, g => cfg%gmres)
+         call check_word(err, origin, k_domain, m%domain, [character(len=8) :: 'disk', 'square', 'gmsh'])
+         call require(err, origin, k_domain, m%domain /= 'gmsh' .or. len_trim(m%file) > 0, &
+                      "mesh.file must name the mesh when mesh.domain='gmsh'")
+         call require(err, origin, k_mesh_file, m%domain == 'gmsh' .or. len_trim(m%file) == 0, &
+                      "mesh.file is only read when mesh.domain='gmsh' (here domain='"//trim(m%domain)//"')")
+         call check_real(err, origin, k_coarse_h, m%coarse_h, ge=1.0e-4_dp, le=2.0_dp)
+         call check_int(err, origin, k_levels, m%levels, 0, 12)
+         call check_real(err, origin, k_boundary_h, m%boundary_h, ge=0.0_dp, le=2.0_dp)
+         call require(err, origin, k_boundary_h, m%boundary_h <= m%coarse_h, &
+                      'mesh.boundary_h must not exceed mesh.coarse_h (0 chooses it automatically)')
+         call require(err, origin, k_boundary_h, m%boundary_h == 0.0_dp .or. m%domain == 'disk', &
+                      "mesh.boundary_h is only used with mesh.domain='disk'")
+
+         call check_real(err, origin, k_mu1, p%mu1, gt=0.0_dp)
+         call check_real(err, origin, k_mu2, p%mu2, gt=0.0_dp)
+         call check_real(err, origin, k_f1, p%f1)
+         call check_real(err, origin, k_f2, p%f2)
+         call check_real(err, origin, k_g, p%g, gt=0.0_dp)
+         call check_word(err, origin, k_exact, p%exact, [character(len=8) :: 'none', 'radial', 'bbbv'])
+         call require(err, origin, k_exact, p%exact == 'none' .or. m%domain == 'disk', &
+                      "exact='"//trim(p%exact)//"' needs mesh.domain='disk' (here '"//trim(m%domain)//"')")
+
+         call check_word(err, origin, k_cfun, n%cfun, [character(len=8) :: 'min', 'fb'])
+         call check_word(err, origin, k_linear, n%linear, [character(len=8) :: 'direct', 'gmres', 'adaptive'])
+         call check_int(err, origin, k_newton_max_it, n%max_it, 1, 100000)
+         call check_real(err, origin, k_tol, n%tol, gt=0.0_dp, lt=1.0_dp)
+         call check_real(err, origin, k_gamma_lin, n%gamma_lin, gt=0.0_dp, le=1.0_dp)
+
+         call check_int(err, origin, k_restart, g%restart, 1, 1000)
+         call check_int(err, origin, k_gmres_max_it, g%max_it, 1, huge(1))
+         call check_real(err, origin, k_rtol, g%rtol, gt=0.0_dp, lt=1.0_dp)
+         call check_word(err, origin, k_precond, g%precond, [character(len=8) :: 'ilu0', 'jacobi', 'none'])
+      end associate
+
+      call check_real(err, origin, k_gamma_alg, cfg%estimate%gamma_alg, gt=0.0_dp, le=1.0_dp)
+   end subroutine validate
+
+   !> A rule across keys, blamed on key `id`: `<origin>: &group: what`.
+   subroutine require(err, origin, id, ok, what)
+      type(error_t), allocatable, intent(inout) :: err
+      type(string_t), intent(in) :: origin(:)
+      integer, intent(in) :: id
+      logical, intent(in) :: ok
+      character(len=*), intent(in) :: what
+
+      if (allocated(err) .or. ok) return
+      call make_error(err, exit_bad_input, origin(id)%s//': &'//trim(group_names(key_group(id))), what)
+   end subroutine require
+
+   !> `<origin>: &group: key must be ...`
+   subroutine fail(err, origin, id, what)
+      type(error_t), allocatable, intent(out) :: err
+      type(string_t), intent(in) :: origin(:)
+      integer, intent(in) :: id
+      character(len=*), intent(in) :: what
+
+      call make_error(err, exit_bad_input, origin(id)%s//': &'//trim(group_names(key_group(id))), &
+                      trim(key_names(id))//' '//what)
+   end subroutine fail
+
+   subroutine check_word(err, origin, id, value, allowed)
+      type(error_t), allocatable, intent(inout) :: err
+      type(string_t), intent(in) :: origin(:)
+      integer, intent(in) :: id
+      character(len=*), intent(in) :: value
+      character(len=*), intent(in) :: allowed(:)
+
+      character(len=:), allocatable :: list
+      integer :: i
+
+      if (allocated(err)) return
+      if (any(allowed == value)) return
+      list = ''
+      do i = 1, size(allowed)
+         if (i > 1) list = list//', '
+         list = list//quote(trim(allowed(i)))
+      end do
+      call fail(err, origin, id, 'must be one of '//list//', got '//quote(trim(value)))
+   end subroutine check_word
+
+   !> Finite, and within the bounds given (`gt`: >, `ge`: >=, `lt`: <, `le`: <=). Finiteness is
+   !> tested first: comparing a NaN would trap in debug builds.
+   subroutine check_real(err, origin, id, x, gt, ge, lt, le)
+      type(error_t), allocatable, intent(inout) :: err
+      type(string_t), intent(in) :: origin(:)
+      integer, intent(in) :: id
+      real(dp), intent(in) :: x
+      real(dp), intent(in), optional :: gt, ge, lt, le
+
+      character(len=:), allocatable :: got
+
+      if (allocated(err)) return
+      got = ', got '//number_text(x)
+      if (.not. ieee_is_finite(x)) then
+         call fail(err, origin, id, 'must be finite'//got)
+         return
+      end if
+      if (present(gt)) then
+         if (.not. x > gt) call fail(err, origin, id, 'must be > '//number_text(gt)//got)
+      end if
+      if (allocated(err)) return
+      if (present(ge)) then
+         if (.not. x >= ge) call fail(err, origin, id, 'must be >= '//number_text(ge)//got)
+      end if
+      if (allocated(err)) return
+      if (present(lt)) then
+         if (.not. x < lt) call fail(err, origin, id, 'must be < '//number_text(lt)//got)
+      end if
+      if (allocated(err)) return
+      if (present(le)) then
+         if (.not. x <= le) call fail(err, origin, id, 'must be <= '//number_text(le)//got)
+      end if
+   end subroutine check_real
+
+   !> A real for messages: as echoed, but whole numbers without '.0' ('must be > 0, got -1').
+   function number_text(x) result(s)
+      real(dp), intent(in) :: x
+      character(len=:), allocatable :: s
+
+      s = format_real(x)
+      if (len(s) > 2) then
+         if (s(len(s) - 1:) == '.0') s = s(1:len(s) - 2)
+      end if
+   end function number_text
+
+   subroutine check_int(err, origin, id, n, lo, hi)
+      type(error_t), allocatable, intent(inout) :: err
+      type(string_t), intent(in) :: origin(:)
+      integer, intent(in) :: id, n, lo, hi
+
+      if (allocated(err)) return
+      if (n < lo) then
+         call fail(err, origin, id, 'must be >= '//itoa(lo)//', got '//itoa(n))
+      else if (n > hi) then
+         call fail(err, origin, id, 'must be <= '//itoa(hi)//', got '//itoa(n))
+      end if
+   end subroutine check_int
+
+   !> The configuration as namelist text: every group, every key, one per line, reals in the
+   !> shortest form that reads back bit-identically. `load_config` of this text gives `cfg` again.
+   function config_echo(cfg) result(text)
+      type(config_t), intent(in) :: cfg
+      character(len=:), allocatable :: text
+
+      character, parameter :: nl = new_line('a')
+      integer :: gid, id
+
+      text = '! twomem input: case '//quote(trim(cfg%case_name))//' from '//quote(trim(cfg%source))//nl
+      do gid = 1, n_groups
+         text = text//'&'//trim(group_names(gid))//nl
+         do id = 1, n_keys
+            if (key_group(id) /= gid) cycle
+            text = text//'   '//trim(key_names(id))//' = '//value_text(cfg, id)//nl
+         end do
+         text = text//'/'//nl
+      end do
+   end function config_echo
+
+   !> The namelist literal of key `id`.
+   function value_text(cfg, id) result(s)
+      type(config_t), intent(in) :: cfg
+      integer, intent(in) :: id
+      character(len=:), allocatable :: s
+
+      select case (id)
+      case (k_domain); s = quote(trim(cfg%mesh%domain))
+      case (k_mesh_file); s = quote(trim(cfg%mesh%file))
+      case (k_coarse_h); s = format_real(cfg%mesh%coarse_h)
+      case (k_boundary_h); s = format_real(cfg%mesh%boundary_h)
+      case (k_levels); s = itoa(cfg%mesh%levels)
+      case (k_mu1); s = format_real(cfg%problem%mu1)
+      case (k_mu2); s = format_real(cfg%problem%mu2)
+      case (k_f1); s = format_real(cfg%problem%f1)
+      case (k_f2); s = format_real(cfg%problem%f2)
+      case (k_g); s = format_real(cfg%problem%g)
+      case (k_exact); s = quote(trim(cfg%problem%exact))
+      case (k_cfun); s = quote(trim(cfg%newton%cfun))
+      case (k_linear); s = quote(trim(cfg%newton%linear))
+      case (k_newton_max_it); s = itoa(cfg%newton%max_it)
+      case (k_tol); s = format_real(cfg%newton%tol)
+      case (k_gamma_lin); s = format_real(cfg%newton%gamma_lin)
+      case (k_restart); s = itoa(cfg%gmres%restart)
+      case (k_gmres_max_it); s = itoa(cfg%gmres%max_it)
+      case (k_rtol); s = format_real(cfg%gmres%rtol)
+      case (k_precond); s = quote(trim(cfg%gmres%precond))
+      case (k_gamma_alg); s = format_real(cfg%estimate%gamma_alg)
+      case (k_enabled); s = logical_text(cfg%estimate%enabled)
+      case (k_output_file); s = quote(trim(cfg%output%file))
+      case (k_fields); s = logical_text(cfg%output%fields)
+      case (k_estimators); s = logical_text(cfg%output%estimators)
+      case (k_history); s = logical_text(cfg%output%history)
+      case (k_xdmf); s = logical_text(cfg%output%xdmf)
+      case default; s = ''
+      end select
+   end function value_text
+
+   pure function logical_text(b) result(s)
+      logical, intent(in) :: b
+      character(len=:), allocatable :: s
+
+      if (b) then
+         s = '.true.'
+      else
+         s = '.false.'
+      end if
+   end function logical_text
+
+   !> `input/default.nml` -> `default`: no directory, no last extension.
+   pure function case_name_of(path) result(name)
+      character(len=*), intent(in) :: path
+      character(len=:), allocatable :: name
+
+      integer :: slash, dot
+
+      slash = scan(path, '/\', back=.true.)
+      name = path(slash + 1:)
+      dot = index(name, '.', back=.true.)
+      if (dot > 1) name = name(1:dot - 1)
+   end function case_name_of
+
+   pure integer function find_group(name) result(gid)
+      character(len=*), intent(in) :: name
+
+      do gid = 1, n_groups
+         if (group_names(gid) == name) return
+      end do
+      gid = 0
+   end function find_group
+
+   pure integer function find_key(gid, key) result(id)
+      integer, intent(in) :: gid
+      character(len=*), intent(in) :: key
+
+      do id = 1, n_keys
+         if (key_group(id) == gid .and. key_names(id) == key) return
+      end do
+      id = 0
+   end function find_key
+
+   pure function group_list() result(list)
+      character(len=:), allocatable :: list
+
+      integer :: gid
+
+      list = trim(group_names(1))
+      do gid = 2, n_groups
+         list = list//', '//trim(group_names(gid))
+      end do
+   end function group_list
+
+   pure function key_list(gid) result(list)
+      integer, intent(in) :: gid
+      character(len=:), allocatable :: list
+
+      integer :: id
+
+      list = ''
+      do id = 1, n_keys
+         if (key_group(id) /= gid) cycle
+         if (len(list) > 0) list = list//', '
+         list = list//trim(key_names(id))
+      end do
+   end function key_list
+end module twomem_input_config

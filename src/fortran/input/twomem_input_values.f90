@@ -1,0 +1,303 @@
+!> The value syntax of namelists, one value at a time: scanning integers, reals, logicals and
+!> quoted strings with a message a user can act on, and printing values back so that they scan
+!> to the same bits. Shared by the case-file parser and the command-line overrides, so both
+!> accept exactly the same spellings.
+module twomem_input_values
+   use, intrinsic :: ieee_arithmetic, only: ieee_is_finite, ieee_is_nan
+   use, intrinsic :: ieee_exceptions, only: ieee_status_type, ieee_get_status, ieee_set_status, &
+      ieee_get_halting_mode, ieee_set_halting_mode, ieee_usual
+   use twomem_base_kinds, only: dp, i8
+   implicit none
+   private
+
+   public :: scan_integer, scan_real, scan_logical, unquote
+   public :: format_real, quote, to_lower, itoa
+
+contains
+
+   !> Integer in namelist syntax: optional sign and digits only (so `1.0`, `1e3` are rejected
+   !> rather than truncated). `what` stays unallocated on success.
+   subroutine scan_integer(text, value, what)
+      character(len=*), intent(in) :: text
+      integer, intent(out) :: value
+      character(len=:), allocatable, intent(out) :: what
+
+      integer :: p, ios
+      integer(i8) :: wide
+
+      value = 0
+      p = 1
+      if (len(text) > 0) then
+         if (text(1:1) == '+' .or. text(1:1) == '-') p = 2
+      end if
+      if (p > len(text) .or. verify(text(p:), '0123456789') /= 0) then
+         what = 'expected an integer, got '//quote(text)
+         return
+      end if
+      if (len(text) - p + 1 > 18) then
+         what = 'integer out of range, got '//text
+         return
+      end if
+      read (text, *, iostat=ios) wide
+      if (ios /= 0 .or. abs(wide) > huge(value)) then
+         what = 'integer out of range, got '//text
+         return
+      end if
+      value = int(wide)
+   end subroutine scan_integer
+
+   !> Real in namelist syntax (`1`, `-2.5`, `.5`, `1e-10`, `1.d-3`); `nan` and `inf` are read so
+   !> that validation can name them. An overflowing literal is an error here.
+   subroutine scan_real(text, value, what)
+      character(len=*), intent(in) :: text
+      real(dp), intent(out) :: value
+      character(len=:), allocatable, intent(out) :: what
+
+      character(len=:), allocatable :: t
+      logical :: special
+      integer :: ios, p
+
+      value = 0.0_dp
+      t = to_lower(text)
+      p = 1
+      if (len(t) > 0) then
+         if (t(1:1) == '+' .or. t(1:1) == '-') p = 2
+      end if
+      special = .false.
+      if (p <= len(t)) special = t(p:) == 'nan' .or. t(p:) == 'inf' .or. t(p:) == 'infinity'
+      if (.not. (special .or. is_real_literal(t(p:)))) then
+         what = 'expected a real number, got '//quote(text)
+         return
+      end if
+      call read_quietly(t, value, ios)
+      if (ios /= 0) then
+         value = 0.0_dp
+         what = 'expected a real number, got '//quote(text)
+      else if (.not. special .and. .not. ieee_is_finite(value)) then
+         value = 0.0_dp
+         what = 'real number out of range, got '//text
+      end if
+   end subroutine scan_real
+
+   !> A list-directed read with floating-point trapping switched off: debug builds trap on
+   !> overflow, and the run-time library's strtod overflows on `1e999` before we can object.
+   subroutine read_quietly(text, value, ios)
+      character(len=*), intent(in) :: text
+      real(dp), intent(out) :: value
+      integer, intent(out) :: ios
+
+      type(ieee_status_type) :: status
+      logical :: halting(size(ieee_usual))
+
+      call ieee_get_status(status)
+      call ieee_get_halting_mode(ieee_usual, halting)
+      call ieee_set_halting_mode(ieee_usual, .false.)
+      read (text, *, iostat=ios) value
+      call ieee_set_status(status)
+      call ieee_set_halting_mode(ieee_usual, halting)
+   end subroutine read_quietly
+
+   !> digits [. [digits]] | . digits, then an optional exponent (e|d)[sign]digits
+   pure logical function is_real_literal(t) result(ok)
+      character(len=*), intent(in) :: t
+
+      integer :: p, n_int, n_frac, n_exp
+
+      ok = .false.
+      p = 1
+      call span_digits(t, p, n_int)
+      n_frac = 0
+      if (p <= len(t)) then
+         if (t(p:p) == '.') then
+            p = p + 1
+            call span_digits(t, p, n_frac)
+         end if
+      end if
+      if (n_int + n_frac == 0) return
+      if (p <= len(t)) then
+         if (t(p:p) /= 'e' .and. t(p:p) /= 'd') return
+         p = p + 1
+         if (p <= len(t)) then
+            if (t(p:p) == '+' .or. t(p:p) == '-') p = p + 1
+         end if
+         call span_digits(t, p, n_exp)
+         if (n_exp == 0) return
+      end if
+      ok = p > len(t)
+   end function is_real_literal
+
+   !> Number of digits from position `p`, which is moved past them.
+   pure subroutine span_digits(t, p, n)
+      character(len=*), intent(in) :: t
+      integer, intent(inout) :: p
+      integer, intent(out) :: n
+
+      n = 0
+      do while (p <= len(t))
+         if (index('0123456789', t(p:p)) == 0) exit
+         p = p + 1
+         n = n + 1
+      end do
+   end subroutine span_digits
+
+   !> The logical spellings a namelist user writes: `.true.`, `.t.`, `t`, `true` and the false
+   !> ones. Stricter than Fortran's reader, which takes any word starting with t or f.
+   subroutine scan_logical(text, value, what)
+      character(len=*), intent(in) :: text
+      logical, intent(out) :: value
+      character(len=:), allocatable, intent(out) :: what
+
+      value = .false.
+      select case (to_lower(text))
+      case ('.true.', '.t.', 't', 'true')
+         value = .true.
+      case ('.false.', '.f.', 'f', 'false')
+         value = .false.
+      case default
+         what = 'expected a logical (.true. or .false.), got '//quote(text)
+      end select
+   end subroutine scan_logical
+
+   !> The text of a value written as '...' or "..." (doubled delimiter inside), or `text` itself
+   !> when it does not start with a quote. `what` is set when a quoted value is malformed.
+   subroutine unquote(text, value, quoted, what)
+      character(len=*), intent(in) :: text
+      character(len=:), allocatable, intent(out) :: value
+      logical, intent(out) :: quoted
+      character(len=:), allocatable, intent(out) :: what
+
+      character :: delim
+      integer :: q
+
+      quoted = .false.
+      value = text
+      if (len(text) == 0) return
+      delim = text(1:1)
+      if (delim /= "'" .and. delim /= '"') return
+      quoted = .true.
+      value = ''
+      q = 2
+      do
+         if (q > len(text)) then
+            what = 'unterminated string'
+            return
+         end if
+         if (text(q:q) == delim) then
+            if (q < len(text)) then
+               if (text(q + 1:q + 1) == delim) then
+                  value = value//delim
+                  q = q + 2
+                  cycle
+               end if
+            end if
+            exit
+         end if
+         value = value//text(q:q)
+         q = q + 1
+      end do
+      if (q /= len(text)) what = 'unexpected text after the closing quote'
+   end subroutine unquote
+
+   !> Shortest decimal text that reads back to exactly `x` (at most 17 significant digits),
+   !> positional for moderate magnitudes and with an exponent otherwise: '0.25', '1.0e-10'.
+   function format_real(x) result(s)
+      real(dp), intent(in) :: x
+      character(len=:), allocatable :: s
+
+      character(len=40) :: buf, fmt
+      character(len=:), allocatable :: digits, what
+      real(dp) :: y
+      integer :: d, k, e, ios
+
+      if (ieee_is_nan(x)) then
+         s = 'NaN'
+         return
+      else if (.not. ieee_is_finite(x)) then
+         s = 'Infinity'
+         if (x < 0.0_dp) s = '-Infinity'
+         return
+      end if
+      do d = 0, 16
+         write (fmt, '(a,i0,a)') '(es40.', d, 'e3)'
+         write (buf, fmt) x
+         call read_quietly(buf, y, ios)
+         if (ios == 0 .and. same_bits(x, y)) exit
+      end do
+      buf = adjustl(buf)
+      k = index(buf, 'E')
+      read (buf(k + 1:), *) e
+      digits = ''
+      do d = 1, k - 1
+         if (index('0123456789', buf(d:d)) > 0) digits = digits//buf(d:d)
+      end do
+      s = ''
+      if (buf(1:1) == '-') s = '-'
+      if (e >= -4 .and. e < 7) then
+         if (e >= 0) then
+            if (len(digits) <= e + 1) then
+               s = s//digits//repeat('0', e + 1 - len(digits))//'.0'
+            else
+               s = s//digits(1:e + 1)//'.'//digits(e + 2:)
+            end if
+         else
+            s = s//'0.'//repeat('0', -e - 1)//digits
+         end if
+      else
+         if (len(digits) == 1) digits = digits//'0'
+         s = s//digits(1:1)//'.'//digits(2:)//'e'//itoa(e)
+      end if
+      call scan_real(s, y, what)
+      if (allocated(what) .or. .not. same_bits(x, y)) then
+         write (buf, '(es24.16e3)') x
+         s = trim(adjustl(buf))
+      end if
+   end function format_real
+
+   logical function same_bits(a, b)
+      real(dp), intent(in) :: a, b
+
+      same_bits = transfer(a, 0_i8) == transfer(b, 0_i8)
+   end function same_bits
+
+   !> `s` in single quotes with inner quotes doubled: a namelist string literal.
+   pure function quote(s) result(q)
+      character(len=*), intent(in) :: s
+      character(len=:), allocatable :: q
+
+      integer :: i
+
+      q = "'"
+      do i = 1, len(s)
+         if (s(i:i) == "'") then
+            q = q//"''"
+         else
+            q = q//s(i:i)
+         end if
+      end do
+      q = q//"'"
+   end function quote
+
+   pure function to_lower(s) result(l)
+      character(len=*), intent(in) :: s
+      character(len=len(s)) :: l
+
+      integer :: i, c
+
+      do i = 1, len(s)
+         c = iachar(s(i:i))
+         if (c >= iachar('A') .and. c <= iachar('Z')) c = c + 32
+         l(i:i) = achar(c)
+      end do
+   end function to_lower
+
+   !> Decimal text of an integer, for messages.
+   pure function itoa(i) result(s)
+      integer, intent(in) :: i
+      character(len=:), allocatable :: s
+
+      character(len=16) :: buf
+
+      write (buf, '(i0)') i
+      s = trim(buf)
+   end function itoa
+end module twomem_input_values

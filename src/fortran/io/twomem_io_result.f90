@@ -1,0 +1,176 @@
+!> The result file of INTERFACE.md: provenance attributes on `/`, the finest mesh, the nodal
+!> solution, per-element errors, the history and a summary, plus the XDMF sidecar for ParaView.
+!> The HDF5 file is written under a temporary name in the target directory and renamed when
+!> complete, so a reader never sees half a result; a failure removes the temporary file.
+module twomem_io_result
+   use twomem_base_kinds, only: dp, ip, i8
+   use twomem_base_errors, only: error_t
+   use twomem_base_system, only: rename_file, remove_file, process_id, base_name
+   use twomem_mesh_triangulation, only: mesh_t
+   use twomem_newton_history, only: history_t
+   use twomem_io_hdf5, only: h5_file_t
+   use twomem_io_xdmf, only: write_xdmf
+   implicit none
+   private
+
+   public :: result_record_t, output_choice_t, write_result, xdmf_path_for
+
+   !> What the run produced, independent of how it is stored.
+   type :: result_record_t
+      character(len=:), allocatable :: version, input_text, status
+      real(dp), allocatable :: u1(:), u2(:), lambda(:)
+      !> per-element energy error, allocated only when the exact solution is known
+      real(dp), allocatable :: energy_error(:)
+      type(history_t) :: history
+      integer :: newton_iterations = 0, gmres_iterations = 0, levels = 0
+      real(dp) :: eta_total = 0.0_dp, energy_error_total = 0.0_dp, effectivity = 0.0_dp
+      real(dp) :: wall_time = 0.0_dp
+      integer(i8) :: peak_memory_kib = 0
+   end type result_record_t
+
+   !> The output.* switches.
+   type :: output_choice_t
+      logical :: fields = .true., estimators = .true., history = .true., xdmf = .true.
+   end type output_choice_t
+
+contains
+
+   !> `name.h5` → `name.xdmf` (any other extension: appended).
+   pure function xdmf_path_for(path) result(xdmf)
+      character(len=*), intent(in) :: path
+      character(len=:), allocatable :: xdmf
+
+      integer :: n
+
+      n = len_trim(path)
+      if (n > 3) then
+         if (path(n - 2:n) == '.h5') then
+            xdmf = path(1:n - 3)//'.xdmf'
+            return
+         end if
+      end if
+      xdmf = trim(path)//'.xdmf'
+   end function xdmf_path_for
+
+   subroutine write_result(path, mesh, rec, choice, err)
+      character(len=*), intent(in) :: path
+      type(mesh_t), intent(in) :: mesh
+      type(result_record_t), intent(in) :: rec
+      type(output_choice_t), intent(in) :: choice
+      type(error_t), allocatable, intent(out) :: err
+
+      type(h5_file_t) :: h5
+      type(error_t), allocatable :: cleanup_err
+      character(len=:), allocatable :: tmp
+      character(len=32) :: pid
+      logical :: with_mesh
+      character(len=64), allocatable :: cells(:)
+
+      write (pid, '(i0)') process_id()
+      tmp = trim(path)//'.tmp-'//trim(pid)
+      call h5%create(tmp, err)
+      if (allocated(err)) return
+      with_mesh = choice%fields .or. allocated(rec%energy_error)
+      call write_contents(h5, mesh, rec, choice, with_mesh, err)
+      if (allocated(err)) then
+         call h5%close(cleanup_err)
+         call remove_file(tmp, cleanup_err)
+         return
+      end if
+      call h5%close(err)
+      if (.not. allocated(err)) call rename_file(tmp, path, err)
+      if (allocated(err)) then
+         call remove_file(tmp, cleanup_err)
+         return
+      end if
+      if (choice%xdmf .and. with_mesh) then
+         allocate (cells(0))
+         if (allocated(rec%energy_error)) cells = [character(len=64) :: '/error/energy']
+         if (choice%fields) then
+            call write_xdmf(xdmf_path_for(path), base_name(path), mesh%nv, mesh%nt, &
+                            [character(len=64) :: '/solution/u1', '/solution/u2', '/solution/lambda'], &
+                            cells, err)
+         else
+            call write_xdmf(xdmf_path_for(path), base_name(path), mesh%nv, mesh%nt, &
+                            [character(len=64) ::], cells, err)
+         end if
+      end if
+   end subroutine write_result
+
+   subroutine write_contents(h5, mesh, rec, choice, with_mesh, err)
+      type(h5_file_t), intent(inout) :: h5
+      type(mesh_t), intent(in) :: mesh
+      type(result_record_t), intent(in) :: rec
+      type(output_choice_t), intent(in) :: choice
+      logical, intent(in) :: with_mesh
+      type(error_t), allocatable, intent(out) :: err
+
+      call h5%write_attr('/', 'version', rec%version, err)
+      if (.not. allocated(err)) call h5%write_attr('/', 'input', rec%input_text, err)
+      if (.not. allocated(err)) call h5%write_attr('/', 'status', rec%status, err)
+      if (allocated(err)) return
+      if (with_mesh) then
+         call h5%write_real('/mesh/vertices', mesh%vertices, err)
+         if (.not. allocated(err)) call h5%write_int('/mesh/triangles', mesh%triangles - 1_ip, err)
+         if (allocated(err)) return
+      end if
+      if (choice%fields) then
+         call h5%write_real('/solution/u1', rec%u1, err)
+         if (.not. allocated(err)) call h5%write_real('/solution/u2', rec%u2, err)
+         if (.not. allocated(err)) call h5%write_real('/solution/lambda', rec%lambda, err)
+         if (allocated(err)) return
+      end if
+      if (allocated(rec%energy_error)) then
+         call h5%write_real('/error/energy', rec%energy_error, err)
+         if (.not. allocated(err)) call h5%write_attr('/error/energy', 'total', rec%energy_error_total, err)
+         if (allocated(err)) return
+      end if
+      if (choice%history) then
+         call write_history(h5, rec%history, err)
+         if (allocated(err)) return
+      end if
+      call write_summary(h5, mesh, rec, err)
+   end subroutine write_contents
+
+   subroutine write_history(h5, history, err)
+      type(h5_file_t), intent(inout) :: h5
+      type(history_t), intent(in) :: history
+      type(error_t), allocatable, intent(out) :: err
+
+      integer :: n
+
+      n = history%n
+      associate (r => history%rows(1:n))
+         call h5%write_int('/history/newton_it', int(r%newton_it, ip), err)
+         if (.not. allocated(err)) call h5%write_int('/history/gmres_it', int(r%gmres_it, ip), err)
+         if (.not. allocated(err)) call h5%write_real('/history/eta_disc', r%eta_disc, err)
+         if (.not. allocated(err)) call h5%write_real('/history/eta_lin', r%eta_lin, err)
+         if (.not. allocated(err)) call h5%write_real('/history/eta_alg', r%eta_alg, err)
+         if (.not. allocated(err)) call h5%write_real('/history/eta_total', r%eta_total, err)
+         if (.not. allocated(err)) call h5%write_real('/history/energy_error', r%energy_error, err)
+         if (.not. allocated(err)) call h5%write_real('/history/lin_residual', r%lin_residual, err)
+         if (.not. allocated(err)) call h5%write_real('/history/alg_residual', r%alg_residual, err)
+         if (.not. allocated(err)) call h5%write_int('/history/active', int(r%active, ip), err)
+         if (.not. allocated(err)) call h5%write_int('/history/active_changed', int(r%active_changed, ip), err)
+         if (.not. allocated(err)) call h5%write_real('/history/wall_time', r%wall_time, err)
+      end associate
+   end subroutine write_history
+
+   subroutine write_summary(h5, mesh, rec, err)
+      type(h5_file_t), intent(inout) :: h5
+      type(mesh_t), intent(in) :: mesh
+      type(result_record_t), intent(in) :: rec
+      type(error_t), allocatable, intent(out) :: err
+
+      call h5%write_attr('/summary', 'newton_iterations', rec%newton_iterations, err)
+      if (.not. allocated(err)) call h5%write_attr('/summary', 'gmres_iterations', rec%gmres_iterations, err)
+      if (.not. allocated(err)) call h5%write_attr('/summary', 'eta_total', rec%eta_total, err)
+      if (.not. allocated(err)) call h5%write_attr('/summary', 'energy_error', rec%energy_error_total, err)
+      if (.not. allocated(err)) call h5%write_attr('/summary', 'effectivity', rec%effectivity, err)
+      if (.not. allocated(err)) call h5%write_attr('/summary', 'wall_time', rec%wall_time, err)
+      if (.not. allocated(err)) call h5%write_attr('/summary', 'nv', int(mesh%nv), err)
+      if (.not. allocated(err)) call h5%write_attr('/summary', 'nt', int(mesh%nt), err)
+      if (.not. allocated(err)) call h5%write_attr('/summary', 'levels', rec%levels, err)
+      if (.not. allocated(err)) call h5%write_attr('/summary', 'peak_memory_kib', int(rec%peak_memory_kib), err)
+   end subroutine write_summary
+end module twomem_io_result
