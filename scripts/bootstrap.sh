@@ -52,10 +52,9 @@ fi
 # --- build ---------------------------------------------------------------------------------
 build() {
   local preset=$1
-  if [ ! -f "build/$preset/build.ninja" ]; then
-    say "configuring ($preset)"
-    cmake --preset "$preset" -DTWOMEM_PYTHON="$venv/bin/python" >/dev/null
-  fi
+  # configuring again is cheap and keeps the test interpreter pointing at the venv
+  say "configuring ($preset)"
+  cmake --preset "$preset" -DTWOMEM_PYTHON="$venv/bin/python" >/dev/null
   say "building ($preset)"
   cmake --build --preset "$preset" | grep -E "error|warning|FAILED" || true
   # grep hides ninja's chatter; the build's own status decides

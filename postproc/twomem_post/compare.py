@@ -52,11 +52,12 @@ def compare(a_path: str, b_path: str, rtol: float, atol: float, out=sys.stdout) 
             failures += 1
             continue
         both_nan = np.isnan(va) & np.isnan(vb)
-        diff = np.where(both_nan, 0.0, np.abs(va - vb))
-        bound = atol + rtol * np.abs(vb)
-        bad = ~(diff <= bound)
+        with np.errstate(invalid="ignore"):
+            diff = np.abs(va - vb)
+            bound = atol + rtol * np.abs(vb)
+            bad = ~((diff <= bound) | both_nan)
         if bad.any():
-            i = np.unravel_index(np.argmax(np.where(bad, diff - bound, -np.inf)), va.shape)
+            i = np.unravel_index(np.argmax(bad), va.shape)
             print(f"{key}: {int(bad.sum())} of {va.size} values differ; worst at {tuple(map(int, i))}: "
                   f"{va[i]!r} vs {vb[i]!r}", file=out)
             failures += 1

@@ -82,6 +82,8 @@ contains
       allocate (seen_hash(0:options%max_it), seen_count(0:options%max_it))
       x = x0
       t0 = wall_seconds()
+      ! before the first linearization no vertex is in contact
+      previous = .false.
 
       call linearize(x, row)
       row%alg_residual = 0.0_dp
