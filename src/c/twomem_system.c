@@ -79,6 +79,13 @@ int twomem_sys_remove(const char *path, char *msg, size_t cap)
     return 0;
 }
 
+/* 1 if path names an existing directory, 0 otherwise. */
+int twomem_sys_is_directory(const char *path)
+{
+    struct stat st;
+    return stat(path, &st) == 0 && S_ISDIR(st.st_mode);
+}
+
 int twomem_sys_exists(const char *path)
 {
     struct stat st;

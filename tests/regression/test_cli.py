@@ -232,8 +232,6 @@ def test_broken_mesh_count():
     assert len(BROKEN) >= 20, "the broken-mesh collection went missing"
 
 
-@pytest.mark.xfail(strict=True, reason="run creates the output directory before validating the mesh "
-                   "(INTERFACE: exit 2 means nothing is written); lead to decide")
 def test_bad_mesh_creates_no_output_directory(work):
     case = write(work / "case.nml", TINY)
     out = work / "out" / "sub"

@@ -7,7 +7,8 @@ module twomem_app_run
    use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_ok, exit_not_converged, exit_bad_input, exit_io
-   use twomem_base_system, only: make_directories, parent_directory, peak_memory_kib, process_id, remove_file
+   use twomem_base_system, only: make_directories, parent_directory, peak_memory_kib, process_id, remove_file, &
+      is_directory
    use twomem_base_timer, only: wall_time
    use twomem_base_version, only: twomem_version
    use twomem_input_config, only: config_t, config_echo
@@ -73,9 +74,10 @@ contains
       nan = ieee_value(1.0_dp, ieee_quiet_nan)
       call prepare(cfg, err)
       if (allocated(err)) return
-      call check_output_writable(trim(cfg%output%file), err)
-      if (allocated(err)) return
+      ! the mesh first: bad input must not leave even an output directory behind
       call build_hierarchy(cfg, hierarchy, err)
+      if (allocated(err)) return
+      call check_output_writable(trim(cfg%output%file), err)
       if (allocated(err)) return
       finest = hierarchy%levels
 
@@ -186,6 +188,10 @@ contains
       integer :: unit, ios
       character(len=256) :: msg
 
+      if (is_directory(path) .or. path(len(path):) == '/') then
+         call make_error(err, exit_io, path, 'the result file names a directory')
+         return
+      end if
       call make_directories(parent_directory(path), err)
       if (allocated(err)) then
          err%code = exit_io

@@ -17,8 +17,8 @@ program twomem_main
 
    n_args = command_argument_count()
    if (n_args == 0) then
-      call usage(error_unit)
-      call exit_program(exit_bad_input)
+      call make_error(err, exit_bad_input, 'twomem', 'missing command (see twomem --help)')
+      call fail(err)
    end if
    command = argument(1)
    select case (command)

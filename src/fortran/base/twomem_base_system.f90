@@ -12,7 +12,7 @@ module twomem_base_system
    implicit none
    private
 
-   public :: make_directories, parent_directory, base_name, rename_file, remove_file, file_exists
+   public :: make_directories, parent_directory, base_name, rename_file, remove_file, file_exists, is_directory
    public :: process_id, peak_memory_kib, exit_program
 
    integer, parameter :: msg_len = 1024
@@ -48,6 +48,11 @@ module twomem_base_system
          import :: c_int
          integer(c_int), value :: code
       end subroutine c_exit
+
+      integer(c_int) function c_is_directory(path) bind(C, name='twomem_sys_is_directory')
+         import :: c_int, c_char
+         character(kind=c_char), intent(in) :: path(*)
+      end function c_is_directory
 
       integer(c_int) function c_getpid() bind(C, name='twomem_sys_getpid')
          import :: c_int
@@ -102,6 +107,12 @@ contains
 
       file_exists = c_exists(trim(path)//c_null_char) == 1
    end function file_exists
+
+   logical function is_directory(path)
+      character(len=*), intent(in) :: path
+
+      is_directory = c_is_directory(trim(path)//c_null_char) == 1
+   end function is_directory
 
    !> End the program with exit status `code` (INTERFACE.md), after flushing standard output
    !> and error so that the last progress line and the error message are not lost.
