@@ -227,14 +227,17 @@ def radial_gradients(x: np.ndarray, mu1: float, mu2: float, f1: float, f2: float
 
 
 def energy_error_sq(p1: P1, u1: np.ndarray, u2: np.ndarray, grad_exact, bary: np.ndarray,
-                    weights: np.ndarray, mu1: float, mu2: float) -> np.ndarray:
-    """Per element Σ_α μ_α ∫_K |∇u_α − ∇u_αh|² by the rule (bary, weights) mapped to each K."""
-    t = p1.triangles
-    gh1 = np.einsum("kid,ki->kd", p1.grad, u1[t])             # (nt, 2) constant P1 gradients
-    gh2 = np.einsum("kid,ki->kd", p1.grad, u2[t])
-    corners = p1.vertices[t]                                  # (nt, 3, 2)
-    xq = np.einsum("qi,kid->kqd", bary, corners)              # (nt, nq, 2)
+                    weights: np.ndarray, mu1: float, mu2: float,
+                    elements: np.ndarray | None = None) -> np.ndarray:
+    """Per element Σ_α μ_α ∫_K |∇u_α − ∇u_αh|² by the rule (bary, weights) mapped to each K
+    (all elements, or the given element indices)."""
+    k = np.arange(p1.nt) if elements is None else np.asarray(elements)
+    t = p1.triangles[k]
+    gh1 = np.einsum("kid,ki->kd", p1.grad[k], u1[t])          # (n, 2) constant P1 gradients
+    gh2 = np.einsum("kid,ki->kd", p1.grad[k], u2[t])
+    corners = p1.vertices[t]                                  # (n, 3, 2)
+    xq = np.einsum("qi,kid->kqd", bary, corners)              # (n, nq, 2)
     ge1, ge2 = grad_exact(xq)
     integrand = (mu1 * np.sum((ge1 - gh1[:, None, :]) ** 2, axis=-1)
                  + mu2 * np.sum((ge2 - gh2[:, None, :]) ** 2, axis=-1))
-    return p1.area * (integrand @ weights)
+    return p1.area[k] * (integrand @ weights)

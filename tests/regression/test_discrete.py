@@ -92,10 +92,10 @@ def residuals(res: dict):
     # Normwise scale (Rigal–Gaches / Oettli–Prager style): a backward-stable direct solve gives
     # ‖r‖_∞ ≤ c ε (‖A‖_∞‖x‖_∞ + ‖b‖_∞) with c a modest growth factor, so we bound
     # max|r_α| by EQ_RTOL · (μ_α ‖S‖_∞ max|u_α| + max(|ω|/3) max|λ| + max|F_α|). ‖S‖_∞ is O(1)
-    # on shape-regular meshes while the mass and load terms are O(h²): every consistency error
-    # we want to catch (wrong/consistent mass, missing lifting, wrong sign, other load rule)
-    # leaves a relative residual of O(h²) ≥ 1e-5 here, five orders above EQ_RTOL = 1e-10, and
-    # round-off is ~1e-16 · growth, far below it.
+    # on shape-regular meshes while the mass and load terms are O(h²), so consistency errors
+    # show up at O(h²) relative: scaling the lumped mass by 1.01 already gives ~2e-5 on these
+    # meshes (a consistent mass, a missing lifting or a wrong sign give far more), five orders
+    # above EQ_RTOL = 1e-10, while round-off (observed ~2e-16) is six orders below it.
     snorm = np.max(p.row_abs_sum())
     mmax = np.max(m)
     scale1 = mu1 * snorm * np.max(np.abs(u1)) + mmax * np.max(np.abs(lam)) + abs(f1) * mmax
@@ -193,13 +193,14 @@ def test_complementarity(name):
 def _min_radius(corners: np.ndarray) -> np.ndarray:
     """Distance from the origin to each triangle (nt, 3, 2) (0 if the origin is inside)."""
     dmin = np.full(corners.shape[0], np.inf)
+    side = []
     for i in range(3):  # three edges, vectorized over triangles
         p, q = corners[:, i], corners[:, (i + 1) % 3]
         e = q - p
         s = np.clip(-np.sum(p * e, axis=1) / np.sum(e * e, axis=1), 0.0, 1.0)
         dmin = np.minimum(dmin, np.linalg.norm(p + s[:, None] * e, axis=1))
-    cross = [np.cross(corners[:, (i + 1) % 3] - corners[:, i], -corners[:, i]) for i in range(3)]
-    inside = (np.sign(cross[0]) == np.sign(cross[1])) & (np.sign(cross[1]) == np.sign(cross[2]))
+        side.append(np.sign(e[:, 0] * (-p[:, 1]) - e[:, 1] * (-p[:, 0])))  # origin left of edge?
+    inside = (side[0] == side[1]) & (side[1] == side[2])
     return np.where(inside, 0.0, dmin)
 
 
@@ -215,12 +216,37 @@ def test_quadrature_rule_exact_to_degree_6():
                 assert np.isclose(0.5 * np.sum(w * x**i * y**j), exact, rtol=1e-13, atol=0)
 
 
-def test_energy_error_radial():
-    """/error/energy of the default radial case (levels = 2) against an independent recomputation."""
-    out = out_file("discrete/radial_l2.h5")
+# Tolerances of the energy-error comparison.
+# * Elements not crossed by the free boundary |x| = ρ: the exact gradient is smooth (rational)
+#   there, so twomem's degree-8 rule and our degree-6 rule agree to quadrature accuracy,
+#   observed ≈ 2e-10 relative per element at levels = 2.
+ENERGY_RTOL_SMOOTH = 1e-8
+# * The total. Across |x| = ρ the exact ∇w = (D/2)(1 − ρ²/r²) x has a kink, so the integrand
+#   on the ~135 crossed elements is only C⁰ there and no fixed-point rule integrates it to better
+#   than a few percent per element. Our reference integrates those elements with the 12-point
+#   rule on 4⁵ red subtriangles (converged to ~4e-7 relative on the total). twomem's
+#   single 16-point rule overestimates the total by 1.44e-4 relative at levels = 2 (crossed
+#   elements individually off by up to ~6 %); the bound below documents that quadrature error
+#   of twomem's error measurement and would catch anything larger (wrong exact solution,
+#   wrong ρ, missing μ weights are O(1e-2..1) effects). Tighten it if twomem's error quadrature
+#   becomes kink-aware.
+ENERGY_RTOL_TOTAL = 1e-3
+ENERGY_RTOL_CROSSED = 0.2
+
+RADIAL_CASES = {
+    "default": ("mesh.levels=2",),
+    # unequal tensions and f1 + f2 ≠ 0 (∇S ≠ 0): D = 0.5/0.5 + 0.6/2 = 1.3 > 4g
+    "mu": ("mesh.levels=2", "problem.mu1=2", "problem.mu2=0.5", "problem.f1=-0.6", "problem.f2=0.5"),
+}
+
+
+@pytest.mark.parametrize("case", RADIAL_CASES)
+def test_energy_error_radial(case):
+    """/error/energy of a radial run (levels = 2) against an independent recomputation."""
+    out = out_file(f"discrete/radial_{case}.h5")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.unlink(missing_ok=True)
-    run("mesh.levels=2", "newton.linear=direct", f"output.file={out}")
+    run(*RADIAL_CASES[case], "newton.linear=direct", f"output.file={out}")
     res = result(out)
     d = p1np.parse_namelist(res["input"])["problem"]
     assert d["exact"] == "radial"
@@ -236,26 +262,38 @@ def test_energy_error_radial():
     assert 0.0 < rho < 1.0
     assert np.isclose((D / 4) * (1 - rho**2 + 2 * rho**2 * np.log(rho)), g, rtol=1e-14)
 
-    # plain 12-point rule: the elementwise comparison where the exact gradient is smooth
-    e12 = np.sqrt(p1np.energy_error_sq(p, res["u1"], res["u2"], grad_exact, p1np.RULE12_BARY,
-                                       p1np.RULE12_WEIGHTS, mu1, mu2))
-    # 12 points on 4² red subtriangles: resolves the kink |x| = ρ well enough for the total
-    bary, w = p1np.composite_rule(2)
-    ecomp = np.sqrt(p1np.energy_error_sq(p, res["u1"], res["u2"], grad_exact, bary, w, mu1, mu2))
-
     corners = p.vertices[p.triangles]
     rmax = np.max(np.linalg.norm(corners, axis=2), axis=1)  # |x| is convex: max at a vertex
     crossed = (_min_radius(corners) < rho) & (rmax > rho)
+    assert 0 < crossed.sum() < p.nt // 10
+
     theirs = res["energy"]
+    assert theirs.shape == (p.nt,) and np.all(theirs >= 0)
     total_theirs = float(res["summary"]["energy_error"])
-    rel_el = np.abs(e12 - theirs) / np.maximum(theirs, 1e-30)
-    total_mine = np.sqrt(np.sum(ecomp**2))
-    print(f"radial: rho = {rho:.15f}, {crossed.sum()} of {p.nt} elements crossed; "
-          f"max elementwise rel. diff (uncrossed, 12-pt) {rel_el[~crossed].max():.2e}, "
-          f"(crossed, composite) {np.max(np.abs(ecomp - theirs)[crossed] / theirs[crossed]):.2e}; "
-          f"total mine {total_mine:.12e} theirs {total_theirs:.12e} "
-          f"rel {abs(total_mine / total_theirs - 1):.2e}")
-    assert crossed.sum() > 0 and crossed.sum() < p.nt // 5
-    assert np.isclose(float(res["summary"]["energy_error"]), np.sqrt(np.sum(theirs**2)), rtol=1e-12)
-    assert rel_el[~crossed].max() <= 1e-6
-    assert abs(total_mine / total_theirs - 1) <= 1e-6
+    # /error/energy holds |||u − u_h|||_K (square roots); the total is the l2 sum of them
+    assert np.isclose(total_theirs, np.sqrt(np.sum(theirs**2)), rtol=1e-12)
+
+    # plain 12-point rule where the exact gradient is smooth: elementwise comparison
+    mine = np.sqrt(p1np.energy_error_sq(p, res["u1"], res["u2"], grad_exact, p1np.RULE12_BARY,
+                                        p1np.RULE12_WEIGHTS, mu1, mu2))
+    # 12 points on 4⁵ red subtriangles on the crossed elements
+    bary, w = p1np.composite_rule(5)
+    kx = np.flatnonzero(crossed)
+    mine[kx] = np.sqrt(p1np.energy_error_sq(p, res["u1"], res["u2"], grad_exact, bary, w, mu1, mu2,
+                                            elements=kx))
+    total_mine = np.sqrt(np.sum(mine**2))
+
+    smooth = ~crossed
+    diff = np.abs(mine - theirs)
+    floor = 1e-12 * theirs.max()  # elements with zero error (u exactly linear there)
+    rel_smooth = np.max(diff[smooth] / np.maximum(theirs[smooth], floor))
+    rel_crossed = np.max(diff[crossed] / theirs[crossed])
+    share = np.sqrt(np.sum(mine[crossed] ** 2)) / total_mine
+    print(f"radial[{case}]: rho = {rho:.15f}, {crossed.sum()} of {p.nt} elements crossed "
+          f"(their share of the error {share:.2f}); elementwise rel. diff: smooth {rel_smooth:.2e}, "
+          f"crossed {rel_crossed:.2e}; total mine {total_mine:.12e} twomem {total_theirs:.12e} "
+          f"rel {total_theirs / total_mine - 1:.2e}; smooth part rel "
+          f"{np.sqrt(np.sum(theirs[smooth]**2) / np.sum(mine[smooth]**2)) - 1:.2e}")
+    assert rel_smooth <= ENERGY_RTOL_SMOOTH
+    assert rel_crossed <= ENERGY_RTOL_CROSSED
+    assert abs(total_theirs / total_mine - 1) <= ENERGY_RTOL_TOTAL
