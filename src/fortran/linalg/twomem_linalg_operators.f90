@@ -1,0 +1,129 @@
+!> The abstractions iterative solvers are written against: a linear operator (y = A x), a
+!> preconditioner (z ≈ A⁻¹ r, refreshed from a CSR matrix), and an inner product. GMRES sees
+!> only these, so the same kernel runs serial, threaded or, later, distributed (an MPI inner
+!> product and a halo-exchanging operator), and new preconditioners (multigrid) plug in
+!> without touching it.
+module twomem_linalg_operators
+   use twomem_base_kinds, only: dp, ip
+   use twomem_base_errors, only: error_t
+   use twomem_linalg_csr, only: csr_t
+   implicit none
+   private
+
+   public :: linear_operator_t, preconditioner_t, inner_product_t
+   public :: csr_operator_t, identity_preconditioner_t, euclidean_product_t
+
+   type, abstract :: linear_operator_t
+   contains
+      procedure(operator_apply), deferred :: apply
+   end type linear_operator_t
+
+   type, abstract :: preconditioner_t
+   contains
+      !> (re)build from the matrix; the pattern may be kept between calls with the same pattern
+      procedure(preconditioner_setup), deferred :: setup
+      !> z = M⁻¹ r
+      procedure(preconditioner_apply), deferred :: apply
+   end type preconditioner_t
+
+   type, abstract :: inner_product_t
+   contains
+      procedure(product_dot), deferred :: dot
+      procedure :: norm
+   end type inner_product_t
+
+   abstract interface
+      subroutine operator_apply(self, x, y)
+         import :: linear_operator_t, dp
+         class(linear_operator_t), intent(in) :: self
+         real(dp), intent(in) :: x(:)
+         real(dp), intent(out) :: y(:)
+      end subroutine operator_apply
+
+      subroutine preconditioner_setup(self, a, err)
+         import :: preconditioner_t, csr_t, error_t
+         class(preconditioner_t), intent(inout) :: self
+         type(csr_t), intent(in) :: a
+         type(error_t), allocatable, intent(out) :: err
+      end subroutine preconditioner_setup
+
+      subroutine preconditioner_apply(self, r, z)
+         import :: preconditioner_t, dp
+         class(preconditioner_t), intent(in) :: self
+         real(dp), intent(in) :: r(:)
+         real(dp), intent(out) :: z(:)
+      end subroutine preconditioner_apply
+
+      real(dp) function product_dot(self, x, y)
+         import :: inner_product_t, dp
+         class(inner_product_t), intent(in) :: self
+         real(dp), intent(in) :: x(:), y(:)
+      end function product_dot
+   end interface
+
+   !> A CSR matrix as an operator. It points at the matrix, which the caller keeps alive and
+   !> may refill between solves.
+   type, extends(linear_operator_t) :: csr_operator_t
+      type(csr_t), pointer :: a => null()
+   contains
+      procedure :: apply => csr_apply
+   end type csr_operator_t
+
+   !> No preconditioning (M = I).
+   type, extends(preconditioner_t) :: identity_preconditioner_t
+   contains
+      procedure :: setup => identity_setup
+      procedure :: apply => identity_apply
+   end type identity_preconditioner_t
+
+   !> The serial Euclidean product, threaded.
+   type, extends(inner_product_t) :: euclidean_product_t
+   contains
+      procedure :: dot => euclidean_dot
+   end type euclidean_product_t
+
+contains
+
+   real(dp) function norm(self, x)
+      class(inner_product_t), intent(in) :: self
+      real(dp), intent(in) :: x(:)
+
+      norm = sqrt(max(0.0_dp, self%dot(x, x)))
+   end function norm
+
+   subroutine csr_apply(self, x, y)
+      class(csr_operator_t), intent(in) :: self
+      real(dp), intent(in) :: x(:)
+      real(dp), intent(out) :: y(:)
+
+      call self%a%matvec(x, y)
+   end subroutine csr_apply
+
+   subroutine identity_setup(self, a, err)
+      class(identity_preconditioner_t), intent(inout) :: self
+      type(csr_t), intent(in) :: a
+      type(error_t), allocatable, intent(out) :: err
+   end subroutine identity_setup
+
+   subroutine identity_apply(self, r, z)
+      class(identity_preconditioner_t), intent(in) :: self
+      real(dp), intent(in) :: r(:)
+      real(dp), intent(out) :: z(:)
+
+      z = r
+   end subroutine identity_apply
+
+   real(dp) function euclidean_dot(self, x, y) result(s)
+      class(euclidean_product_t), intent(in) :: self
+      real(dp), intent(in) :: x(:), y(:)
+
+      integer(ip) :: i
+
+      s = 0.0_dp
+      !$omp parallel do default(none) shared(x, y) private(i) reduction(+:s) schedule(static)
+      do i = 1, size(x, kind=ip)
+         s = s + x(i)*y(i)
+      end do
+      !$omp end parallel do
+   end function euclidean_dot
+end module twomem_linalg_operators
