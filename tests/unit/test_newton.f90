@@ -6,7 +6,7 @@ module test_newton
    use twomem_mesh_hierarchy, only: mesh_hierarchy_t
    use twomem_fem_problem, only: constant_data_t
    use twomem_fem_discrete, only: discrete_problem_t
-   use twomem_newton_cfun, only: cfun_min
+   use twomem_newton_cfun, only: cfun_min, cfun_fb
    use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_solve
    use twomem_testing, only: unittest_t, new_unittest, check, check_close, error_t
    use test_refinement, only: square_hierarchy
@@ -21,6 +21,8 @@ contains
       type(unittest_t), allocatable, intent(out) :: tests(:)
 
       tests = [new_unittest('cfun_min_jacobian', test_cfun_min), &
+               new_unittest('cfun_jacobians_finite_differences', test_cfun_fd), &
+               new_unittest('cfun_fb_values_and_kink', test_cfun_fb), &
                new_unittest('discrete_equations_roundoff', test_discrete_equations), &
                new_unittest('iteration_limit_reported', test_limit)]
    end subroutine collect_newton
@@ -36,6 +38,65 @@ contains
       call cfun_min(0.2_dp, 0.2_dp, c, da, db)
       call check(err, da == 1 .and. db == 0, 'ties take the a-row')
    end subroutine test_cfun_min
+
+   !> Central differences of both C-functions at points away from their kinks (a = b for
+   !> min, a = b = 0 for FB) agree with the analytic Jacobian to the differencing error.
+   subroutine test_cfun_fd(err)
+      type(error_t), allocatable, intent(out) :: err
+      real(dp), parameter :: pts(2, 6) = reshape([0.3_dp, 0.5_dp, 0.5_dp, -0.1_dp, -2.0_dp, 1.0_dp, &
+                                                  1.0e-3_dp, 2.0e-3_dp, 3.0_dp, 4.0_dp, -1.0_dp, -1.5_dp], [2, 6])
+      real(dp) :: c, da, db, cp, cm, dummy1, dummy2, step, fd_a, fd_b
+      integer :: k, which
+
+      do which = 1, 2
+         do k = 1, size(pts, 2)
+            associate (a => pts(1, k), b => pts(2, k))
+               step = 1.0e-6_dp*max(1.0_dp, abs(a), abs(b))
+               call eval(which, a, b, c, da, db)
+               call eval(which, a + step, b, cp, dummy1, dummy2)
+               call eval(which, a - step, b, cm, dummy1, dummy2)
+               fd_a = (cp - cm)/(2*step)
+               call eval(which, a, b + step, cp, dummy1, dummy2)
+               call eval(which, a, b - step, cm, dummy1, dummy2)
+               fd_b = (cp - cm)/(2*step)
+               call check_close(err, da, fd_a, 0.0_dp, 1.0e-6_dp, 'dC/da by finite differences')
+               call check_close(err, db, fd_b, 0.0_dp, 1.0e-6_dp, 'dC/db by finite differences')
+            end associate
+         end do
+      end do
+
+   contains
+
+      subroutine eval(which, a, b, c, da, db)
+         integer, intent(in) :: which
+         real(dp), intent(in) :: a, b
+         real(dp), intent(out) :: c, da, db
+
+         if (which == 1) then
+            call cfun_min(a, b, c, da, db)
+         else
+            call cfun_fb(a, b, c, da, db)
+         end if
+      end subroutine eval
+   end subroutine test_cfun_fd
+
+   subroutine test_cfun_fb(err)
+      type(error_t), allocatable, intent(out) :: err
+      real(dp) :: c, da, db
+
+      call cfun_fb(0.0_dp, 0.7_dp, c, da, db)
+      call check_close(err, c, 0.0_dp, 0.0_dp, 1.0e-16_dp, 'C = 0 on the axis b > 0')
+      call cfun_fb(0.7_dp, 0.0_dp, c, da, db)
+      call check_close(err, c, 0.0_dp, 0.0_dp, 1.0e-16_dp, 'C = 0 on the axis a > 0')
+      call cfun_fb(-0.3_dp, 0.0_dp, c, da, db)
+      call check_close(err, c, -0.3_dp*(-2), 0.0_dp, 1.0e-15_dp, 'C = 2|a| for a < 0 = b')
+      ! cancellation-free where both are positive: C ≈ −b for a ≫ b
+      call cfun_fb(1.0e8_dp, 1.0e-8_dp, c, da, db)
+      call check_close(err, c, -1.0e-8_dp, 1.0e-12_dp, 0.0_dp, 'no cancellation')
+      call cfun_fb(0.0_dp, 0.0_dp, c, da, db)
+      call check_close(err, da, 1/sqrt(2.0_dp) - 1, 0.0_dp, 1.0e-15_dp, 'Clarke element at the kink')
+      call check_close(err, db, 1/sqrt(2.0_dp) - 1, 0.0_dp, 1.0e-15_dp, 'Clarke element at the kink')
+   end subroutine test_cfun_fb
 
    subroutine solve_square(levels, max_it, p, res, err)
       integer, intent(in) :: levels, max_it

@@ -50,6 +50,7 @@ contains
             call check(err, m%nv - m%ne + m%nt == 1, 'Euler characteristic 1')
             call check(err, m%nt == 4*4**l, 'four children per triangle')
             call check(err, m%n_flipped == 0, 'children are counter-clockwise')
+            call check_close(err, m%diameter, sqrt(8.0_dp), 4*epsilon(1.0_dp), 0.0_dp, 'diameter kept')
          end associate
       end do
    end subroutine test_area_euler

@@ -113,6 +113,6 @@ contains
          triangles(:, 4*t) = [m(1), m(2), m(3)]
          map%triangle_parent(4*t - 3:4*t) = t
       end do
-      call fine%init(vertices, triangles, 'red refinement', err)
+      call fine%init(vertices, triangles, 'red refinement', err, diameter=coarse%diameter)
    end subroutine refine_red
 end module twomem_mesh_hierarchy

@@ -52,13 +52,15 @@ contains
    end function signed_area
 
    !> Build a mesh from coordinates and connectivity. `source` names the origin in messages
-   !> (a file name, 'disk generator', ...).
-   subroutine mesh_init(self, vertices, triangles, source, err)
+   !> (a file name, 'disk generator', ...). A caller that knows the domain's diameter (the
+   !> refinement of a mesh covers the same domain) passes it to skip the O(n_b²) search.
+   subroutine mesh_init(self, vertices, triangles, source, err, diameter)
       class(mesh_t), intent(inout) :: self
       real(dp), intent(in) :: vertices(:, :)
       integer(ip), intent(in) :: triangles(:, :)
       character(len=*), intent(in) :: source
       type(error_t), allocatable, intent(out) :: err
+      real(dp), intent(in), optional :: diameter
 
       integer(ip) :: t, i, swap
       real(dp) :: a, hmax
@@ -130,7 +132,11 @@ contains
       end do
       call build_edges(self, source, err)
       if (allocated(err)) return
-      self%diameter = boundary_diameter(self)
+      if (present(diameter)) then
+         self%diameter = diameter
+      else
+         self%diameter = boundary_diameter(self)
+      end if
    end subroutine mesh_init
 
    subroutine mesh_free(self)

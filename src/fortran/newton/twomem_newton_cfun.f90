@@ -1,18 +1,19 @@
 !> The complementarity functions C(a, b) with a = u1(a) − u2(a), b = λ(a), and the element of
 !> their (Clarke) generalized Jacobian that Newton uses, as the pair (∂C/∂a, ∂C/∂b) per vertex.
-!> Newton-min takes the a-row where a ≤ b (ties go to the a-row, which enforces contact): it is
-!> then a primal–dual active set method.
+!>
+!> - `min`: C = min(a, b). Newton takes the a-row where a ≤ b (ties go to the a-row, which
+!>   imposes contact), so Newton-min is a primal–dual active set method.
+!> - `fb` (Fischer–Burmeister): C = sqrt(a² + b²) − a − b, smooth except at a = b = 0. Away
+!>   from the kink ∂C/∂a = a/ρ − 1, ∂C/∂b = b/ρ − 1 with ρ = sqrt(a² + b²). At the kink the
+!>   Clarke Jacobian is {(ξ − 1, η − 1): ξ² + η² ≤ 1}; we take ξ = η = 1/√2, the limit along
+!>   the diagonal a = b > 0, whose row weighs both conditions equally and stays nonsingular.
+!>   ρ is computed with `hypot`, so no overflow or underflow for extreme a, b.
 module twomem_newton_cfun
    use twomem_base_kinds, only: dp, ip
    implicit none
    private
 
-   public :: cfun_min, cfun_eval
-
-
-   interface cfun_eval
-      module procedure cfun_eval_all
-   end interface cfun_eval
+   public :: cfun_min, cfun_fb, cfun_eval
 
 contains
 
@@ -31,21 +32,51 @@ contains
       end if
    end subroutine cfun_min
 
-   !> C and its Jacobian entries at every vertex for the C-function `name`.
-   subroutine cfun_eval_all(name, a, b, c, da, db)
+   pure elemental subroutine cfun_fb(a, b, c, da, db)
+      real(dp), intent(in) :: a, b
+      real(dp), intent(out) :: c, da, db
+
+      real(dp), parameter :: kink = 1.0_dp/sqrt(2.0_dp)
+      real(dp) :: rho
+
+      rho = hypot(a, b)
+      if (rho > 0.0_dp) then
+         ! sqrt(a²+b²) − a − b loses all digits when a, b > 0 and one dominates; the product
+         ! form −2ab/(ρ + a + b) is exact there
+         if (a > 0.0_dp .and. b > 0.0_dp) then
+            c = -2*a*b/(rho + a + b)
+         else
+            c = rho - a - b
+         end if
+         da = a/rho - 1
+         db = b/rho - 1
+      else
+         c = 0.0_dp
+         da = kink - 1
+         db = kink - 1
+      end if
+   end subroutine cfun_fb
+
+   !> C and its Jacobian entries at every vertex for the C-function `name` ('min' or 'fb').
+   subroutine cfun_eval(name, a, b, c, da, db)
       character(len=*), intent(in) :: name
       real(dp), intent(in) :: a(:), b(:)
       real(dp), intent(out) :: c(:), da(:), db(:)
 
       integer(ip) :: i
 
-      select case (name)
-      case default
+      if (name == 'fb') then
+         !$omp parallel do default(none) shared(a, b, c, da, db) private(i) schedule(static)
+         do i = 1, size(a, kind=ip)
+            call cfun_fb(a(i), b(i), c(i), da(i), db(i))
+         end do
+         !$omp end parallel do
+      else
          !$omp parallel do default(none) shared(a, b, c, da, db) private(i) schedule(static)
          do i = 1, size(a, kind=ip)
             call cfun_min(a(i), b(i), c(i), da(i), db(i))
          end do
          !$omp end parallel do
-      end select
-   end subroutine cfun_eval_all
+      end if
+   end subroutine cfun_eval
 end module twomem_newton_cfun
