@@ -139,20 +139,21 @@ contains
 
       integer :: n
 
+      ! a column of the rows is strided: parentheses make it a contiguous value for the C side
       n = history%n
       associate (r => history%rows(1:n))
          call h5%write_int('/history/newton_it', int(r%newton_it, ip), err)
          if (.not. allocated(err)) call h5%write_int('/history/gmres_it', int(r%gmres_it, ip), err)
-         if (.not. allocated(err)) call h5%write_real('/history/eta_disc', r%eta_disc, err)
-         if (.not. allocated(err)) call h5%write_real('/history/eta_lin', r%eta_lin, err)
-         if (.not. allocated(err)) call h5%write_real('/history/eta_alg', r%eta_alg, err)
-         if (.not. allocated(err)) call h5%write_real('/history/eta_total', r%eta_total, err)
-         if (.not. allocated(err)) call h5%write_real('/history/energy_error', r%energy_error, err)
-         if (.not. allocated(err)) call h5%write_real('/history/lin_residual', r%lin_residual, err)
-         if (.not. allocated(err)) call h5%write_real('/history/alg_residual', r%alg_residual, err)
+         if (.not. allocated(err)) call h5%write_real('/history/eta_disc', (r%eta_disc), err)
+         if (.not. allocated(err)) call h5%write_real('/history/eta_lin', (r%eta_lin), err)
+         if (.not. allocated(err)) call h5%write_real('/history/eta_alg', (r%eta_alg), err)
+         if (.not. allocated(err)) call h5%write_real('/history/eta_total', (r%eta_total), err)
+         if (.not. allocated(err)) call h5%write_real('/history/energy_error', (r%energy_error), err)
+         if (.not. allocated(err)) call h5%write_real('/history/lin_residual', (r%lin_residual), err)
+         if (.not. allocated(err)) call h5%write_real('/history/alg_residual', (r%alg_residual), err)
          if (.not. allocated(err)) call h5%write_int('/history/active', int(r%active, ip), err)
          if (.not. allocated(err)) call h5%write_int('/history/active_changed', int(r%active_changed, ip), err)
-         if (.not. allocated(err)) call h5%write_real('/history/wall_time', r%wall_time, err)
+         if (.not. allocated(err)) call h5%write_real('/history/wall_time', (r%wall_time), err)
       end associate
    end subroutine write_history
 
