@@ -50,7 +50,8 @@ contains
       integer :: unit, length, stat
 
       call get_environment_variable('TWOMEM_TEST_TMP', dir, length, stat)
-      if (stat /= 0 .or. length == 0) dir = '.'
+      ! never litter the working tree: the scratch directory comes from ctest
+      if (stat /= 0 .or. length == 0) error stop 'TWOMEM_TEST_TMP is not set (run through ctest)'
       path = trim(dir)//'/'//name
       open (newunit=unit, file=path, status='replace', action='write', access='stream', form='formatted')
       write (unit, '(a)', advance='no') content
