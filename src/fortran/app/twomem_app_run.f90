@@ -37,6 +37,11 @@ module twomem_app_run
       procedure :: observe => observe_error
    end type error_observer_t
 
+   !> Work spent on the coarser levels of nested iteration.
+   type :: coarse_work_t
+      integer :: newton_iterations = 0, gmres_iterations = 0
+   end type coarse_work_t
+
 contains
 
    !> Validate input and mesh and print the resolved case; solve nothing.
@@ -63,7 +68,8 @@ contains
       type(discrete_problem_t), target :: p
       type(newton_options_t) :: options
       type(newton_result_t) :: newton
-      type(error_observer_t) :: observer
+      type(error_observer_t), target :: observer
+      type(coarse_work_t) :: coarse
       type(result_record_t) :: rec
       type(output_choice_t) :: choice
       real(dp) :: t0, nan
@@ -89,18 +95,14 @@ contains
       write (output_unit, '("problem: ",a,", ",i0," interior vertices, Newton system ",i0," x ",i0)') &
          trim(data%name), p%n, 3*p%n, 3*p%n
 
-      options%cfun = trim(cfg%newton%cfun)
-      options%linear = trim(cfg%newton%linear)
-      options%max_it = cfg%newton%max_it
-      options%tol = cfg%newton%tol
-      ! the paper's initial guess (u1, u2, λ) = (g, 0, 0)
+      call newton_options_from(cfg, options)
       if (data%has_exact() .and. cfg%output%history) then
          observer%mesh => hierarchy%meshes(finest)
          observer%data => data
          observer%p => p
-         call newton_solve(p, options, [spread(data%g, 1, p%n), spread(0.0_dp, 1, 2*p%n)], newton, err, observer)
+         call solve_levels(cfg, hierarchy, data, p, options, newton, coarse, err, observer)
       else
-         call newton_solve(p, options, [spread(data%g, 1, p%n), spread(0.0_dp, 1, 2*p%n)], newton, err)
+         call solve_levels(cfg, hierarchy, data, p, options, newton, coarse, err)
       end if
       if (allocated(err)) then
          exit_code = err%code
@@ -117,6 +119,8 @@ contains
       rec%history = newton%history
       rec%newton_iterations = newton%iterations
       rec%gmres_iterations = newton%linear_iterations
+      rec%newton_iterations_coarse = coarse%newton_iterations
+      rec%gmres_iterations_coarse = coarse%gmres_iterations
       rec%eta_total = nan
       rec%effectivity = nan
       rec%energy_error_total = nan
@@ -148,6 +152,94 @@ contains
       exit_code = merge(exit_ok, exit_not_converged, newton%converged)
    end subroutine run_case
 
+   subroutine newton_options_from(cfg, options)
+      type(config_t), intent(in) :: cfg
+      type(newton_options_t), intent(out) :: options
+
+      options%cfun = trim(cfg%newton%cfun)
+      options%linear = trim(cfg%newton%linear)
+      options%max_it = cfg%newton%max_it
+      options%tol = cfg%newton%tol
+      select case (trim(cfg%newton%line_search))
+      case ('on')
+         options%line_search = .true.
+      case ('off')
+         options%line_search = .false.
+      case default
+         options%line_search = options%cfun == 'fb'
+      end select
+      options%forcing = trim(cfg%gmres%forcing)
+      options%precond = trim(cfg%gmres%precond)
+      options%gmres%restart = cfg%gmres%restart
+      options%gmres%max_it = cfg%gmres%max_it
+      options%gmres%rtol = cfg%gmres%rtol
+      options%gmres%observe_every = cfg%estimate%every
+   end subroutine newton_options_from
+
+   !> Newton on the finest level, from the paper's initial guess (g, 0, 0) or, with
+   !> newton.initial = 'nested', from the solution of the next coarser level, interpolated:
+   !> solving level by level from T_0 keeps the number of Newton steps on the finest level
+   !> nearly independent of the mesh (the contact front starts one layer from its place).
+   subroutine solve_levels(cfg, hierarchy, data, p, options, newton, coarse, err, observer)
+      type(config_t), intent(in) :: cfg
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
+      class(problem_data_t), intent(in) :: data
+      type(discrete_problem_t), intent(in) :: p
+      type(newton_options_t), intent(in) :: options
+      type(newton_result_t), intent(out) :: newton
+      type(coarse_work_t), intent(out) :: coarse
+      type(error_t), allocatable, intent(out) :: err
+      class(newton_observer_t), intent(inout), optional :: observer
+
+      type(discrete_problem_t) :: pl
+      type(newton_options_t) :: quiet
+      type(newton_result_t) :: step
+      real(dp), allocatable :: u(:, :), fine(:, :)
+      integer :: l, k, finest
+
+      finest = hierarchy%levels
+      if (trim(cfg%newton%initial) /= 'nested' .or. finest == 0) then
+         call newton_solve(p, options, [spread(data%g, 1, p%n), spread(0.0_dp, 1, 2*p%n)], newton, err, observer)
+         return
+      end if
+      quiet = options
+      quiet%verbose = .false.
+      do l = 0, finest - 1
+         call pl%init(hierarchy%meshes(l), data, err)
+         if (allocated(err)) return
+         if (l == 0) then
+            call newton_solve(pl, quiet, [spread(data%g, 1, pl%n), spread(0.0_dp, 1, 2*pl%n)], step, err)
+         else
+            call newton_solve(pl, quiet, interior_values(pl, fine), step, err)
+         end if
+         if (allocated(err)) return
+         coarse%newton_iterations = coarse%newton_iterations + step%iterations
+         coarse%gmres_iterations = coarse%gmres_iterations + step%linear_iterations
+         write (output_unit, '("nested: level ",i2,": ",i4," Newton steps, ",i6," GMRES iterations (",a,")")') &
+            l, step%iterations, step%linear_iterations, step%status
+         ! nodal fields on level l, interpolated to level l+1
+         if (allocated(fine)) deallocate (fine)
+         allocate (u(hierarchy%meshes(l)%nv, 3), fine(hierarchy%meshes(l + 1)%nv, 3))
+         u(:, 1) = pl%to_nodal(step%x(1:pl%n), data%g)
+         u(:, 2) = pl%to_nodal(step%x(pl%n + 1:2*pl%n), 0.0_dp)
+         u(:, 3) = pl%to_nodal(step%x(2*pl%n + 1:), 0.0_dp)
+         do k = 1, 3
+            call hierarchy%prolong(l + 1, u(:, k), fine(:, k))
+         end do
+         deallocate (u)
+      end do
+      call newton_solve(p, options, interior_values(p, fine), newton, err, observer)
+   end subroutine solve_levels
+
+   !> [X1; X2; X3] at the interior vertices of `p` from nodal fields (nv, 3).
+   function interior_values(p, nodal) result(x)
+      type(discrete_problem_t), intent(in) :: p
+      real(dp), intent(in) :: nodal(:, :)
+      real(dp), allocatable :: x(:)
+
+      x = [nodal(p%interior, 1), nodal(p%interior, 2), nodal(p%interior, 3)]
+   end function interior_values
+
    !> Print the resolved input; refuse what this version cannot do yet.
    subroutine prepare(cfg, err)
       type(config_t), intent(inout) :: cfg
@@ -164,15 +256,10 @@ contains
       write (output_unit, '(a)') config_echo(cfg)
       if (trim(cfg%problem%exact) == 'bbbv') write (output_unit, '(a)') &
          'note: problem.exact=''bbbv'' sets mu1 = mu2 = 1, g = 0.05 and its own loads (f1, f2 unused)'
-      if (trim(cfg%newton%linear) /= 'direct') then
+      if (trim(cfg%newton%linear) == 'adaptive') then
          call make_error(err, exit_bad_input, trim(cfg%source)//': &newton: linear', &
-                         '''' //trim(cfg%newton%linear)//''' is not available in this version yet '// &
-                         '(only ''direct''); set newton.linear=direct')
-         return
-      end if
-      if (trim(cfg%newton%cfun) /= 'min') then
-         call make_error(err, exit_bad_input, trim(cfg%source)//': &newton: cfun', &
-                         '''' //trim(cfg%newton%cfun)//''' is not available in this version yet (only ''min'')')
+                         '''adaptive'' needs the a posteriori estimators, not available in this version yet '// &
+                         '(use ''direct'' or ''gmres'')')
          return
       end if
    end subroutine prepare

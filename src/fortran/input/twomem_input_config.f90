@@ -46,6 +46,10 @@ module twomem_input_config
       integer :: max_it = 100
       real(dp) :: tol = 1.0e-10_dp
       real(dp) :: gamma_lin = 0.3_dp
+      !> 'paper': (u1, u2, λ) = (g, 0, 0); 'nested': solve on each coarser level first
+      character(len=config_len) :: initial = 'nested'
+      !> 'auto' (on for fb, off for min), 'on', 'off'
+      character(len=config_len) :: line_search = 'auto'
    end type newton_config_t
 
    type :: gmres_config_t
@@ -53,11 +57,16 @@ module twomem_input_config
       integer :: max_it = 5000
       real(dp) :: rtol = 1.0e-10_dp
       character(len=config_len) :: precond = 'ilu0'
+      !> 'paper': stop when the relative algebraic residual ≤ the relative linearization
+      !> residual (the paper's inexact method); 'fixed': at gmres.rtol
+      character(len=config_len) :: forcing = 'paper'
    end type gmres_config_t
 
    type :: estimate_config_t
       real(dp) :: gamma_alg = 0.3_dp
       logical :: enabled = .true.
+      !> ν: estimators and history rows every ν GMRES iterations
+      integer :: every = 10
    end type estimate_config_t
 
    type :: output_config_t
@@ -83,7 +92,7 @@ module twomem_input_config
    end type config_t
 
    ! The key table: one row per key, in the order of the documentation and of the echo.
-   integer, parameter :: n_groups = 6, n_keys = 27
+   integer, parameter :: n_groups = 6, n_keys = 31
    character(len=*), parameter :: group_names(n_groups) = [character(len=8) :: &
       'mesh', 'problem', 'newton', 'gmres', 'estimate', 'output']
    integer, parameter :: kind_word = 1, kind_path = 2, kind_real = 3, kind_int = 4, kind_logical = 5
@@ -93,22 +102,24 @@ module twomem_input_config
       k_restart = 16, k_gmres_max_it = 17, k_rtol = 18, k_precond = 19, &
       k_gamma_alg = 20, k_enabled = 21, &
       k_output_file = 22, k_fields = 23, k_estimators = 24, k_history = 25, k_xdmf = 26, &
-      k_boundary_h = 27
+      k_boundary_h = 27, k_initial = 28, k_line_search = 29, k_forcing = 30, k_every = 31
    integer, parameter :: key_group(n_keys) = [1, 1, 1, 1, 2, 2, 2, 2, 2, 2, 3, 3, 3, 3, 3, &
-                                              4, 4, 4, 4, 5, 5, 6, 6, 6, 6, 6, 1]
-   character(len=*), parameter :: key_names(n_keys) = [character(len=10) :: &
+                                              4, 4, 4, 4, 5, 5, 6, 6, 6, 6, 6, 1, 3, 3, 4, 5]
+   character(len=*), parameter :: key_names(n_keys) = [character(len=12) :: &
       'domain', 'file', 'coarse_h', 'levels', &
       'mu1', 'mu2', 'f1', 'f2', 'g', 'exact', &
       'cfun', 'linear', 'max_it', 'tol', 'gamma_lin', &
       'restart', 'max_it', 'rtol', 'precond', &
       'gamma_alg', 'enabled', &
-      'file', 'fields', 'estimators', 'history', 'xdmf', 'boundary_h']
+      'file', 'fields', 'estimators', 'history', 'xdmf', 'boundary_h', &
+      'initial', 'line_search', 'forcing', 'every']
    integer, parameter :: key_kinds(n_keys) = [kind_word, kind_path, kind_real, kind_int, &
       kind_real, kind_real, kind_real, kind_real, kind_real, kind_word, &
       kind_word, kind_word, kind_int, kind_real, kind_real, &
       kind_int, kind_int, kind_real, kind_word, &
       kind_real, kind_logical, &
-      kind_path, kind_logical, kind_logical, kind_logical, kind_logical, kind_real]
+      kind_path, kind_logical, kind_logical, kind_logical, kind_logical, kind_real, &
+      kind_word, kind_word, kind_word, kind_int]
 
 contains
 
@@ -319,6 +330,9 @@ contains
       case (k_cfun); cfg%newton%cfun = s
       case (k_linear); cfg%newton%linear = s
       case (k_precond); cfg%gmres%precond = s
+      case (k_initial); cfg%newton%initial = s
+      case (k_line_search); cfg%newton%line_search = s
+      case (k_forcing); cfg%gmres%forcing = s
       case (k_output_file); cfg%output%file = s
       end select
    end subroutine store_text
@@ -352,6 +366,7 @@ contains
       case (k_newton_max_it); cfg%newton%max_it = n
       case (k_restart); cfg%gmres%restart = n
       case (k_gmres_max_it); cfg%gmres%max_it = n
+      case (k_every); cfg%estimate%every = n
       end select
    end subroutine store_int
 
@@ -404,14 +419,18 @@ contains
          call check_int(err, origin, k_newton_max_it, n%max_it, 1, 100000)
          call check_real(err, origin, k_tol, n%tol, gt=0.0_dp, lt=1.0_dp)
          call check_real(err, origin, k_gamma_lin, n%gamma_lin, gt=0.0_dp, le=1.0_dp)
+         call check_word(err, origin, k_initial, n%initial, [character(len=8) :: 'paper', 'nested'])
+         call check_word(err, origin, k_line_search, n%line_search, [character(len=8) :: 'auto', 'on', 'off'])
 
          call check_int(err, origin, k_restart, g%restart, 1, 1000)
          call check_int(err, origin, k_gmres_max_it, g%max_it, 1, huge(1))
          call check_real(err, origin, k_rtol, g%rtol, gt=0.0_dp, lt=1.0_dp)
          call check_word(err, origin, k_precond, g%precond, [character(len=8) :: 'ilu0', 'jacobi', 'none'])
+         call check_word(err, origin, k_forcing, g%forcing, [character(len=8) :: 'paper', 'fixed'])
       end associate
 
       call check_real(err, origin, k_gamma_alg, cfg%estimate%gamma_alg, gt=0.0_dp, le=1.0_dp)
+      call check_int(err, origin, k_every, cfg%estimate%every, 1, 100000)
    end subroutine validate
 
    !> A rule across keys, blamed on key `id`: `<origin>: &group: what`.
@@ -562,6 +581,10 @@ contains
       case (k_gmres_max_it); s = itoa(cfg%gmres%max_it)
       case (k_rtol); s = format_real(cfg%gmres%rtol)
       case (k_precond); s = quote(trim(cfg%gmres%precond))
+      case (k_initial); s = quote(trim(cfg%newton%initial))
+      case (k_line_search); s = quote(trim(cfg%newton%line_search))
+      case (k_forcing); s = quote(trim(cfg%gmres%forcing))
+      case (k_every); s = itoa(cfg%estimate%every)
       case (k_gamma_alg); s = format_real(cfg%estimate%gamma_alg)
       case (k_enabled); s = logical_text(cfg%estimate%enabled)
       case (k_output_file); s = quote(trim(cfg%output%file))

@@ -23,6 +23,8 @@ module twomem_io_result
       real(dp), allocatable :: energy_error(:)
       type(history_t) :: history
       integer :: newton_iterations = 0, gmres_iterations = 0, levels = 0
+      !> work on the coarser levels of nested iteration (0 without it)
+      integer :: newton_iterations_coarse = 0, gmres_iterations_coarse = 0
       real(dp) :: eta_total = 0.0_dp, energy_error_total = 0.0_dp, effectivity = 0.0_dp
       real(dp) :: wall_time = 0.0_dp
       integer(i8) :: peak_memory_kib = 0
@@ -153,6 +155,8 @@ contains
          if (.not. allocated(err)) call h5%write_real('/history/alg_residual', (r%alg_residual), err)
          if (.not. allocated(err)) call h5%write_int('/history/active', int(r%active, ip), err)
          if (.not. allocated(err)) call h5%write_int('/history/active_changed', int(r%active_changed, ip), err)
+         if (.not. allocated(err)) call h5%write_real('/history/step', (r%step), err)
+         if (.not. allocated(err)) call h5%write_int('/history/inner', int(merge(1, 0, r%inner), ip), err)
          if (.not. allocated(err)) call h5%write_real('/history/wall_time', (r%wall_time), err)
       end associate
    end subroutine write_history
@@ -165,6 +169,10 @@ contains
 
       call h5%write_attr('/summary', 'newton_iterations', rec%newton_iterations, err)
       if (.not. allocated(err)) call h5%write_attr('/summary', 'gmres_iterations', rec%gmres_iterations, err)
+      if (.not. allocated(err)) call h5%write_attr('/summary', 'newton_iterations_coarse', &
+                                                   rec%newton_iterations_coarse, err)
+      if (.not. allocated(err)) call h5%write_attr('/summary', 'gmres_iterations_coarse', &
+                                                   rec%gmres_iterations_coarse, err)
       if (.not. allocated(err)) call h5%write_attr('/summary', 'eta_total', rec%eta_total, err)
       if (.not. allocated(err)) call h5%write_attr('/summary', 'energy_error', rec%energy_error_total, err)
       if (.not. allocated(err)) call h5%write_attr('/summary', 'effectivity', rec%effectivity, err)

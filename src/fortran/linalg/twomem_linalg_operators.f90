@@ -113,17 +113,28 @@ contains
       z = r
    end subroutine identity_apply
 
+   !> Sums of fixed-size blocks added in block order: the result is the same bits for any
+   !> thread count (an OpenMP reduction adds the threads' sums in whatever order they finish,
+   !> which would make GMRES iterates, and regression results, depend on the thread count).
    real(dp) function euclidean_dot(self, x, y) result(s)
       class(euclidean_product_t), intent(in) :: self
       real(dp), intent(in) :: x(:), y(:)
 
-      integer(ip) :: i
+      integer(ip), parameter :: block = 4096
+      real(dp), allocatable :: partial(:)
+      integer(ip) :: n, nb, b, i
 
-      s = 0.0_dp
-      !$omp parallel do default(none) shared(x, y) private(i) reduction(+:s) schedule(static)
-      do i = 1, size(x, kind=ip)
-         s = s + x(i)*y(i)
+      n = size(x, kind=ip)
+      nb = (n + block - 1)/block
+      allocate (partial(nb))
+      !$omp parallel do default(none) shared(x, y, partial, n, nb) private(b, i) schedule(static)
+      do b = 1, nb
+         partial(b) = 0.0_dp
+         do i = (b - 1)*block + 1, min(b*block, n)
+            partial(b) = partial(b) + x(i)*y(i)
+         end do
       end do
       !$omp end parallel do
+      s = sum(partial)
    end function euclidean_dot
 end module twomem_linalg_operators

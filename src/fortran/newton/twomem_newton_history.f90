@@ -19,6 +19,10 @@ module twomem_newton_history
       real(dp) :: lin_residual, alg_residual
       !> vertices where the a-row (contact) is chosen, and how many changed since the last step
       integer :: active = 0, active_changed = 0
+      !> line-search step length of the Newton update (1 = full step)
+      real(dp) :: step = 1.0_dp
+      !> .true. for a row recorded inside GMRES (every ν iterations), .false. for a Newton step
+      logical :: inner = .false.
       real(dp) :: wall_time = 0.0_dp
    end type history_row_t
 

@@ -1,18 +1,24 @@
 !> The semismooth Newton driver. Each step linearizes the C-function at the current iterate,
-!> solves the Newton system and checks the paper's stopping test ‖R_lin‖/‖[F;0]‖ ≤ tol with
-!> R_lin = [F − E X; −C(X)] (DESIGN.md §2). It stops with a reason when the step limit is hit, when
-!> Newton-min revisits an active set (cycling) or when the active set stops changing with the
-!> residual still above the tolerance (round-off floor). What the caller wants to know about an
-!> iterate beyond residuals (exact errors, estimators) it computes in an observer.
+!> solves the Newton system (exactly with UMFPACK, or by GMRES) and checks the paper's stopping
+!> test ‖R_lin‖/‖[F;0]‖ ≤ tol with R_lin = [F − E X; −C(X)] (DESIGN.md §2). With GMRES and
+!> the paper's forcing, GMRES stops as soon as its relative algebraic residual is below the
+!> relative linearization residual of its current iterate, checked every ν iterations (the
+!> paper's inexact method). An optional backtracking line search on ‖R_lin‖ keeps Newton from
+!> cycling or diverging (on by default for Fischer–Burmeister). The driver stops with a
+!> reason at the step limit, when exact Newton-min revisits an active set (cycling) or when
+!> the active set stops changing with the residual above the tolerance (round-off floor).
+!> What the caller wants to know about an iterate beyond residuals (exact errors, later
+!> estimators) it computes in an observer.
 module twomem_newton_solver
    use, intrinsic :: iso_fortran_env, only: output_unit
    use, intrinsic :: ieee_arithmetic, only: ieee_is_nan
    use twomem_base_kinds, only: dp, ip, i8
    use twomem_base_errors, only: error_t
    use twomem_fem_discrete, only: discrete_problem_t
-   use twomem_linalg_umfpack, only: umfpack_solver_t
+   use twomem_linalg_gmres, only: gmres_options_t, gmres_observer_t
    use twomem_newton_cfun, only: cfun_eval
    use twomem_newton_system, only: newton_system_t
+   use twomem_newton_linear, only: linear_step_t
    use twomem_newton_history, only: history_t, history_row_t, not_computed
    implicit none
    private
@@ -21,9 +27,15 @@ module twomem_newton_solver
 
    type :: newton_options_t
       character(len=8) :: cfun = 'min'
+      !> 'direct' (UMFPACK) or 'gmres'
       character(len=8) :: linear = 'direct'
       integer :: max_it = 100
       real(dp) :: tol = 1.0e-10_dp
+      logical :: line_search = .false.
+      !> GMRES: 'paper' (algebraic ≤ linearization residual) or 'fixed' (gmres%rtol)
+      character(len=8) :: forcing = 'paper'
+      character(len=8) :: precond = 'ilu0'
+      type(gmres_options_t) :: gmres
       logical :: verbose = .true.
    end type newton_options_t
 
@@ -52,32 +64,57 @@ module twomem_newton_solver
       end subroutine observe_interface
    end interface
 
+   !> What the linearization needs, shared by the Newton loop and the GMRES observer.
+   type :: linearization_t
+      type(newton_system_t) :: sys
+      character(len=8) :: cfun = 'min'
+      real(dp) :: f_norm = 1.0_dp
+   contains
+      procedure :: residual
+   end type linearization_t
+
+   !> Records a history row every ν GMRES iterations and applies the paper's forcing.
+   type, extends(gmres_observer_t) :: step_observer_t
+      type(linearization_t), pointer :: lin => null()
+      type(history_t), pointer :: history => null()
+      class(newton_observer_t), pointer :: user => null()
+      logical :: paper_forcing = .true., verbose = .false.
+      integer :: newton_it = 0, gmres_before = 0
+      real(dp) :: b_norm = 1.0_dp, t0 = 0.0_dp
+   contains
+      procedure :: observe => observe_gmres
+   end type step_observer_t
+
 contains
 
    subroutine newton_solve(p, options, x0, result, err, observer)
       type(discrete_problem_t), intent(in) :: p
       type(newton_options_t), intent(in) :: options
       real(dp), intent(in) :: x0(:)
-      type(newton_result_t), intent(out) :: result
+      type(newton_result_t), target, intent(out) :: result
       type(error_t), allocatable, intent(out) :: err
-      class(newton_observer_t), intent(inout), optional :: observer
+      class(newton_observer_t), intent(inout), target, optional :: observer
 
-      type(newton_system_t) :: sys
-      type(umfpack_solver_t) :: direct
+      type(linearization_t), target :: lin
+      type(linear_step_t) :: solver
+      type(step_observer_t) :: inner
       type(history_row_t) :: row
-      real(dp), allocatable :: x(:), b(:), c(:), da(:), db(:), ax(:)
+      real(dp), allocatable :: x(:), x_new(:), b(:), c(:), da(:), db(:), ax(:)
       logical, allocatable :: active(:), previous(:)
       integer(i8), allocatable :: seen_hash(:)
       integer, allocatable :: seen_count(:)
       integer(ip) :: n
       integer :: k, j
-      real(dp) :: f_norm, t0
+      real(dp) :: t0, step, lin_res
       character(len=:), allocatable :: why
 
       n = p%n
-      call sys%init(p)
-      f_norm = norm2(sys%f)
-      if (.not. f_norm > 0.0_dp) f_norm = 1.0_dp
+      call lin%sys%init(p)
+      lin%cfun = options%cfun
+      lin%f_norm = norm2(lin%sys%f)
+      if (.not. lin%f_norm > 0.0_dp) lin%f_norm = 1.0_dp
+      call solver%init(options%linear, options%precond, options%gmres, err)
+      if (allocated(err)) return
       allocate (c(n), da(n), db(n), b(3*n), ax(3*n), active(n), previous(n))
       allocate (seen_hash(0:options%max_it), seen_count(0:options%max_it))
       x = x0
@@ -85,11 +122,19 @@ contains
       ! before the first linearization no vertex is in contact
       previous = .false.
 
-      call linearize(x, row)
+      row = not_computed()
+      call lin%residual(x, row%lin_residual, c, da, db)
       row%alg_residual = 0.0_dp
       call record(0, row)
       previous = active
       if (row%lin_residual <= options%tol) why = 'converged'
+
+      inner%lin => lin
+      inner%history => result%history
+      if (present(observer)) inner%user => observer
+      inner%paper_forcing = options%forcing == 'paper'
+      inner%verbose = options%verbose
+      inner%t0 = t0
 
       k = 0
       do while (.not. allocated(why))
@@ -99,29 +144,46 @@ contains
          end if
          k = k + 1
          ! B = [F; J_C X − C(X)] with the Jacobian of the previous iterate
-         b(1:2*n) = sys%f
+         b(1:2*n) = lin%sys%f
          b(2*n + 1:) = da*(x(1:n) - x(n + 1:2*n)) + db*x(2*n + 1:) - c
-         call sys%set_jacobian(da, db)
-         call direct%factor(sys%a, err)
-         if (allocated(err)) return
-         call direct%solve(sys%a, b, x, err)
-         if (allocated(err)) return
-         call linearize(x, row)
-         call sys%a%matvec(x, ax)
+         call lin%sys%set_jacobian(da, db)
+         x_new = x
+         if (options%linear == 'gmres') then
+            inner%newton_it = k
+            inner%gmres_before = result%linear_iterations
+            inner%b_norm = max(norm2(b), tiny(1.0_dp))
+            call solver%solve(lin%sys%a, b, x_new, err, observer=inner)
+            if (allocated(err)) return
+            result%linear_iterations = result%linear_iterations + solver%monitor%iterations
+         else
+            call solver%solve(lin%sys%a, b, x_new, err)
+            if (allocated(err)) return
+         end if
+         call lin%sys%a%matvec(x_new, ax)
+         lin_res = row%lin_residual
+         row = not_computed()
          row%alg_residual = norm2(b - ax)/max(norm2(b), tiny(1.0_dp))
+         step = 1.0_dp
+         if (options%line_search) call backtrack(x, x_new, lin_res, step)
+         x = x + step*(x_new - x)
+         call lin%residual(x, row%lin_residual, c, da, db)
+         row%step = step
          call record(k, row)
          if (row%lin_residual <= options%tol) then
             why = 'converged'
-         else if (row%active_changed == 0) then
-            why = 'not converged: stagnation (active set unchanged, residual above newton.tol: '// &
-                  'round-off floor reached)'
-         else
-            do j = 0, k - 2
-               if (seen_hash(j) == seen_hash(k) .and. seen_count(j) == seen_count(k)) then
-                  why = 'not converged: stagnation (Newton-min cycles between active sets)'
-                  exit
-               end if
-            end do
+         else if (options%linear == 'direct' .and. step == 1.0_dp) then
+            ! exact full steps of Newton-min: a repeated active set cannot make progress
+            if (row%active_changed == 0 .and. options%cfun == 'min') then
+               why = 'not converged: stagnation (active set unchanged, residual above newton.tol: '// &
+                     'round-off floor reached)'
+            else if (options%cfun == 'min') then
+               do j = 0, k - 2
+                  if (seen_hash(j) == seen_hash(k) .and. seen_count(j) == seen_count(k)) then
+                     why = 'not converged: stagnation (Newton-min cycles between active sets)'
+                     exit
+                  end if
+               end do
+            end if
          end if
          previous = active
       end do
@@ -133,27 +195,33 @@ contains
 
    contains
 
-      !> C-function, its Jacobian, the active set and the linearization residual at x.
-      subroutine linearize(x, row)
-         real(dp), intent(in) :: x(:)
-         type(history_row_t), intent(out) :: row
+      !> Halve the step until ‖R_lin‖ decreases (Armijo with σ = 1e-4); a step that never
+      !> decreases it is taken in full, so Newton-min keeps its finite active-set termination.
+      subroutine backtrack(x, x_new, res0, alpha)
+         real(dp), intent(in) :: x(:), x_new(:), res0
+         real(dp), intent(out) :: alpha
 
-         real(dp), allocatable :: ex(:)
+         real(dp) :: res
+         real(dp), allocatable :: ct(:), dat(:), dbt(:)
+         integer :: halvings
 
-         row = not_computed()
-         call cfun_eval(options%cfun, x(1:n) - x(n + 1:2*n), x(2*n + 1:), c, da, db)
-         active = da > db
-         allocate (ex(2*n))
-         call sys%apply_e(x, ex)
-         row%lin_residual = sqrt(sum((sys%f - ex)**2) + sum(c**2))/f_norm
-      end subroutine linearize
+         allocate (ct(n), dat(n), dbt(n))
+         alpha = 1.0_dp
+         do halvings = 0, 30
+            call lin%residual(x + alpha*(x_new - x), res, ct, dat, dbt)
+            if (res <= (1 - 1.0e-4_dp*alpha)*res0) return
+            alpha = alpha/2
+         end do
+         alpha = 1.0_dp
+      end subroutine backtrack
 
       subroutine record(k, row)
          integer, intent(in) :: k
          type(history_row_t), intent(inout) :: row
 
+         active = da > db
          row%newton_it = k
-         row%gmres_it = 0
+         row%gmres_it = result%linear_iterations
          row%active = count(active)
          row%active_changed = count(active .neqv. previous)
          seen_hash(k) = hash_set(active)
@@ -165,6 +233,51 @@ contains
       end subroutine record
    end subroutine newton_solve
 
+   !> ‖[F − E X; −C(X)]‖/‖[F; 0]‖ and the C-function with its Jacobian at x.
+   subroutine residual(self, x, rel, c, da, db)
+      class(linearization_t), intent(in) :: self
+      real(dp), intent(in) :: x(:)
+      real(dp), intent(out) :: rel
+      real(dp), intent(out) :: c(:), da(:), db(:)
+
+      real(dp), allocatable :: ex(:)
+      integer(ip) :: n
+
+      n = self%sys%n
+      call cfun_eval(self%cfun, x(1:n) - x(n + 1:2*n), x(2*n + 1:), c, da, db)
+      allocate (ex(2*n))
+      call self%sys%apply_e(x, ex)
+      rel = sqrt(sum((self%sys%f - ex)**2) + sum(c**2))/self%f_norm
+   end subroutine residual
+
+   !> Every ν GMRES iterations: record the iterate's residuals and, with the paper's forcing,
+   !> stop GMRES once ‖R_alg‖/‖B‖ ≤ ‖R_lin(x)‖/‖[F;0]‖.
+   subroutine observe_gmres(self, iteration, x, residual_norm, stop)
+      class(step_observer_t), intent(inout) :: self
+      integer, intent(in) :: iteration
+      real(dp), intent(in) :: x(:)
+      real(dp), intent(in) :: residual_norm
+      logical, intent(out) :: stop
+
+      type(history_row_t) :: row
+      real(dp), allocatable :: c(:), da(:), db(:)
+      integer(ip) :: n
+
+      n = self%lin%sys%n
+      allocate (c(n), da(n), db(n))
+      row = not_computed()
+      call self%lin%residual(x, row%lin_residual, c, da, db)
+      row%alg_residual = residual_norm/self%b_norm
+      row%newton_it = self%newton_it
+      row%gmres_it = self%gmres_before + iteration
+      row%active = count(da > db)
+      row%inner = .true.
+      if (associated(self%user)) call self%user%observe(x, row)
+      row%wall_time = wall_seconds() - self%t0
+      call self%history%append(row)
+      stop = self%paper_forcing .and. row%alg_residual <= row%lin_residual
+   end subroutine observe_gmres
+
    subroutine progress_line(row)
       type(history_row_t), intent(in) :: row
 
@@ -175,9 +288,9 @@ contains
       else
          err_text = ''
       end if
-      write (output_unit, '("newton ",i4,"  contact ",i8," (changed ",i7,")  lin-res ",es9.3, &
-           &"  alg-res ",es9.3,a,"  ",f9.2," s")') row%newton_it, row%active, row%active_changed, &
-         row%lin_residual, row%alg_residual, trim(err_text), row%wall_time
+      write (output_unit, '("newton ",i4,"  gmres ",i6,"  contact ",i8," (changed ",i7,")  lin-res ",es9.3, &
+           &"  alg-res ",es9.3,"  step ",f5.3,a,"  ",f9.2," s")') row%newton_it, row%gmres_it, row%active, &
+         row%active_changed, row%lin_residual, row%alg_residual, row%step, trim(err_text), row%wall_time
       flush (output_unit)
    end subroutine progress_line
 

@@ -1,0 +1,446 @@
+!> Restarted GMRES(m) with right preconditioning, the Krylov kernel behind the `gmres` and
+!> `adaptive` solvers. It sees the system only through `linear_operator_t`,
+!> `preconditioner_t` and `inner_product_t`, so the same code runs serial, threaded or
+!> distributed. Right preconditioning (A M⁻¹ y = r₀, x = x₀ + M⁻¹ V y) makes the Arnoldi
+!> residual estimate the true residual norm in exact arithmetic; convergence is nevertheless
+!> decided on the true residual ‖b − A x‖, recomputed at every restart. An optional observer
+!> sees the current iterate every ν iterations and may stop the solve: this is how the
+!> adaptive Newton method stops GMRES on a posteriori estimators. Non-convergence is a reason
+!> in the monitor, not an error; errors are only for misuse.
+module twomem_linalg_gmres
+   use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
+   use twomem_base_kinds, only: dp, ip
+   use twomem_base_errors, only: error_t, make_error, exit_bad_input
+   use twomem_linalg_operators, only: linear_operator_t, preconditioner_t, inner_product_t
+   implicit none
+   private
+
+   public :: gmres_solve, gmres_options_t, gmres_monitor_t, gmres_observer_t, gmres_workspace_t
+
+   type :: gmres_options_t
+      !> m: Krylov vectors per cycle
+      integer :: restart = 30
+      !> total Arnoldi iterations over all cycles
+      integer :: max_it = 5000
+      !> stop when ‖b − A x‖ ≤ max(rtol ‖b‖, atol)
+      real(dp) :: rtol = 1.0e-10_dp
+      real(dp) :: atol = 0.0_dp
+      !> ν: the observer sees the iterate every ν iterations (and at every restart)
+      integer :: observe_every = 10
+      !> give up after this many consecutive cycles in which the true residual did not drop
+      !> below `stagnation_factor` times its last significant value (0 disables the test)
+      integer :: stagnation_window = 3
+      real(dp) :: stagnation_factor = 0.999_dp
+      !> h(j+1,j) ≤ breakdown_tol · ‖H(:,j)‖ is a happy breakdown (invariant Krylov space)
+      real(dp) :: breakdown_tol = 100*epsilon(1.0_dp)
+      !> η: a second Gram–Schmidt pass when ‖w‖ < η ‖A z_j‖ after the first (see
+      !> `orthogonalize`); 0 never reorthogonalizes, a value above 1 always does
+      real(dp) :: reorth_factor = 0.70710678118654752_dp
+   end type gmres_options_t
+
+   type :: gmres_monitor_t
+      integer :: iterations = 0
+      integer :: restarts = 0
+      !> true residual norms of the initial guess and of the returned x
+      real(dp) :: initial_residual = 0.0_dp
+      real(dp) :: final_residual = 0.0_dp
+      !> the residual estimate at every iteration, initial residual first (iterations + 1)
+      real(dp), allocatable :: residual_history(:)
+      !> .true. exactly when reason is 'converged'
+      logical :: converged = .false.
+      !> 'converged', 'iteration limit', 'breakdown', 'stagnation', 'stopped by observer'
+      character(len=:), allocatable :: reason
+      !> cycles whose Arnoldi estimate met the tolerance while the true residual did not
+      integer :: false_convergences = 0
+      !> Arnoldi steps that needed the second Gram–Schmidt pass
+      integer :: reorthogonalizations = 0
+      !> the last cycle ended on an invariant Krylov space
+      logical :: happy_breakdown = .false.
+   end type gmres_monitor_t
+
+   !> Receives the current iterate; set `stop` to end GMRES with x = this iterate.
+   type, abstract :: gmres_observer_t
+   contains
+      procedure(observer_observe), deferred :: observe
+   end type gmres_observer_t
+
+   abstract interface
+      !> `residual_norm` is the Arnoldi estimate inside a cycle and the true residual at a
+      !> restart (equal in exact arithmetic).
+      subroutine observer_observe(self, iteration, x, residual_norm, stop)
+         import :: gmres_observer_t, dp
+         class(gmres_observer_t), intent(inout) :: self
+         integer, intent(in) :: iteration
+         real(dp), intent(in) :: x(:), residual_norm
+         logical, intent(out) :: stop
+      end subroutine observer_observe
+   end interface
+
+   !> The Krylov basis V (n × (m+1)), Z = M⁻¹V (n × m) and the small Hessenberg problem. A
+   !> caller solving many systems of one size (Newton steps) keeps one to avoid reallocating.
+   type :: gmres_workspace_t
+      private
+      integer(ip) :: n = 0
+      integer :: m = 0
+      real(dp), allocatable :: v(:, :), z(:, :), h(:, :), g(:), cs(:), sn(:), y(:)
+      real(dp), allocatable :: r(:), w(:), xc(:)
+   contains
+      procedure :: init => workspace_init
+      procedure :: free => workspace_free
+   end type gmres_workspace_t
+
+   !> How an Arnoldi cycle ended.
+   integer, parameter :: cycle_full = 0, cycle_estimate = 1, cycle_breakdown = 2, &
+                         cycle_limit = 3, cycle_stopped = 4
+
+contains
+
+   subroutine workspace_init(self, n, m)
+      class(gmres_workspace_t), intent(inout) :: self
+      integer(ip), intent(in) :: n
+      integer, intent(in) :: m
+
+      call self%free()
+      self%n = n
+      self%m = m
+      allocate (self%v(n, m + 1), self%z(n, m), self%h(m + 1, m), self%g(m + 1), self%cs(m), &
+                self%sn(m), self%y(m), self%r(n), self%w(n), self%xc(n))
+   end subroutine workspace_init
+
+   subroutine workspace_free(self)
+      class(gmres_workspace_t), intent(inout) :: self
+
+      if (allocated(self%v)) deallocate (self%v, self%z, self%h, self%g, self%cs, self%sn, &
+                                         self%y, self%r, self%w, self%xc)
+      self%n = 0
+      self%m = 0
+   end subroutine workspace_free
+
+   !> Solve A x = b; `x` holds the initial guess on entry. `err` is set only for misuse
+   !> (sizes, options; the monitor's reason is then 'invalid arguments'); how the solve ended
+   !> is `monitor%reason`. A zero b returns x = 0 at once: converged, 0 iterations, zero
+   !> residuals. `workspace`, if given, is (re)allocated only when n or m changed.
+   subroutine gmres_solve(op, prec, dot, b, x, options, monitor, err, observer, workspace)
+      class(linear_operator_t), intent(in) :: op
+      class(preconditioner_t), intent(in) :: prec
+      class(inner_product_t), intent(in) :: dot
+      real(dp), intent(in) :: b(:)
+      real(dp), intent(inout) :: x(:)
+      type(gmres_options_t), intent(in) :: options
+      type(gmres_monitor_t), intent(out) :: monitor
+      type(error_t), allocatable, intent(out) :: err
+      class(gmres_observer_t), intent(inout), optional :: observer
+      type(gmres_workspace_t), intent(inout), optional :: workspace
+
+      type(gmres_workspace_t) :: local
+
+      monitor%reason = 'invalid arguments'
+      call check_arguments(size(b), size(x), options, err)
+      if (allocated(err)) return
+      if (present(workspace)) then
+         call run_gmres(op, prec, dot, b, x, options, monitor, workspace, observer)
+      else
+         call run_gmres(op, prec, dot, b, x, options, monitor, local, observer)
+      end if
+   end subroutine gmres_solve
+
+   subroutine check_arguments(nb, nx, opt, err)
+      integer, intent(in) :: nb, nx
+      type(gmres_options_t), intent(in) :: opt
+      type(error_t), allocatable, intent(out) :: err
+
+      character(len=128) :: msg
+
+      msg = ''
+      if (nx /= nb) then
+         write (msg, '("size of x (",i0,") differs from size of b (",i0,")")') nx, nb
+      else if (opt%restart < 1) then
+         write (msg, '("restart must be at least 1, got ",i0)') opt%restart
+      else if (opt%max_it < 0) then
+         write (msg, '("max_it must not be negative, got ",i0)') opt%max_it
+      else if (opt%observe_every < 1) then
+         write (msg, '("observe_every must be at least 1, got ",i0)') opt%observe_every
+      else if (opt%stagnation_window < 0) then
+         write (msg, '("stagnation_window must not be negative, got ",i0)') opt%stagnation_window
+      else if (.not. (opt%rtol >= 0 .and. opt%atol >= 0)) then
+         msg = 'rtol and atol must not be negative'
+      else if (.not. (opt%breakdown_tol >= 0 .and. opt%stagnation_factor > 0 .and. &
+                      opt%reorth_factor >= 0)) then
+         msg = 'breakdown_tol and reorth_factor must not be negative, '// &
+               'stagnation_factor must be positive'
+      end if
+      if (len_trim(msg) > 0) call make_error(err, exit_bad_input, 'gmres_solve', msg)
+   end subroutine check_arguments
+
+   !> The restart loop. Every decision is taken here, at a restart point, on the true residual.
+   subroutine run_gmres(op, prec, dot, b, x, opt, mon, ws, observer)
+      class(linear_operator_t), intent(in) :: op
+      class(preconditioner_t), intent(in) :: prec
+      class(inner_product_t), intent(in) :: dot
+      real(dp), intent(in) :: b(:)
+      real(dp), intent(inout) :: x(:)
+      type(gmres_options_t), intent(in) :: opt
+      type(gmres_monitor_t), intent(inout) :: mon
+      type(gmres_workspace_t), intent(inout) :: ws
+      class(gmres_observer_t), intent(inout), optional :: observer
+
+      real(dp), allocatable :: history(:)
+      real(dp) :: target, beta, reference
+      integer :: it, outcome, cycles, stalled
+      logical :: stop
+
+      if (dot%norm(b) == 0) then
+         ! x = 0 is exact whatever the guess; no operator application is needed
+         x = 0.0_dp
+         mon%residual_history = [0.0_dp]
+         call finish(mon, 'converged')
+         return
+      end if
+      if (ws%n /= size(b) .or. ws%m /= opt%restart) call ws%init(size(b, kind=ip), opt%restart)
+      target = max(opt%rtol*dot%norm(b), opt%atol)
+      ! grown on demand: max_it is a safeguard, often far above what a solve takes
+      allocate (history(0:min(opt%max_it, 1023)))
+
+      call residual(op, b, x, ws%r)
+      beta = dot%norm(ws%r)
+      mon%initial_residual = beta
+      history(0) = beta
+      it = 0
+      cycles = 0
+      stalled = 0
+      reference = beta
+      outcome = cycle_full
+      do
+         if (.not. ieee_is_finite(beta)) then
+            call finish(mon, 'breakdown')
+            exit
+         else if (beta <= target) then
+            call finish(mon, 'converged')
+            exit
+         else if (outcome == cycle_stopped) then
+            call finish(mon, 'stopped by observer')
+            exit
+         else if (outcome == cycle_breakdown) then
+            ! the Krylov space was invariant, yet x does not meet the tolerance: rounding in
+            ! the small solve or a singular operator; another cycle would rebuild the same space
+            call finish(mon, 'breakdown')
+            exit
+         else if (it >= opt%max_it) then
+            call finish(mon, 'iteration limit')
+            exit
+         end if
+         if (cycles > 0) then
+            if (beta <= opt%stagnation_factor*reference) then
+               reference = beta
+               stalled = 0
+            else
+               stalled = stalled + 1
+            end if
+            if (opt%stagnation_window > 0 .and. stalled >= opt%stagnation_window) then
+               call finish(mon, 'stagnation')
+               exit
+            end if
+            if (present(observer)) then
+               call observer%observe(it, x, beta, stop)
+               if (stop) then
+                  call finish(mon, 'stopped by observer')
+                  exit
+               end if
+            end if
+            mon%restarts = mon%restarts + 1
+         end if
+         cycles = cycles + 1
+
+         call arnoldi_cycle(op, prec, dot, x, beta, target, opt, ws, it, history, outcome, &
+                            mon%reorthogonalizations, observer)
+         call residual(op, b, x, ws%r)
+         beta = dot%norm(ws%r)
+         if (outcome == cycle_estimate .and. beta > target) &
+            mon%false_convergences = mon%false_convergences + 1
+         mon%happy_breakdown = outcome == cycle_breakdown
+      end do
+      mon%final_residual = beta
+      mon%iterations = it
+      mon%residual_history = history(0:it)
+   end subroutine run_gmres
+
+   subroutine finish(mon, reason)
+      type(gmres_monitor_t), intent(inout) :: mon
+      character(len=*), intent(in) :: reason
+
+      mon%reason = reason
+      mon%converged = reason == 'converged'
+   end subroutine finish
+
+   !> One cycle of at most m Arnoldi steps from the residual in ws%r (norm beta); on return
+   !> x = x + Z y, y minimising the residual over the cycle's Krylov space.
+   subroutine arnoldi_cycle(op, prec, dot, x, beta, target, opt, ws, it, history, outcome, &
+                            reorths, observer)
+      class(linear_operator_t), intent(in) :: op
+      class(preconditioner_t), intent(in) :: prec
+      class(inner_product_t), intent(in) :: dot
+      real(dp), intent(inout) :: x(:)
+      real(dp), intent(in) :: beta, target
+      type(gmres_options_t), intent(in) :: opt
+      type(gmres_workspace_t), intent(inout) :: ws
+      integer, intent(inout) :: it
+      real(dp), allocatable, intent(inout) :: history(:)
+      integer, intent(out) :: outcome
+      integer, intent(inout) :: reorths
+      class(gmres_observer_t), intent(inout), optional :: observer
+
+      integer :: j, k
+      real(dp) :: colnorm, hnext, rr, estimate
+      logical :: stop
+
+      ws%v(:, 1) = ws%r/beta
+      ws%h = 0.0_dp
+      ws%g = 0.0_dp
+      ws%g(1) = beta
+      k = 0
+      outcome = cycle_full
+      do j = 1, opt%restart
+         call prec%apply(ws%v(:, j), ws%z(:, j))
+         call op%apply(ws%z(:, j), ws%w)
+         call orthogonalize(dot, ws%v, j, opt%reorth_factor, ws%w, ws%h(1:j + 1, j), reorths)
+         ! the Hessenberg column is small and replicated, so plain Fortran is fine here
+         colnorm = norm2(ws%h(1:j + 1, j))
+         hnext = ws%h(j + 1, j)
+         call apply_rotations(ws%cs(1:j - 1), ws%sn(1:j - 1), ws%h(1:j, j))
+         rr = hypot(ws%h(j, j), hnext)
+         it = it + 1
+         if (rr <= opt%breakdown_tol*colnorm) then
+            ! A z_j lies in the span of the earlier vectors and adds nothing: the operator is
+            ! singular on this space; keep the j − 1 useful columns
+            call record(history, it, abs(ws%g(j)))
+            outcome = cycle_breakdown
+            exit
+         end if
+         ws%cs(j) = ws%h(j, j)/rr
+         ws%sn(j) = hnext/rr
+         ws%h(j, j) = rr
+         ws%h(j + 1, j) = 0.0_dp
+         ws%g(j + 1) = -ws%sn(j)*ws%g(j)
+         ws%g(j) = ws%cs(j)*ws%g(j)
+         estimate = abs(ws%g(j + 1))
+         call record(history, it, estimate)
+         k = j
+         if (hnext <= opt%breakdown_tol*colnorm) then
+            outcome = cycle_breakdown
+         else if (estimate <= target) then
+            outcome = cycle_estimate
+         else if (it >= opt%max_it) then
+            outcome = cycle_limit
+         end if
+         if (outcome /= cycle_full .or. j == opt%restart) exit
+         ws%v(:, j + 1) = ws%w/hnext
+         ! a cycle that ends here is observed at the restart, with its true residual
+         if (present(observer) .and. mod(it, opt%observe_every) == 0) then
+            call current_iterate(ws, j, x)
+            call observer%observe(it, ws%xc, estimate, stop)
+            if (stop) then
+               outcome = cycle_stopped
+               exit
+            end if
+         end if
+      end do
+      ! the same operations as for the observed iterate, so a stop returns it bit for bit
+      call current_iterate(ws, k, x)
+      x = ws%xc
+   end subroutine arnoldi_cycle
+
+   !> history(it) = value, doubling the array (lower bound 0) when full.
+   subroutine record(history, it, value)
+      real(dp), allocatable, intent(inout) :: history(:)
+      integer, intent(in) :: it
+      real(dp), intent(in) :: value
+
+      real(dp), allocatable :: longer(:)
+
+      if (it > ubound(history, 1)) then
+         allocate (longer(0:2*ubound(history, 1) + 1))
+         longer(0:ubound(history, 1)) = history
+         call move_alloc(longer, history)
+      end if
+      history(it) = value
+   end subroutine record
+
+   !> Modified Gram–Schmidt of w against v(:, 1:j); h(1:j) gets the coefficients, h(j+1) the
+   !> norm of what is left. "Twice is enough" (Kahan–Parlett; Daniel, Gragg, Kaufman &
+   !> Stewart 1976; Giraud, Langou & Rozložník 2005): if one pass shrank w below η = 1/√2 of
+   !> its norm, cancellation may have cost orthogonality and a second pass restores it to
+   !> working precision; a third never helps. Shifted operators (a Laplacian's large diagonal)
+   !> trip this test at almost every step, doubling the orthogonalization cost, which is why
+   !> η is an option.
+   subroutine orthogonalize(dot, v, j, eta, w, h, reorths)
+      class(inner_product_t), intent(in) :: dot
+      real(dp), intent(in) :: v(:, :)
+      integer, intent(in) :: j
+      real(dp), intent(in) :: eta
+      real(dp), intent(inout) :: w(:)
+      real(dp), intent(out) :: h(:)
+      integer, intent(inout) :: reorths
+
+      real(dp) :: w0, c
+      integer :: i
+
+      w0 = dot%norm(w)
+      do i = 1, j
+         h(i) = dot%dot(w, v(:, i))
+         w = w - h(i)*v(:, i)
+      end do
+      h(j + 1) = dot%norm(w)
+      if (h(j + 1) < eta*w0) then
+         reorths = reorths + 1
+         do i = 1, j
+            c = dot%dot(w, v(:, i))
+            h(i) = h(i) + c
+            w = w - c*v(:, i)
+         end do
+         h(j + 1) = dot%norm(w)
+      end if
+   end subroutine orthogonalize
+
+   !> Bring a new Hessenberg column into the triangular form of the previous ones.
+   pure subroutine apply_rotations(cs, sn, h)
+      real(dp), intent(in) :: cs(:), sn(:)
+      real(dp), intent(inout) :: h(:)
+
+      real(dp) :: t
+      integer :: i
+
+      do i = 1, size(cs)
+         t = cs(i)*h(i) + sn(i)*h(i + 1)
+         h(i + 1) = -sn(i)*h(i) + cs(i)*h(i + 1)
+         h(i) = t
+      end do
+   end subroutine apply_rotations
+
+   !> ws%xc = x + Z(:, 1:k) y with R y = g from the rotated Hessenberg (k × k, upper
+   !> triangular).
+   subroutine current_iterate(ws, k, x)
+      type(gmres_workspace_t), intent(inout) :: ws
+      integer, intent(in) :: k
+      real(dp), intent(in) :: x(:)
+
+      integer :: i
+
+      do i = k, 1, -1
+         ws%y(i) = (ws%g(i) - sum(ws%h(i, i + 1:k)*ws%y(i + 1:k)))/ws%h(i, i)
+      end do
+      ws%xc = x
+      do i = 1, k
+         ws%xc = ws%xc + ws%y(i)*ws%z(:, i)
+      end do
+   end subroutine current_iterate
+
+   !> r = b − A x
+   subroutine residual(op, b, x, r)
+      class(linear_operator_t), intent(in) :: op
+      real(dp), intent(in) :: b(:), x(:)
+      real(dp), intent(out) :: r(:)
+
+      call op%apply(x, r)
+      r = b - r
+   end subroutine residual
+end module twomem_linalg_gmres
