@@ -53,3 +53,19 @@ def test_nested_iteration_bounds_newton_on_the_finest_level():
         counts.append(int(result(path)["summary"]["newton_iterations"]))
     print(f"Newton steps on the finest level, levels 1..4: {counts}")
     assert max(counts) <= 4, counts
+
+
+@pytest.mark.parametrize("data", [["problem.f1=-5", "problem.f2=5"],
+                                  ["problem.mu1=100", "problem.mu2=0.01", "problem.f1=-1", "problem.f2=1"]])
+def test_line_search_does_not_slow_fischer_burmeister(data):
+    """The globalization must not cost convergence where full steps work. A line search on
+    the weak (h²-scaled) residual once took 30 steps instead of 10, or stalled: from (g, 0, 0)
+    the weak residual is tiny and every useful step looks like an increase."""
+    steps = {}
+    for ls in ("on", "off"):
+        path = out_file(f"methods/fb_ls_{ls}.h5")
+        run("mesh.levels=2", "newton.initial=paper", "newton.cfun=fb", f"newton.line_search={ls}",
+            *data, "output.history=.false.", f"output.file={path}")
+        steps[ls] = int(result(path)["summary"]["newton_iterations"])
+    print(f"{data}: Newton steps with line search {steps['on']}, without {steps['off']}")
+    assert steps["on"] <= steps["off"] + 2, steps
