@@ -13,7 +13,7 @@ module twomem_base_system
    private
 
    public :: make_directories, parent_directory, base_name, rename_file, remove_file, file_exists, is_directory
-   public :: process_id, peak_memory_kib, exit_program
+   public :: process_id, peak_memory_kib, c_text, exit_program
 
    integer, parameter :: msg_len = 1024
 
@@ -186,6 +186,7 @@ contains
       end do
    end function strip_slashes
 
+   !> The text of a NUL-terminated C string in a Fortran buffer (the C glue's messages).
    pure function c_text(buffer) result(text)
       character(len=*), intent(in) :: buffer
       character(len=:), allocatable :: text

@@ -8,6 +8,7 @@
 module twomem_io_hdf5
    use, intrinsic :: iso_c_binding, only: c_char, c_int, c_double, c_int64_t, c_size_t, c_null_char
    use twomem_base_kinds, only: dp, ip, i8
+   use twomem_base_system, only: c_text
    use twomem_base_errors, only: error_t, make_error, exit_io
    implicit none
    private
@@ -589,15 +590,4 @@ contains
       where = obj_path//' attribute '//name
    end function attr_where
 
-   !> The text of a NUL-terminated C string in a Fortran buffer.
-   pure function c_text(buffer) result(text)
-      character(len=*), intent(in) :: buffer
-      character(len=:), allocatable :: text
-
-      integer :: n
-
-      n = index(buffer, c_null_char) - 1
-      if (n < 0) n = len_trim(buffer)
-      text = buffer(1:n)
-   end function c_text
 end module twomem_io_hdf5
