@@ -108,7 +108,7 @@ contains
       integer, allocatable :: seen_count(:)
       integer(ip) :: n
       integer :: k, j
-      real(dp) :: t0, step, lin_res
+      real(dp) :: t0, step
       !> the last residuals: the line search compares with their maximum (non-monotone)
       real(dp) :: recent(5)
       character(len=:), allocatable :: why
@@ -167,7 +167,6 @@ contains
             if (allocated(err)) return
          end if
          call lin%sys%a%matvec(x_new, ax)
-         lin_res = row%lin_residual
          row = not_computed()
          row%alg_residual = norm2(b - ax)/max(norm2(b), tiny(1.0_dp))
          step = 1.0_dp
@@ -229,7 +228,8 @@ contains
          integer, intent(in) :: k
          type(history_row_t), intent(inout) :: row
 
-         active = da > db
+         ! contact where u1 − u2 ≤ λ: for Newton-min exactly the vertices with the a-row
+         active = x(1:n) - x(n + 1:2*n) <= x(2*n + 1:)
          row%newton_it = k
          row%gmres_it = result%linear_iterations
          row%active = count(active)
@@ -298,7 +298,7 @@ contains
       row%alg_residual = residual_norm/self%b_norm
       row%newton_it = self%newton_it
       row%gmres_it = self%gmres_before + iteration
-      row%active = count(da > db)
+      row%active = count(x(1:n) - x(n + 1:2*n) <= x(2*n + 1:))
       row%inner = .true.
       if (associated(self%user)) call self%user%observe(x, row)
       row%wall_time = wall_seconds() - self%t0
