@@ -31,7 +31,8 @@ METHODS = {"exact": ["gmres.forcing=fixed", "gmres.rtol=2e-12"],
 
 def run(exe: str, h: float, method: str, extra: list[str], out: Path) -> dict:
     cmd = [exe, "run", str(ROOT / "input" / "paper_p1.nml"), f"mesh.coarse_h={h}", f"mesh.boundary_h={h}",
-           "newton.linear=gmres", "gmres.precond=ilu0", "estimate.every=10", *METHODS[method], *extra,
+           "newton.linear=gmres", "gmres.precond=ilu0", "estimate.every=10", "newton.max_it=1000",
+           *METHODS[method], *extra,
            "output.fields=.false.", "output.xdmf=.false.", f"output.file={out}"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode not in (0, 1):

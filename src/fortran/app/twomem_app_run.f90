@@ -217,6 +217,8 @@ contains
          coarse%gmres_iterations = coarse%gmres_iterations + step%linear_iterations
          write (output_unit, '("nested: level ",i2,": ",i4," Newton steps, ",i6," GMRES iterations (",a,")")') &
             l, step%iterations, step%linear_iterations, step%status
+         if (.not. step%converged) write (output_unit, '(a,i0,a)') 'warning: level ', l, &
+            ' did not converge; its iterate still serves as the initial guess of the next level'
          ! nodal fields on level l, interpolated to level l+1
          if (allocated(fine)) deallocate (fine)
          allocate (u(hierarchy%meshes(l)%nv, 3), fine(hierarchy%meshes(l + 1)%nv, 3))

@@ -11,7 +11,7 @@
 !> estimators) it computes in an observer.
 module twomem_newton_solver
    use, intrinsic :: iso_fortran_env, only: output_unit
-   use, intrinsic :: ieee_arithmetic, only: ieee_is_nan
+   use, intrinsic :: ieee_arithmetic, only: ieee_is_nan, ieee_is_finite, ieee_value, ieee_quiet_nan
    use twomem_base_kinds, only: dp, ip, i8
    use twomem_base_errors, only: error_t
    use twomem_fem_discrete, only: discrete_problem_t
@@ -109,6 +109,11 @@ contains
       integer(ip) :: n
       integer :: k, j
       real(dp) :: t0, step
+      integer :: gmres_failures, last_damped
+      character(len=16) :: count_text
+      character(len=:), allocatable :: gmres_reason
+      type(history_row_t) :: last_inner
+      logical :: reuse_inner
       !> the last residuals: the line search compares with their maximum (non-monotone)
       real(dp) :: recent(5)
       character(len=:), allocatable :: why
@@ -128,10 +133,11 @@ contains
       ! before the first linearization no vertex is in contact
       previous = .false.
       recent = 0.0_dp
+      gmres_failures = 0
+      last_damped = 0
 
       row = not_computed()
       call lin%residual(x, row%lin_residual, c, da, db)
-      row%alg_residual = 0.0_dp
       call record(0, row)
       previous = active
       if (row%lin_residual <= options%tol) why = 'converged'
@@ -162,6 +168,14 @@ contains
             call solver%solve(lin%sys%a, b, x_new, err, observer=inner)
             if (allocated(err)) return
             result%linear_iterations = result%linear_iterations + solver%monitor%iterations
+            if (.not. all(ieee_is_finite(x_new))) then
+               why = 'not converged: GMRES broke down ('//solver%monitor%reason//') with a non-finite iterate'
+               exit
+            end if
+            if (.not. solver%monitor%converged .and. solver%monitor%reason /= 'stopped by observer') then
+               gmres_failures = gmres_failures + 1
+               gmres_reason = solver%monitor%reason
+            end if
          else
             call solver%solve(lin%sys%a, b, x_new, err)
             if (allocated(err)) return
@@ -175,8 +189,19 @@ contains
             call backtrack(x, x_new, maxval(recent), step)
          end if
          x = x + step*(x_new - x)
+         if (step < 1.0_dp) last_damped = k
          call lin%residual(x, row%lin_residual, c, da, db)
          row%step = step
+         ! GMRES stopped by the forcing at a full step: its last inner row saw this very iterate,
+         ! so the Newton row replaces it and reuses what the observer computed there
+         reuse_inner = .false.
+         if (result%history%n > 0 .and. step == 1.0_dp) then
+            associate (r => result%history%rows(result%history%n))
+               reuse_inner = r%inner .and. r%gmres_it == result%linear_iterations
+               if (reuse_inner) last_inner = r
+            end associate
+         end if
+         if (reuse_inner) result%history%n = result%history%n - 1
          call record(k, row)
          if (row%lin_residual <= options%tol) then
             why = 'converged'
@@ -186,7 +211,8 @@ contains
                why = 'not converged: stagnation (active set unchanged, residual above newton.tol: '// &
                      'round-off floor reached)'
             else if (options%cfun == 'min') then
-               do j = 0, k - 2
+               ! a damped step breaks the Newton-min map: compare only since the last one
+               do j = last_damped, k - 2
                   if (seen_hash(j) == seen_hash(k) .and. seen_count(j) == seen_count(k)) then
                      why = 'not converged: stagnation (Newton-min cycles between active sets)'
                      exit
@@ -200,6 +226,10 @@ contains
       result%x = x
       result%iterations = k
       result%converged = why == 'converged'
+      if (gmres_failures > 0 .and. why /= 'converged') then
+         write (count_text, '(i0)') gmres_failures
+         why = why//' ('//trim(count_text)//' GMRES solves ended by '''//gmres_reason//''')'
+      end if
       result%status = why
 
    contains
@@ -236,7 +266,15 @@ contains
          row%active_changed = count(active .neqv. previous)
          seen_hash(k) = hash_set(active)
          seen_count(k) = row%active
-         if (present(observer)) call observer%observe(x, row)
+         if (reuse_inner) then
+            row%energy_error = last_inner%energy_error
+            row%eta_disc = last_inner%eta_disc
+            row%eta_lin = last_inner%eta_lin
+            row%eta_alg = last_inner%eta_alg
+            row%eta_total = last_inner%eta_total
+         else if (present(observer)) then
+            call observer%observe(x, row)
+         end if
          row%wall_time = wall_seconds() - t0
          call result%history%append(row)
          if (options%verbose) call progress_line(row)
@@ -300,10 +338,14 @@ contains
       row%gmres_it = self%gmres_before + iteration
       row%active = count(x(1:n) - x(n + 1:2*n) <= x(2*n + 1:))
       row%inner = .true.
+      row%step = ieee_value(1.0_dp, ieee_quiet_nan)
+      row%active_changed = -1
       if (associated(self%user)) call self%user%observe(x, row)
       row%wall_time = wall_seconds() - self%t0
       call self%history%append(row)
-      stop = self%paper_forcing .and. row%alg_residual <= row%lin_residual
+      ! For Newton-min, once GMRES's iterate has the Jacobian's contact set, B − A x and R_lin(x)
+      ! are the same vector computed two ways: the slack keeps round-off from deciding the tie.
+      stop = self%paper_forcing .and. row%alg_residual <= row%lin_residual*(1 + 1.0e-8_dp)
    end subroutine observe_gmres
 
    subroutine progress_line(row)
