@@ -4,12 +4,11 @@
 module test_newton
    use twomem_base_kinds, only: dp, ip
    use twomem_mesh_hierarchy, only: mesh_hierarchy_t
-   use twomem_fem_problem, only: constant_data_t
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_newton_cfun, only: cfun_min, cfun_fb
    use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_solve
    use twomem_testing, only: unittest_t, new_unittest, check, check_close, error_t
-   use test_refinement, only: square_hierarchy
+   use test_refinement, only: square_problem
    implicit none
    private
 
@@ -105,18 +104,13 @@ contains
       type(error_t), allocatable, intent(out) :: err
 
       type(mesh_hierarchy_t) :: h
-      type(constant_data_t) :: data
       type(newton_options_t) :: opt
 
-      call square_hierarchy(levels, h, err)
-      if (allocated(err)) return
-      data%mu1 = 1.0_dp
-      data%mu2 = 2.0_dp
-      call p%init(h%meshes(levels), data, err)
+      call square_problem(levels, h, p, err)
       if (allocated(err)) return
       opt%verbose = .false.
       opt%max_it = max_it
-      call newton_solve(p, opt, [spread(data%g, 1, p%n), spread(0.0_dp, 1, 2*p%n)], res, err)
+      call newton_solve(p, opt, [spread(p%g, 1, p%n), spread(0.0_dp, 1, 2*p%n)], res, err)
    end subroutine solve_square
 
    subroutine test_discrete_equations(err)

@@ -9,11 +9,10 @@ module test_preconditioners
    use twomem_linalg_ilu0, only: ilu0_preconditioner_t
    use twomem_linalg_jacobi, only: jacobi_preconditioner_t
    use twomem_mesh_hierarchy, only: mesh_hierarchy_t
-   use twomem_fem_problem, only: constant_data_t
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_newton_system, only: newton_system_t
    use twomem_testing, only: unittest_t, new_unittest, check, check_close, error_t
-   use test_refinement, only: square_hierarchy
+   use test_refinement, only: square_problem
    implicit none
    private
 
@@ -300,14 +299,9 @@ contains
       type(error_t), allocatable, intent(out) :: err
 
       type(mesh_hierarchy_t) :: h
-      type(constant_data_t) :: data
       integer(ip) :: i
 
-      call square_hierarchy(levels, h, err)
-      if (allocated(err)) return
-      data%mu1 = 1.0_dp
-      data%mu2 = 2.0_dp
-      call p%init(h%meshes(levels), data, err)
+      call square_problem(levels, h, p, err)
       if (allocated(err)) return
       call sys%init(p)
       ! a contact region (the left half) plus scattered active vertices elsewhere

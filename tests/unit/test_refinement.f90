@@ -4,11 +4,13 @@ module test_refinement
    use twomem_base_kinds, only: dp, ip
    use twomem_mesh_triangulation, only: mesh_t, signed_area
    use twomem_mesh_hierarchy, only: mesh_hierarchy_t
+   use twomem_fem_problem, only: constant_data_t
+   use twomem_fem_discrete, only: discrete_problem_t
    use twomem_testing, only: unittest_t, new_unittest, check, check_close, error_t
    implicit none
    private
 
-   public :: collect_refinement, square_hierarchy
+   public :: collect_refinement, square_hierarchy, square_problem
 
 contains
 
@@ -36,6 +38,24 @@ contains
       if (allocated(err)) return
       call h%init(coarse, levels, err)
    end subroutine square_hierarchy
+
+   !> The discrete problem on the square refined `levels` times, with constant data and
+   !> unequal tensions (μ2 = 2μ1), so the two membrane blocks differ: the fixture of the Newton
+   !> and preconditioner suites.
+   subroutine square_problem(levels, h, p, err)
+      integer, intent(in) :: levels
+      type(mesh_hierarchy_t), intent(out) :: h
+      type(discrete_problem_t), intent(out) :: p
+      type(error_t), allocatable, intent(out) :: err
+
+      type(constant_data_t) :: data
+
+      call square_hierarchy(levels, h, err)
+      if (allocated(err)) return
+      data%mu1 = 1.0_dp
+      data%mu2 = 2.0_dp
+      call p%init(h%meshes(levels), data, err)
+   end subroutine square_problem
 
    subroutine test_area_euler(err)
       type(error_t), allocatable, intent(out) :: err

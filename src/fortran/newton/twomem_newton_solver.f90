@@ -14,6 +14,7 @@ module twomem_newton_solver
    use, intrinsic :: ieee_arithmetic, only: ieee_is_nan, ieee_is_finite, ieee_value, ieee_quiet_nan
    use twomem_base_kinds, only: dp, ip, i8
    use twomem_base_errors, only: error_t
+   use twomem_base_timer, only: wall_time
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_linalg_gmres, only: gmres_options_t, gmres_observer_t
    use twomem_newton_cfun, only: cfun_eval
@@ -81,7 +82,7 @@ module twomem_newton_solver
       type(linearization_t), pointer :: lin => null()
       type(history_t), pointer :: history => null()
       class(newton_observer_t), pointer :: user => null()
-      logical :: paper_forcing = .true., verbose = .false.
+      logical :: paper_forcing = .true.
       integer :: newton_it = 0, gmres_before = 0
       real(dp) :: b_norm = 1.0_dp, t0 = 0.0_dp
    contains
@@ -129,7 +130,7 @@ contains
       allocate (c(n), da(n), db(n), b(3*n), ax(3*n), active(n), previous(n))
       allocate (seen_hash(0:options%max_it), seen_count(0:options%max_it))
       x = x0
-      t0 = wall_seconds()
+      t0 = wall_time()
       ! before the first linearization no vertex is in contact
       previous = .false.
       recent = 0.0_dp
@@ -146,7 +147,6 @@ contains
       inner%history => result%history
       if (present(observer)) inner%user => observer
       inner%paper_forcing = options%forcing == 'paper'
-      inner%verbose = options%verbose
       inner%t0 = t0
 
       k = 0
@@ -275,7 +275,7 @@ contains
          else if (present(observer)) then
             call observer%observe(x, row)
          end if
-         row%wall_time = wall_seconds() - t0
+         row%wall_time = wall_time() - t0
          call result%history%append(row)
          if (options%verbose) call progress_line(row)
       end subroutine record
@@ -341,7 +341,7 @@ contains
       row%step = ieee_value(1.0_dp, ieee_quiet_nan)
       row%active_changed = -1
       if (associated(self%user)) call self%user%observe(x, row)
-      row%wall_time = wall_seconds() - self%t0
+      row%wall_time = wall_time() - self%t0
       call self%history%append(row)
       ! For Newton-min, once GMRES's iterate has the Jacobian's contact set, B − A x and R_lin(x)
       ! are the same vector computed two ways: the slack keeps round-off from deciding the tie.
@@ -383,11 +383,4 @@ contains
       end do
       h = h1*p2 + h2
    end function hash_set
-
-   real(dp) function wall_seconds()
-      integer(i8) :: count, rate
-
-      call system_clock(count, rate)
-      wall_seconds = real(count, dp)/real(rate, dp)
-   end function wall_seconds
 end module twomem_newton_solver
