@@ -12,7 +12,7 @@ import h5py
 import numpy as np
 
 #: values that measure the machine, not the computation
-SKIPPED = {"/history/wall_time", "/summary@wall_time", "/summary@peak_memory_kib"}
+SKIPPED = {"/history/wall_time", "/summary@wall_time", "/summary@peak_memory_kib", "/summary@estimator_time"}
 
 
 def _collect(f: h5py.File) -> dict[str, np.ndarray]:

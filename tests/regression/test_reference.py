@@ -1,22 +1,39 @@
-"""A small case's complete result against a stored reference (tests/regression/reference).
+"""Small cases' complete results against stored references (tests/regression/reference), one per
+method.
 
-The reference was produced by twomem itself and scrutinized before it was stored: its
-discrete equations and energy error are checked independently by test_discrete.py and its
-convergence rate by test_convergence.py. This test guards against unintended changes of any
-number in the result file. Tolerances: rtol 1e-9 and atol 1e-12 — the solution comes from a
-direct solve, so differences beyond round-off mean a change of the discretization or solver.
-Regenerate (after checking why it changed) with:
-    twomem run input/default.nml mesh.levels=1 output.file=tests/regression/reference/radial_small.h5
+The references were produced by twomem itself and scrutinized before they were stored: the
+discrete equations and energy error are checked independently by test_discrete.py, the
+convergence rate by test_convergence.py, the estimators' guaranteed bound by
+test_estimators.py, and every method reaches the direct solution in test_methods.py. These
+tests guard against unintended changes of any number in the result file (wall times
+excepted). Tolerances: the direct solve rtol 1e-9, atol 1e-12 — differences beyond round-off
+mean a change of the discretization or the solver; the GMRES-based methods rtol 1e-7,
+atol 1e-10 — the same iteration counts are required, only round-off accumulated over the
+iterations may differ (dot products are summed in a fixed order, so thread counts do not
+matter). Regenerate (after checking why a result changed) with:
+    twomem run input/default.nml mesh.levels=1 METHOD_OVERRIDES \
+        output.file=tests/regression/reference/radial_small_METHOD.h5
+using the overrides of METHODS below.
 """
 from __future__ import annotations
+
+import pytest
 
 from twomem_testlib import SOURCE, out_file, run
 from twomem_post.compare import compare
 
-REFERENCE = SOURCE / "tests" / "regression" / "reference" / "radial_small.h5"
+REFERENCES = SOURCE / "tests" / "regression" / "reference"
+METHODS = {
+    "direct": (("newton.linear=direct",), 1e-9, 1e-12),
+    "direct_fb": (("newton.linear=direct", "newton.cfun=fb"), 1e-9, 1e-12),
+    "gmres": (("newton.linear=gmres",), 1e-7, 1e-10),
+    "adaptive": (("newton.linear=adaptive",), 1e-7, 1e-10),
+}
 
 
-def test_small_radial_matches_reference():
-    path = out_file("reference/radial_small.h5")
-    run("mesh.levels=1", f"output.file={path}")
-    assert compare(str(path), str(REFERENCE), rtol=1e-9, atol=1e-12) == 0
+@pytest.mark.parametrize("method", METHODS)
+def test_small_radial_matches_reference(method):
+    overrides, rtol, atol = METHODS[method]
+    path = out_file(f"reference/radial_small_{method}.h5")
+    run("mesh.levels=1", *overrides, f"output.file={path}")
+    assert compare(str(path), str(REFERENCES / f"radial_small_{method}.h5"), rtol=rtol, atol=atol) == 0

@@ -20,22 +20,14 @@ module twomem_app_run
    use twomem_fem_cases, only: make_problem
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_fem_error, only: energy_error_per_element
-   use twomem_newton_history, only: history_row_t
    use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_observer_t, newton_solve
+   use twomem_estimate_estimators, only: estimator_t, estimates_t, poincare_constant
+   use twomem_app_observer, only: run_observer_t
    use twomem_io_result, only: result_record_t, output_choice_t, write_result, xdmf_path_for
    implicit none
    private
 
    public :: run_case, check_case
-
-   !> Measures the exact energy error of each Newton iterate for the history.
-   type, extends(newton_observer_t) :: error_observer_t
-      type(mesh_t), pointer :: mesh => null()
-      class(problem_data_t), pointer :: data => null()
-      type(discrete_problem_t), pointer :: p => null()
-   contains
-      procedure :: observe => observe_error
-   end type error_observer_t
 
    !> Work spent on the coarser levels of nested iteration.
    type :: coarse_work_t
@@ -68,12 +60,15 @@ contains
       type(discrete_problem_t), target :: p
       type(newton_options_t) :: options
       type(newton_result_t) :: newton
-      type(error_observer_t), target :: observer
+      type(run_observer_t), target :: observer
+      type(estimator_t), target :: estimator
+      type(estimates_t) :: final
       type(coarse_work_t) :: coarse
       type(result_record_t) :: rec
       type(output_choice_t) :: choice
       real(dp) :: t0, nan
       integer :: finest
+      logical :: need_estimates
 
       exit_code = exit_bad_input
       t0 = wall_time()
@@ -96,14 +91,30 @@ contains
          trim(data%name), p%n, 3*p%n, 3*p%n
 
       call newton_options_from(cfg, options)
-      if (data%has_exact() .and. cfg%output%history) then
-         observer%mesh => hierarchy%meshes(finest)
-         observer%data => data
-         observer%p => p
+      ! estimator work only when the method or the output asks for it
+      need_estimates = options%linear == 'adaptive' .or. cfg%estimate%enabled
+      if (need_estimates) then
+         call estimator%init(hierarchy, data, merge(1, 0, trim(cfg%estimate%flux) == 'rt1'), cfg%estimate%alg_levels, &
+                             poincare_constant(trim(cfg%mesh%domain), hierarchy%meshes(finest)%diameter), err)
+         if (allocated(err)) then
+            exit_code = err%code
+            return
+         end if
+      end if
+      observer%hierarchy => hierarchy
+      observer%data => data
+      observer%p => p
+      observer%estimator => estimator
+      observer%gamma_alg = cfg%estimate%gamma_alg
+      observer%gamma_lin = cfg%newton%gamma_lin
+      observer%with_error = data%has_exact() .and. cfg%output%history
+      observer%with_estimates = options%linear == 'adaptive' .or. (cfg%estimate%enabled .and. cfg%output%history)
+      if (observer%with_error .or. observer%with_estimates) then
          call solve_levels(cfg, hierarchy, data, p, options, newton, coarse, err, observer)
       else
          call solve_levels(cfg, hierarchy, data, p, options, newton, coarse, err)
       end if
+      if (.not. allocated(err) .and. allocated(observer%err)) call move_alloc(observer%err, err)
       if (allocated(err)) then
          exit_code = err%code
          return
@@ -122,12 +133,31 @@ contains
       rec%newton_iterations_coarse = coarse%newton_iterations
       rec%gmres_iterations_coarse = coarse%gmres_iterations
       rec%eta_total = nan
+      rec%eta_disc = nan
+      rec%eta_lin = nan
+      rec%eta_alg = nan
       rec%effectivity = nan
       rec%energy_error_total = nan
       if (data%has_exact()) then
          rec%energy_error = energy_error_per_element(hierarchy%meshes(finest), data, rec%u1, rec%u2)
          rec%energy_error_total = norm2(rec%energy_error)
       end if
+      if (need_estimates) then
+         call observer%estimate(newton%x, final)
+         if (allocated(observer%err)) then
+            call move_alloc(observer%err, err)
+            exit_code = err%code
+            return
+         end if
+         rec%eta_total = final%total
+         rec%eta_disc = final%disc
+         rec%eta_lin = final%lin
+         rec%eta_alg = final%alg
+         if (data%has_exact()) rec%effectivity = final%total/rec%energy_error_total
+         if (cfg%output%estimators) call estimator_fields(final, rec)
+      end if
+      rec%estimator_evaluations = observer%evaluations
+      rec%estimator_time = observer%estimator_time
       rec%wall_time = wall_time() - t0
       rec%peak_memory_kib = peak_memory_kib()
       choice%fields = cfg%output%fields
@@ -144,6 +174,10 @@ contains
       write (output_unit, '("summary: ",i0," Newton steps, ",i0," vertices, ",i0," triangles")') &
          rec%newton_iterations, hierarchy%meshes(finest)%nv, hierarchy%meshes(finest)%nt
       if (data%has_exact()) write (output_unit, '("energy error: ",es12.5)') rec%energy_error_total
+      if (need_estimates) write (output_unit, '("estimators: eta ",es12.5," (disc ",es10.3,", lin ",es10.3,", alg ",es10.3, &
+           &"), ",i0," evaluations in ",f0.2," s")') rec%eta_total, rec%eta_disc, rec%eta_lin, rec%eta_alg, &
+         rec%estimator_evaluations, rec%estimator_time
+      if (need_estimates .and. data%has_exact()) write (output_unit, '("effectivity: ",f0.4)') rec%effectivity
       write (output_unit, '("wall time: ",f0.2," s, peak memory: ",f0.1," MiB")') rec%wall_time, &
          real(rec%peak_memory_kib, dp)/1024
       write (output_unit, '("result: ",a)') trim(cfg%output%file)
@@ -174,7 +208,30 @@ contains
       options%gmres%max_it = cfg%gmres%max_it
       options%gmres%rtol = cfg%gmres%rtol
       options%gmres%observe_every = cfg%estimate%every
+      options%gamma_lin = cfg%newton%gamma_lin
+      options%gamma_alg = cfg%estimate%gamma_alg
+      options%local_criteria = trim(cfg%estimate%criteria) == 'local'
    end subroutine newton_options_from
+
+   !> The `/estimators` fields of docs/output.md from one evaluation.
+   subroutine estimator_fields(est, rec)
+      type(estimates_t), intent(in) :: est
+      type(result_record_t), intent(inout) :: rec
+
+      character(len=*), parameter :: names(10) = [character(len=16) :: 'eta_total', 'eta_disc', 'eta_lin', &
+                                                   'eta_alg', 'eta_F', 'eta_osc', 'eta_C', 'eta_nonc1', &
+                                                   'eta_nonc2', 'eta_nonc3']
+      real(dp), allocatable :: values(:)
+      integer :: i
+
+      rec%estimator_names = names
+      allocate (rec%estimator_totals(size(names)))
+      do i = 1, size(names)
+         call est%field(trim(names(i)), values, rec%estimator_totals(i))
+         if (i == 1) allocate (rec%estimators(size(values), size(names)))
+         rec%estimators(:, i) = values
+      end do
+   end subroutine estimator_fields
 
    !> Newton on the finest level, from the paper's initial guess (g, 0, 0) or, with
    !> newton.initial = 'nested', from the solution of the next coarser level, interpolated:
@@ -204,6 +261,12 @@ contains
       end if
       quiet = options
       quiet%verbose = .false.
+      ! the estimators live on the finest hierarchy: coarser levels of an adaptive run use the
+      ! paper's inexact GMRES instead
+      if (quiet%linear == 'adaptive') then
+         quiet%linear = 'gmres'
+         quiet%forcing = 'paper'
+      end if
       do l = 0, finest - 1
          call pl%init(hierarchy%meshes(l), data, err)
          if (allocated(err)) return
@@ -258,12 +321,6 @@ contains
       write (output_unit, '(a)') config_echo(cfg)
       if (trim(cfg%problem%exact) == 'bbbv') write (output_unit, '(a)') &
          'note: problem.exact=''bbbv'' sets mu1 = mu2 = 1, g = 0.05 and its own loads (f1, f2 unused)'
-      if (trim(cfg%newton%linear) == 'adaptive') then
-         call make_error(err, exit_bad_input, trim(cfg%source)//': &newton: linear', &
-                         '''adaptive'' needs the a posteriori estimators, not available in this version yet '// &
-                         '(use ''direct'' or ''gmres'')')
-         return
-      end if
    end subroutine prepare
 
    !> Fail before any work when the result cannot be written: create the directory and a probe
@@ -333,17 +390,4 @@ contains
          end associate
       end do
    end subroutine build_hierarchy
-
-   subroutine observe_error(self, x, row)
-      class(error_observer_t), intent(inout) :: self
-      real(dp), intent(in) :: x(:)
-      type(history_row_t), intent(inout) :: row
-
-      integer(ip) :: n
-
-      n = self%p%n
-      row%energy_error = norm2(energy_error_per_element(self%mesh, self%data, &
-                                                        self%p%to_nodal(x(1:n), self%data%g), &
-                                                        self%p%to_nodal(x(n + 1:2*n), 0.0_dp)))
-   end subroutine observe_error
 end module twomem_app_run

@@ -67,6 +67,12 @@ module twomem_input_config
       logical :: enabled = .true.
       !> ν: estimators and history rows every ν GMRES iterations
       integer :: every = 10
+      !> flux reconstruction space: 'rt1' (the paper) or 'rt0'
+      character(len=config_len) :: flux = 'rt1'
+      !> how many of the finest meshes the multilevel algebraic flux uses (the paper: 3)
+      integer :: alg_levels = 3
+      !> adaptive stopping: 'global' (paper eq. (63)) or 'local' (eq. (64), implies the global)
+      character(len=config_len) :: criteria = 'global'
    end type estimate_config_t
 
    type :: output_config_t
@@ -92,7 +98,7 @@ module twomem_input_config
    end type config_t
 
    ! The key table: one row per key, in the order of the documentation and of the echo.
-   integer, parameter :: n_groups = 6, n_keys = 31
+   integer, parameter :: n_groups = 6, n_keys = 34
    character(len=*), parameter :: group_names(n_groups) = [character(len=8) :: &
       'mesh', 'problem', 'newton', 'gmres', 'estimate', 'output']
    integer, parameter :: kind_word = 1, kind_path = 2, kind_real = 3, kind_int = 4, kind_logical = 5
@@ -102,9 +108,10 @@ module twomem_input_config
       k_restart = 16, k_gmres_max_it = 17, k_rtol = 18, k_precond = 19, &
       k_gamma_alg = 20, k_enabled = 21, &
       k_output_file = 22, k_fields = 23, k_estimators = 24, k_history = 25, k_xdmf = 26, &
-      k_boundary_h = 27, k_initial = 28, k_line_search = 29, k_forcing = 30, k_every = 31
+      k_boundary_h = 27, k_initial = 28, k_line_search = 29, k_forcing = 30, k_every = 31, &
+      k_flux = 32, k_alg_levels = 33, k_criteria = 34
    integer, parameter :: key_group(n_keys) = [1, 1, 1, 1, 2, 2, 2, 2, 2, 2, 3, 3, 3, 3, 3, &
-                                              4, 4, 4, 4, 5, 5, 6, 6, 6, 6, 6, 1, 3, 3, 4, 5]
+                                              4, 4, 4, 4, 5, 5, 6, 6, 6, 6, 6, 1, 3, 3, 4, 5, 5, 5, 5]
    character(len=*), parameter :: key_names(n_keys) = [character(len=12) :: &
       'domain', 'file', 'coarse_h', 'levels', &
       'mu1', 'mu2', 'f1', 'f2', 'g', 'exact', &
@@ -112,14 +119,14 @@ module twomem_input_config
       'restart', 'max_it', 'rtol', 'precond', &
       'gamma_alg', 'enabled', &
       'file', 'fields', 'estimators', 'history', 'xdmf', 'boundary_h', &
-      'initial', 'line_search', 'forcing', 'every']
+      'initial', 'line_search', 'forcing', 'every', 'flux', 'alg_levels', 'criteria']
    integer, parameter :: key_kinds(n_keys) = [kind_word, kind_path, kind_real, kind_int, &
       kind_real, kind_real, kind_real, kind_real, kind_real, kind_word, &
       kind_word, kind_word, kind_int, kind_real, kind_real, &
       kind_int, kind_int, kind_real, kind_word, &
       kind_real, kind_logical, &
       kind_path, kind_logical, kind_logical, kind_logical, kind_logical, kind_real, &
-      kind_word, kind_word, kind_word, kind_int]
+      kind_word, kind_word, kind_word, kind_int, kind_word, kind_int, kind_word]
 
 contains
 
@@ -333,6 +340,8 @@ contains
       case (k_initial); cfg%newton%initial = s
       case (k_line_search); cfg%newton%line_search = s
       case (k_forcing); cfg%gmres%forcing = s
+      case (k_flux); cfg%estimate%flux = s
+      case (k_criteria); cfg%estimate%criteria = s
       case (k_output_file); cfg%output%file = s
       end select
    end subroutine store_text
@@ -367,6 +376,7 @@ contains
       case (k_restart); cfg%gmres%restart = n
       case (k_gmres_max_it); cfg%gmres%max_it = n
       case (k_every); cfg%estimate%every = n
+      case (k_alg_levels); cfg%estimate%alg_levels = n
       end select
    end subroutine store_int
 
@@ -431,6 +441,9 @@ contains
 
       call check_real(err, origin, k_gamma_alg, cfg%estimate%gamma_alg, gt=0.0_dp, le=1.0_dp)
       call check_int(err, origin, k_every, cfg%estimate%every, 1, 100000)
+      call check_word(err, origin, k_flux, cfg%estimate%flux, [character(len=8) :: 'rt1', 'rt0'])
+      call check_int(err, origin, k_alg_levels, cfg%estimate%alg_levels, 1, 13)
+      call check_word(err, origin, k_criteria, cfg%estimate%criteria, [character(len=8) :: 'global', 'local'])
    end subroutine validate
 
    !> A rule across keys, blamed on key `id`: `<origin>: &group: what`.
@@ -585,6 +598,9 @@ contains
       case (k_line_search); s = quote(trim(cfg%newton%line_search))
       case (k_forcing); s = quote(trim(cfg%gmres%forcing))
       case (k_every); s = itoa(cfg%estimate%every)
+      case (k_flux); s = quote(trim(cfg%estimate%flux))
+      case (k_alg_levels); s = itoa(cfg%estimate%alg_levels)
+      case (k_criteria); s = quote(trim(cfg%estimate%criteria))
       case (k_gamma_alg); s = format_real(cfg%estimate%gamma_alg)
       case (k_enabled); s = logical_text(cfg%estimate%enabled)
       case (k_output_file); s = quote(trim(cfg%output%file))

@@ -26,6 +26,15 @@ module twomem_io_result
       !> work on the coarser levels of nested iteration (0 without it)
       integer :: newton_iterations_coarse = 0, gmres_iterations_coarse = 0
       real(dp) :: eta_total = 0.0_dp, energy_error_total = 0.0_dp, effectivity = 0.0_dp
+      !> the components of the final estimate (Cor. 5.6 of the paper)
+      real(dp) :: eta_disc = 0.0_dp, eta_lin = 0.0_dp, eta_alg = 0.0_dp
+      !> per-element estimators (nt, n_fields) named by estimator_names, with their global values;
+      !> allocated only when computed and asked for
+      character(len=16), allocatable :: estimator_names(:)
+      real(dp), allocatable :: estimators(:, :), estimator_totals(:)
+      !> how often the estimators were evaluated and how long that took in total
+      integer :: estimator_evaluations = 0
+      real(dp) :: estimator_time = 0.0_dp
       real(dp) :: wall_time = 0.0_dp
       integer(i8) :: peak_memory_kib = 0
    end type result_record_t
@@ -67,12 +76,13 @@ contains
       character(len=32) :: pid
       logical :: with_mesh
       character(len=64), allocatable :: cells(:)
+      integer :: i
 
       write (pid, '(i0)') process_id()
       tmp = trim(path)//'.tmp-'//trim(pid)
       call h5%create(tmp, err)
       if (allocated(err)) return
-      with_mesh = choice%fields .or. allocated(rec%energy_error)
+      with_mesh = choice%fields .or. allocated(rec%energy_error) .or. allocated(rec%estimators)
       call write_contents(h5, mesh, rec, choice, with_mesh, err)
       if (allocated(err)) then
          call h5%close(cleanup_err)
@@ -88,6 +98,8 @@ contains
       if (choice%xdmf .and. with_mesh) then
          allocate (cells(0))
          if (allocated(rec%energy_error)) cells = [character(len=64) :: '/error/energy']
+         if (allocated(rec%estimators)) cells = [cells, [('/estimators/'//rec%estimator_names(i), &
+                                                            i=1, size(rec%estimator_names))]]
          if (choice%fields) then
             call write_xdmf(xdmf_path_for(path), base_name(path), mesh%nv, mesh%nt, &
                             [character(len=64) :: '/solution/u1', '/solution/u2', '/solution/lambda'], &
@@ -127,12 +139,32 @@ contains
          if (.not. allocated(err)) call h5%write_attr('/error/energy', 'total', rec%energy_error_total, err)
          if (allocated(err)) return
       end if
+      if (allocated(rec%estimators)) then
+         call write_estimators(h5, rec, err)
+         if (allocated(err)) return
+      end if
       if (choice%history) then
          call write_history(h5, rec%history, err)
          if (allocated(err)) return
       end if
       call write_summary(h5, mesh, rec, err)
    end subroutine write_contents
+
+   subroutine write_estimators(h5, rec, err)
+      type(h5_file_t), intent(inout) :: h5
+      type(result_record_t), intent(in) :: rec
+      type(error_t), allocatable, intent(out) :: err
+
+      integer :: i
+      character(len=:), allocatable :: path
+
+      do i = 1, size(rec%estimator_names)
+         path = '/estimators/'//trim(rec%estimator_names(i))
+         call h5%write_real(path, rec%estimators(:, i), err)
+         if (.not. allocated(err)) call h5%write_attr(path, 'total', rec%estimator_totals(i), err)
+         if (allocated(err)) return
+      end do
+   end subroutine write_estimators
 
    subroutine write_history(h5, history, err)
       type(h5_file_t), intent(inout) :: h5
@@ -174,6 +206,11 @@ contains
       if (.not. allocated(err)) call h5%write_attr('/summary', 'gmres_iterations_coarse', &
                                                    rec%gmres_iterations_coarse, err)
       if (.not. allocated(err)) call h5%write_attr('/summary', 'eta_total', rec%eta_total, err)
+      if (.not. allocated(err)) call h5%write_attr('/summary', 'eta_disc', rec%eta_disc, err)
+      if (.not. allocated(err)) call h5%write_attr('/summary', 'eta_lin', rec%eta_lin, err)
+      if (.not. allocated(err)) call h5%write_attr('/summary', 'eta_alg', rec%eta_alg, err)
+      if (.not. allocated(err)) call h5%write_attr('/summary', 'estimator_evaluations', rec%estimator_evaluations, err)
+      if (.not. allocated(err)) call h5%write_attr('/summary', 'estimator_time', rec%estimator_time, err)
       if (.not. allocated(err)) call h5%write_attr('/summary', 'energy_error', rec%energy_error_total, err)
       if (.not. allocated(err)) call h5%write_attr('/summary', 'effectivity', rec%effectivity, err)
       if (.not. allocated(err)) call h5%write_attr('/summary', 'wall_time', rec%wall_time, err)

@@ -23,6 +23,8 @@ module twomem_newton_history
       real(dp) :: step = 1.0_dp
       !> .true. for a row recorded inside GMRES (every ν iterations), .false. for a Newton step
       logical :: inner = .false.
+      !> the paper's local stopping criteria (64a) and (64b) at this iterate, when evaluated
+      logical :: local_alg_ok = .false., local_lin_ok = .false.
       real(dp) :: wall_time = 0.0_dp
    end type history_row_t
 

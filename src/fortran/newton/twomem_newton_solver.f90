@@ -3,7 +3,10 @@
 !> test ‖R_lin‖/‖[F;0]‖ ≤ tol with R_lin = [F − E X; −C(X)] (DESIGN.md §2). With GMRES and
 !> the paper's forcing, GMRES stops as soon as its relative algebraic residual is below the
 !> relative linearization residual of its current iterate, checked every ν iterations (the
-!> paper's inexact method). An optional backtracking line search on ‖R_lin‖ keeps Newton from
+!> paper's inexact method). The adaptive mode is the paper's Algorithm 1: every ν GMRES
+!> iterations the observer evaluates the a posteriori estimators; GMRES stops when
+!> η_alg ≤ γ_alg max(η_disc, η_lin) and Newton when η_lin ≤ γ_lin η_disc (eq. (63)), or on the
+!> local criteria (64) when asked. An optional backtracking line search on ‖R_lin‖ keeps Newton from
 !> cycling or diverging (on by default for Fischer–Burmeister). The driver stops with a
 !> reason at the step limit, when exact Newton-min revisits an active set (cycling) or when
 !> the active set stops changing with the residual above the tolerance (round-off floor).
@@ -13,7 +16,7 @@ module twomem_newton_solver
    use, intrinsic :: iso_fortran_env, only: output_unit
    use, intrinsic :: ieee_arithmetic, only: ieee_is_nan, ieee_is_finite, ieee_value, ieee_quiet_nan
    use twomem_base_kinds, only: dp, ip, i8
-   use twomem_base_errors, only: error_t
+   use twomem_base_errors, only: error_t, make_error, exit_io
    use twomem_base_timer, only: wall_time
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_linalg_gmres, only: gmres_options_t, gmres_observer_t
@@ -28,8 +31,11 @@ module twomem_newton_solver
 
    type :: newton_options_t
       character(len=8) :: cfun = 'min'
-      !> 'direct' (UMFPACK) or 'gmres'
+      !> 'direct' (UMFPACK), 'gmres' or 'adaptive' (GMRES with estimator-based stopping)
       character(len=8) :: linear = 'direct'
+      !> adaptive stopping: γ_lin, γ_alg and the local criteria instead of the global ones
+      real(dp) :: gamma_lin = 0.3_dp, gamma_alg = 0.3_dp
+      logical :: local_criteria = .false.
       integer :: max_it = 100
       real(dp) :: tol = 1.0e-10_dp
       logical :: line_search = .false.
@@ -82,7 +88,8 @@ module twomem_newton_solver
       type(linearization_t), pointer :: lin => null()
       type(history_t), pointer :: history => null()
       class(newton_observer_t), pointer :: user => null()
-      logical :: paper_forcing = .true.
+      logical :: paper_forcing = .true., adaptive = .false., local_criteria = .false.
+      real(dp) :: gamma_alg = 0.3_dp
       integer :: newton_it = 0, gmres_before = 0
       real(dp) :: b_norm = 1.0_dp, t0 = 0.0_dp
    contains
@@ -118,14 +125,20 @@ contains
       !> the last residuals: the line search compares with their maximum (non-monotone)
       real(dp) :: recent(5)
       character(len=:), allocatable :: why
+      logical :: adaptive
 
       n = p%n
+      adaptive = options%linear == 'adaptive'
+      if (adaptive .and. .not. present(observer)) then
+         call make_error(err, exit_io, 'newton', 'the adaptive method needs an estimator observer')
+         return
+      end if
       call lin%sys%init(p)
       lin%cfun = options%cfun
       lin%inv_mass = [1/p%mass, 1/p%mass]
       lin%f_norm = norm2(lin%sys%f)
       if (.not. lin%f_norm > 0.0_dp) lin%f_norm = 1.0_dp
-      call solver%init(options%linear, options%precond, options%gmres, err)
+      call solver%init(merge('gmres   ', options%linear, adaptive), options%precond, options%gmres, err)
       if (allocated(err)) return
       allocate (c(n), da(n), db(n), b(3*n), ax(3*n), active(n), previous(n))
       allocate (seen_hash(0:options%max_it), seen_count(0:options%max_it))
@@ -146,7 +159,10 @@ contains
       inner%lin => lin
       inner%history => result%history
       if (present(observer)) inner%user => observer
-      inner%paper_forcing = options%forcing == 'paper'
+      inner%paper_forcing = options%forcing == 'paper' .and. .not. adaptive
+      inner%adaptive = adaptive
+      inner%local_criteria = options%local_criteria
+      inner%gamma_alg = options%gamma_alg
       inner%t0 = t0
 
       k = 0
@@ -161,7 +177,7 @@ contains
          b(2*n + 1:) = da*(x(1:n) - x(n + 1:2*n)) + db*x(2*n + 1:) - c
          call lin%sys%set_jacobian(da, db)
          x_new = x
-         if (options%linear == 'gmres') then
+         if (options%linear /= 'direct') then
             inner%newton_it = k
             inner%gmres_before = result%linear_iterations
             inner%b_norm = max(norm2(b), tiny(1.0_dp))
@@ -205,6 +221,8 @@ contains
          call record(k, row)
          if (row%lin_residual <= options%tol) then
             why = 'converged'
+         else if (adaptive) then
+            if (lin_criterion(row, options)) why = 'converged'
          else if (options%linear == 'direct' .and. step == 1.0_dp) then
             ! exact full steps of Newton-min: a repeated active set cannot make progress
             if (row%active_changed == 0 .and. options%cfun == 'min') then
@@ -272,6 +290,8 @@ contains
             row%eta_lin = last_inner%eta_lin
             row%eta_alg = last_inner%eta_alg
             row%eta_total = last_inner%eta_total
+            row%local_alg_ok = last_inner%local_alg_ok
+            row%local_lin_ok = last_inner%local_lin_ok
          else if (present(observer)) then
             call observer%observe(x, row)
          end if
@@ -345,19 +365,47 @@ contains
       call self%history%append(row)
       ! For Newton-min, once GMRES's iterate has the Jacobian's contact set, B − A x and R_lin(x)
       ! are the same vector computed two ways: the slack keeps round-off from deciding the tie.
-      stop = self%paper_forcing .and. row%alg_residual <= row%lin_residual*(1 + 1.0e-8_dp)
+      if (self%adaptive) then
+         stop = alg_criterion(row, self%gamma_alg, self%local_criteria)
+      else
+         stop = self%paper_forcing .and. row%alg_residual <= row%lin_residual*(1 + 1.0e-8_dp)
+      end if
    end subroutine observe_gmres
+
+   !> The paper's GMRES stop (63a), η_alg ≤ γ_alg max(η_disc, η_lin), or its local form (64a).
+   pure logical function alg_criterion(row, gamma_alg, local) result(ok)
+      type(history_row_t), intent(in) :: row
+      real(dp), intent(in) :: gamma_alg
+      logical, intent(in) :: local
+
+      if (local) then
+         ok = row%local_alg_ok
+      else
+         ok = row%eta_alg <= gamma_alg*max(row%eta_disc, row%eta_lin)
+      end if
+   end function alg_criterion
+
+   !> The paper's Newton stop (63b), η_lin ≤ γ_lin η_disc, or its local form (64b).
+   pure logical function lin_criterion(row, options) result(ok)
+      type(history_row_t), intent(in) :: row
+      type(newton_options_t), intent(in) :: options
+
+      if (options%local_criteria) then
+         ok = row%local_lin_ok
+      else
+         ok = row%eta_lin <= options%gamma_lin*row%eta_disc
+      end if
+   end function lin_criterion
 
    subroutine progress_line(row)
       type(history_row_t), intent(in) :: row
 
-      character(len=32) :: err_text
+      character(len=96) :: err_text
 
-      if (.not. ieee_is_nan(row%energy_error)) then
-         write (err_text, '("  error ",es9.3)') row%energy_error
-      else
-         err_text = ''
-      end if
+      err_text = ''
+      if (.not. ieee_is_nan(row%eta_total)) write (err_text, '("  eta ",es9.3," (disc ",es9.3,", lin ",es9.3, &
+           &", alg ",es9.3,")")') row%eta_total, row%eta_disc, row%eta_lin, row%eta_alg
+      if (.not. ieee_is_nan(row%energy_error)) write (err_text, '(a,"  error ",es9.3)') trim(err_text), row%energy_error
       write (output_unit, '("newton ",i4,"  gmres ",i6,"  contact ",i8," (changed ",i7,")  lin-res ",es9.3, &
            &"  alg-res ",es9.3,"  step ",f5.3,a,"  ",f9.2," s")') row%newton_it, row%gmres_it, row%active, &
          row%active_changed, row%lin_residual, row%alg_residual, row%step, trim(err_text), row%wall_time

@@ -1,0 +1,80 @@
+!> What a run computes about each recorded iterate besides residuals: the a posteriori
+!> estimators (for the adaptive method's stopping tests and for the history) and, when the exact
+!> solution is known, the energy error. It counts and times the estimator evaluations, so that
+!> their cost can be reported next to the solver's.
+module twomem_app_observer
+   use twomem_base_kinds, only: dp, ip
+   use twomem_base_errors, only: error_t
+   use twomem_base_timer, only: wall_time
+   use twomem_mesh_hierarchy, only: mesh_hierarchy_t
+   use twomem_fem_problem, only: problem_data_t
+   use twomem_fem_discrete, only: discrete_problem_t
+   use twomem_fem_error, only: energy_error_per_element
+   use twomem_newton_history, only: history_row_t
+   use twomem_newton_solver, only: newton_observer_t
+   use twomem_estimate_estimators, only: estimator_t, estimates_t
+   implicit none
+   private
+
+   public :: run_observer_t
+
+   type, extends(newton_observer_t) :: run_observer_t
+      type(mesh_hierarchy_t), pointer :: hierarchy => null()
+      class(problem_data_t), pointer :: data => null()
+      type(discrete_problem_t), pointer :: p => null()
+      type(estimator_t), pointer :: estimator => null()
+      logical :: with_error = .false., with_estimates = .false.
+      real(dp) :: gamma_alg = 0.3_dp, gamma_lin = 0.3_dp
+      integer :: evaluations = 0
+      real(dp) :: estimator_time = 0.0_dp
+      !> the first failure of an evaluation (its estimators stay NaN, which no stopping test
+      !> accepts); the run reports it after Newton
+      type(error_t), allocatable :: err
+   contains
+      procedure :: observe
+      procedure :: estimate
+   end type run_observer_t
+
+contains
+
+   subroutine observe(self, x, row)
+      class(run_observer_t), intent(inout) :: self
+      real(dp), intent(in) :: x(:)
+      type(history_row_t), intent(inout) :: row
+
+      type(estimates_t) :: est
+      integer(ip) :: n
+
+      if (self%with_estimates .and. .not. allocated(self%err)) then
+         call self%estimate(x, est)
+         if (.not. allocated(self%err)) then
+            row%eta_disc = est%disc
+            row%eta_lin = est%lin
+            row%eta_alg = est%alg
+            row%eta_total = est%total
+            call est%local_criteria(self%hierarchy%meshes(self%hierarchy%levels), self%gamma_alg, self%gamma_lin, &
+                                    row%local_alg_ok, row%local_lin_ok)
+         end if
+      end if
+      if (self%with_error) then
+         n = self%p%n
+         row%energy_error = norm2(energy_error_per_element(self%hierarchy%meshes(self%hierarchy%levels), self%data, &
+                                                           self%p%to_nodal(x(1:n), self%data%g), &
+                                                           self%p%to_nodal(x(n + 1:2*n), 0.0_dp)))
+      end if
+   end subroutine observe
+
+   !> One timed evaluation of every estimator at x.
+   subroutine estimate(self, x, est)
+      class(run_observer_t), intent(inout) :: self
+      real(dp), intent(in) :: x(:)
+      type(estimates_t), intent(out) :: est
+
+      real(dp) :: t0
+
+      t0 = wall_time()
+      call self%estimator%evaluate(self%hierarchy, self%data, self%p, x, est, self%err)
+      self%estimator_time = self%estimator_time + (wall_time() - t0)
+      self%evaluations = self%evaluations + 1
+   end subroutine estimate
+end module twomem_app_observer

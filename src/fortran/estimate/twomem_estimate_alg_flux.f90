@@ -1,0 +1,394 @@
+!> The algebraic flux reconstruction σ_α,alg with ∇·σ_α,alg = r_α exactly (paper §4.3; thesis
+!> Def. 1.4.8; Papež, Rüde, Vohralík, Wohlmuth, CMAME 2020): one V-cycle-like sweep over the
+!> last meshes T_b ⊂ … ⊂ T_J of the nested hierarchy. First the Riesz representer ρ_α of r_α
+!> among P1 functions on T_b (one UMFPACK solve, factorized once); then, for j = b+1..J, on the
+!> patch of every vertex a of T_{j−1}, an RT_p problem on the triangles of T_j in that patch
+!> with divergence (I − Π_{j−1})(r_α ψ_a − ∇ρ_α·∇ψ_a), Π_{j−1} the L² projection onto
+!> P_p(T_{j−1}) and Π_b := 0. These divergences add up level by level to (Π_j − Π_{j−1}) r_α and
+!> in total to r_α. With a single mesh (b = J) the patches are those of T_J itself, which gives
+!> ∇·σ = Π_p r_α. Integrals of r_α over coarser triangles go through its L² projection onto
+!> P2 of each triangle, which is exact against the quadratic ψ_a q of the patch data.
+module twomem_estimate_alg_flux
+   use twomem_base_kinds, only: dp, ip
+   use twomem_base_errors, only: error_t, make_error, exit_io
+   use twomem_mesh_triangulation, only: mesh_t
+   use twomem_mesh_hierarchy, only: mesh_hierarchy_t
+   use twomem_fem_problem, only: problem_data_t
+   use twomem_fem_discrete, only: discrete_problem_t
+   use twomem_fem_assembly, only: p1_gradients
+   use twomem_linalg_dense, only: lu_factor, lu_solve
+   use twomem_linalg_umfpack, only: umfpack_solver_t
+   use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, rt_matrices_t, make_frame
+   use twomem_estimate_patch, only: solve_patch, edge_free, edge_neumann
+   implicit none
+   private
+
+   public :: algebraic_flux_t, level_flux_t
+
+   !> σ_alg's part on one level: coefficients (n_flux, nt_l, 2) on the triangles of T_l.
+   type :: level_flux_t
+      integer :: level = 0
+      real(dp), allocatable :: sigma(:, :, :)
+   end type level_flux_t
+
+   type :: algebraic_flux_t
+      !> the coarsest level used (b) and the finest (J)
+      integer :: base = 0, finest = 0
+      type(rt_space_t) :: space
+      type(discrete_problem_t) :: coarse
+      type(umfpack_solver_t) :: coarse_solver
+      !> element matrices of the levels whose triangles carry patch problems (first..finest)
+      type(rt_matrices_t), allocatable :: matrices(:)
+   contains
+      procedure :: init
+      procedure :: compute
+      procedure :: first
+   end type algebraic_flux_t
+
+   !> Scaled monomials of P2 on a triangle: 1, ξ1, ξ2, ξ1², ξ1ξ2, ξ2².
+   integer, parameter :: n_p2 = 6
+
+   !> A broken P2 field for both membranes: coefficients (n_p2, nt, 2) in each triangle's monomials.
+   type :: p2_field_t
+      real(dp), allocatable :: c(:, :, :)
+   end type p2_field_t
+
+contains
+
+   !> Use the last `n_meshes` meshes of the hierarchy (all when fewer); factorize the coarse
+   !> Laplacian.
+   subroutine init(self, space, hierarchy, data, n_meshes, err)
+      class(algebraic_flux_t), intent(out) :: self
+      type(rt_space_t), intent(in) :: space
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
+      class(problem_data_t), intent(in) :: data
+      integer, intent(in) :: n_meshes
+      type(error_t), allocatable, intent(out) :: err
+
+      integer :: j
+      logical :: ok
+
+      self%space = space
+      self%finest = hierarchy%levels
+      self%base = max(0, self%finest - n_meshes + 1)
+      allocate (self%matrices(self%first():self%finest))
+      do j = self%first(), self%finest
+         call space%mesh_matrices(hierarchy%meshes(j), self%matrices(j), ok)
+         if (.not. ok) then
+            call make_error(err, exit_io, 'estimators', 'a triangle''s mixed finite element matrix is singular')
+            return
+         end if
+      end do
+      call self%coarse%init(hierarchy%meshes(self%base), data, err)
+      if (allocated(err)) return
+      call self%coarse_solver%factor(self%coarse%stiffness, err)
+   end subroutine init
+
+   !> levels(:) returns σ_alg level by level (levels b+1..J, or J alone with a single mesh) from
+   !> the nodal algebraic residuals (nv_J, 2), zero at boundary vertices, and the lifting r
+   !> (3, nt_J, 2).
+   subroutine compute(self, hierarchy, residual, r, levels, err)
+      class(algebraic_flux_t), intent(inout) :: self
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
+      real(dp), intent(in) :: residual(:, :), r(:, :, :)
+      type(level_flux_t), allocatable, intent(out) :: levels(:)
+      type(error_t), allocatable, intent(out) :: err
+
+      real(dp), allocatable :: grad_rho(:, :, :)
+      type(p2_field_t), allocatable :: p2(:)
+      integer :: j, first, n_levels
+      logical :: ok
+
+      call coarse_representer(self, hierarchy, residual, grad_rho, err)
+      if (allocated(err)) return
+      first = self%first()
+      n_levels = self%finest - first + 1
+      allocate (levels(n_levels), p2(first:self%finest))
+      call project_p2(hierarchy, first, r, p2)
+      do j = first, self%finest
+         associate (lev => levels(j - first + 1))
+            lev%level = j
+            allocate (lev%sigma(self%space%n_flux, hierarchy%meshes(j)%nt, 2))
+            if (j == self%base) then
+               ! a single mesh: patches and triangles of T_J
+               call level_patches(self%space, hierarchy%meshes(j), hierarchy%meshes(j), self%matrices(j), .true., &
+                                  grad_rho, p2(j), p2(j), lev%sigma, ok)
+            else if (j == first) then
+               call level_patches(self%space, hierarchy%meshes(j - 1), hierarchy%meshes(j), self%matrices(j), .true., &
+                                  grad_rho, p2(j), p2(j), lev%sigma, ok, hierarchy%maps(j)%vertex_parents)
+            else
+               call level_patches(self%space, hierarchy%meshes(j - 1), hierarchy%meshes(j), self%matrices(j), .false., &
+                                  grad_rho, p2(j - 1), p2(j), lev%sigma, ok, hierarchy%maps(j)%vertex_parents)
+            end if
+         end associate
+         if (.not. ok) then
+            call make_error(err, exit_io, 'algebraic flux', 'a patch system is singular (degenerate triangles?)')
+            return
+         end if
+      end do
+   end subroutine compute
+
+   !> The first level with patch problems: b + 1, or J for a single mesh.
+   pure integer function first(self)
+      class(algebraic_flux_t), intent(in) :: self
+
+      first = min(self%base + 1, self%finest)
+   end function first
+
+   !> ∇ρ_α on the triangles of T_b: (∇ρ_α, ∇v) = (r_α, v) for the P1 functions v of T_b vanishing
+   !> on ∂Ω. Since (r_α, ψ_{J,l}) = R_α(l), the right-hand side is R_α restricted level by level
+   !> (the transpose of prolongation).
+   subroutine coarse_representer(self, hierarchy, residual, grad_rho, err)
+      class(algebraic_flux_t), intent(inout) :: self
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
+      real(dp), intent(in) :: residual(:, :)
+      real(dp), allocatable, intent(out) :: grad_rho(:, :, :)
+      type(error_t), allocatable, intent(out) :: err
+
+      real(dp), allocatable :: fine(:), coarse(:), rho(:), nodal(:)
+      integer :: alpha, l
+      integer(ip) :: v, t
+
+      associate (base_mesh => hierarchy%meshes(self%base))
+         allocate (grad_rho(2, base_mesh%nt, 2), rho(self%coarse%n))
+         do alpha = 1, 2
+            fine = residual(:, alpha)
+            do l = self%finest, self%base + 1, -1
+               associate (parents => hierarchy%maps(l)%vertex_parents)
+                  allocate (coarse(hierarchy%meshes(l - 1)%nv))
+                  coarse = 0.0_dp
+                  do v = 1, size(fine, kind=ip)
+                     coarse(parents(1, v)) = coarse(parents(1, v)) + 0.5_dp*fine(v)
+                     coarse(parents(2, v)) = coarse(parents(2, v)) + 0.5_dp*fine(v)
+                  end do
+               end associate
+               call move_alloc(coarse, fine)
+            end do
+            call self%coarse_solver%solve(self%coarse%stiffness, fine(self%coarse%interior), rho, err)
+            if (allocated(err)) return
+            nodal = self%coarse%to_nodal(rho, 0.0_dp)
+            do t = 1, base_mesh%nt
+               grad_rho(:, t, alpha) = matmul(p1_gradients(base_mesh, t), nodal(base_mesh%triangles(:, t)))
+            end do
+         end do
+      end associate
+   end subroutine coarse_representer
+
+   !> r_α's L² projection onto P2 of every triangle of T_first..T_J, coarsest last: the moments
+   !> of a coarse triangle are those of its four children's projections (exact, P2·P2 being
+   !> degree 4 and the rule degree 5).
+   subroutine project_p2(hierarchy, first, r, p2)
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
+      integer, intent(in) :: first
+      real(dp), intent(in) :: r(:, :, :)
+      type(p2_field_t), intent(inout) :: p2(first:)
+
+      type(rt_space_t) :: space
+      type(rt_frame_t) :: frame, child_frame
+      real(dp) :: gram(n_p2, n_p2), b(n_p2, 2), m(n_p2), x(2), w, value(2)
+      integer :: l, k, c, alpha, piv(n_p2)
+      integer(ip) :: t, child
+      logical :: ok
+
+      call space%init(1)
+      do l = ubound(p2, 1), first, -1
+            allocate (p2(l)%c(n_p2, hierarchy%meshes(l)%nt, 2))
+            !$omp parallel do default(none) shared(space, hierarchy, p2, r, l) &
+            !$omp private(t, frame, child_frame, gram, b, m, x, w, value, k, c, alpha, piv, child, ok) &
+            !$omp schedule(static)
+            do t = 1, hierarchy%meshes(l)%nt
+               frame = make_frame(hierarchy%meshes(l)%vertices(:, hierarchy%meshes(l)%triangles(:, t)))
+               gram = 0.0_dp
+               b = 0.0_dp
+               do k = 1, space%rule%n
+                  x = matmul(frame%vertices, space%rule%bary(:, k))
+                  m = p2_monomials(frame, x)
+                  w = space%rule%weights(k)*frame%area
+                  do c = 1, n_p2
+                     gram(:, c) = gram(:, c) + w*m*m(c)
+                  end do
+                  if (l == ubound(p2, 1)) then
+                     do alpha = 1, 2
+                        b(:, alpha) = b(:, alpha) + w*dot_product(r(:, t, alpha), space%rule%bary(:, k))*m
+                     end do
+                  end if
+               end do
+               if (l < ubound(p2, 1)) then
+                  do c = 1, 4
+                     child = 4*(t - 1) + c
+                     child_frame = make_frame(hierarchy%meshes(l + 1)%vertices(:, hierarchy%meshes(l + 1)%triangles(:, child)))
+                     do k = 1, space%rule%n
+                        x = matmul(child_frame%vertices, space%rule%bary(:, k))
+                        w = space%rule%weights(k)*child_frame%area
+                        value = matmul(p2_monomials(child_frame, x), p2(l + 1)%c(:, child, :))
+                        m = p2_monomials(frame, x)
+                        do alpha = 1, 2
+                           b(:, alpha) = b(:, alpha) + w*value(alpha)*m
+                        end do
+                     end do
+                  end do
+               end if
+               call lu_factor(gram, piv, ok)
+               call lu_solve(gram, piv, b)
+               p2(l)%c(:, t, :) = b
+            end do
+            !$omp end parallel do
+      end do
+   end subroutine project_p2
+
+   pure function p2_monomials(frame, x) result(m)
+      type(rt_frame_t), intent(in) :: frame
+      real(dp), intent(in) :: x(2)
+      real(dp) :: m(n_p2)
+
+      real(dp) :: xi(2)
+
+      xi = (x - frame%centre)/frame%scale
+      m = [1.0_dp, xi(1), xi(2), xi(1)**2, xi(1)*xi(2), xi(2)**2]
+   end function p2_monomials
+
+   !> The patch problems of one level: patches of the vertices of `coarse`, triangles of `fine`
+   !> (its red refinement, or the same mesh when `parents` is absent). `first`: the data are
+   !> r ψ_a − ∇ρ·∇ψ_a (grad_rho on the coarse triangles), otherwise (I − Π_coarse)(r ψ_a).
+   subroutine level_patches(space, coarse, fine, matrices, first, grad_rho, p2_coarse, p2_fine, sigma, ok, parents)
+      type(rt_space_t), intent(in) :: space
+      type(mesh_t), intent(in) :: coarse, fine
+      type(rt_matrices_t), intent(in) :: matrices
+      logical, intent(in) :: first
+      real(dp), intent(in) :: grad_rho(:, :, :)
+      type(p2_field_t), intent(in) :: p2_coarse, p2_fine
+      real(dp), intent(out) :: sigma(:, :, :)
+      logical, intent(out) :: ok
+      integer(ip), intent(in), optional :: parents(:, :)
+
+      real(dp), allocatable :: slots(:, :, :, :)
+      integer(ip), allocatable :: vertex_parents(:, :)
+      integer(ip) :: a
+      integer :: n_children
+      logical :: patch_ok
+
+      if (present(parents)) then
+         vertex_parents = parents
+         n_children = 4
+      else
+         vertex_parents = spread([(a, a=1, fine%nv)], 1, 2)
+         n_children = 1
+      end if
+      allocate (slots(space%n_flux, 3, fine%nt, 2))
+      ok = .true.
+      !$omp parallel do default(none) &
+      !$omp shared(space, coarse, fine, matrices, first, grad_rho, p2_coarse, p2_fine, slots, vertex_parents, n_children) &
+      !$omp private(a, patch_ok) reduction(.and.:ok) schedule(dynamic, 64)
+      do a = 1, coarse%nv
+         call coarse_patch(space, coarse, fine, matrices, a, n_children, vertex_parents, first, grad_rho, p2_coarse, &
+                           p2_fine, slots, patch_ok)
+         ok = ok .and. patch_ok
+      end do
+      !$omp end parallel do
+      sigma = sum(slots, dim=2)
+   end subroutine level_patches
+
+   subroutine coarse_patch(space, coarse, fine, matrices, a, n_children, parents, first, grad_rho, p2_coarse, p2_fine, &
+                           slots, ok)
+      type(rt_space_t), intent(in) :: space
+      type(mesh_t), intent(in) :: coarse, fine
+      type(rt_matrices_t), intent(in) :: matrices
+      integer(ip), intent(in) :: a
+      integer, intent(in) :: n_children
+      integer(ip), intent(in) :: parents(:, :)
+      logical, intent(in) :: first
+      real(dp), intent(in) :: grad_rho(:, :, :)
+      type(p2_field_t), intent(in) :: p2_coarse, p2_fine
+      real(dp), intent(inout) :: slots(:, :, :, :)
+      logical, intent(out) :: ok
+
+      integer, parameter :: max_inner_per_triangle = 9
+      integer :: n_coarse, ne, k, kc, c, m, i, q_point, alpha, local_a, n_inner, piv(space%n_div)
+      integer(ip) :: t, child, e, v(3), children(n_children*(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a)))
+      integer(ip) :: inner(max_inner_per_triangle*(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a)))
+      type(rt_frame_t) :: frames(size(children)), coarse_frame
+      logical :: opposite, gram_ok
+      integer :: links(3, size(children)), slot(size(children))
+      real(dp) :: rhs_flux(space%n_flux, size(children), 2), rhs_div(space%n_div, size(children), 2)
+      real(dp) :: sigma(space%n_flux, size(children), 2)
+      real(dp) :: grad_psi(2), x(2), w, psi, q(space%n_div), value(2), coarse_part(space%n_div, 2)
+      real(dp) :: gram(space%n_div, space%n_div), smooth(2), hat_gradients(2, 3)
+
+      n_coarse = coarse%patch_ptr(a + 1) - coarse%patch_ptr(a)
+      ne = 0
+      n_inner = 0
+      rhs_flux = 0.0_dp
+      do kc = 1, n_coarse
+         t = coarse%patch_triangles(coarse%patch_ptr(a) + kc - 1)
+         coarse_frame = make_frame(coarse%vertices(:, coarse%triangles(:, t)))
+         local_a = findloc(coarse%triangles(:, t), a, dim=1)
+         hat_gradients = p1_gradients(coarse, t)
+         grad_psi = hat_gradients(:, local_a)
+         if (.not. first) then
+            ! Π_coarse(r ψ_a) on t, in the divergence basis of t
+            gram = 0.0_dp
+            coarse_part = 0.0_dp
+            do q_point = 1, space%rule%n
+               x = matmul(coarse_frame%vertices, space%rule%bary(:, q_point))
+               w = space%rule%weights(q_point)*coarse_frame%area
+               q = space%div_test_values(coarse_frame, x)
+               value = matmul(p2_monomials(coarse_frame, x), p2_coarse%c(:, t, :))
+               do i = 1, space%n_div
+                  gram(:, i) = gram(:, i) + w*q*q(i)
+               end do
+               do alpha = 1, 2
+                  coarse_part(:, alpha) = coarse_part(:, alpha) + w*value(alpha)*space%rule%bary(local_a, q_point)*q
+               end do
+            end do
+            call lu_factor(gram, piv, gram_ok)
+            call lu_solve(gram, piv, coarse_part)
+         end if
+         do c = 1, n_children
+            ne = ne + 1
+            child = merge(4*(t - 1) + c, t, n_children == 4)
+            children(ne) = child
+            slot(ne) = local_a
+            v = fine%triangles(:, child)
+            frames(ne) = make_frame(fine%vertices(:, v))
+            do m = 1, 3
+               e = fine%triangle_edges(m, child)
+               ! on the coarse edge opposite a: neither end point descends from a
+               opposite = all(parents(:, fine%edges(1, e)) /= a) .and. all(parents(:, fine%edges(2, e)) /= a)
+               if (fine%boundary_edge(e)) then
+                  links(m, ne) = merge(edge_neumann, edge_free, opposite .and. .not. coarse%boundary_vertex(a))
+               else if (opposite) then
+                  links(m, ne) = edge_neumann
+               else
+                  i = findloc(inner(1:n_inner), e, dim=1)
+                  if (i == 0) then
+                     n_inner = n_inner + 1
+                     inner(n_inner) = e
+                     i = n_inner
+                  end if
+                  links(m, ne) = i
+               end if
+            end do
+            rhs_div(:, ne, :) = 0.0_dp
+            do q_point = 1, space%rule%n
+               x = matmul(frames(ne)%vertices, space%rule%bary(:, q_point))
+               w = space%rule%weights(q_point)*frames(ne)%area
+               psi = 1.0_dp/3 + dot_product(grad_psi, x - coarse_frame%centre)
+               q = space%div_test_values(frames(ne), x)
+               value = matmul(p2_monomials(frames(ne), x), p2_fine%c(:, child, :))
+               if (first) then
+                  smooth = matmul(grad_psi, grad_rho(:, t, :))
+               else
+                  smooth = matmul(space%div_test_values(coarse_frame, x), coarse_part)
+               end if
+               do alpha = 1, 2
+                  rhs_div(:, ne, alpha) = rhs_div(:, ne, alpha) + w*(value(alpha)*psi - smooth(alpha))*q
+               end do
+            end do
+         end do
+      end do
+      call solve_patch(space, matrices, children, links, rhs_flux, rhs_div, sigma, ok)
+      do k = 1, ne
+         slots(:, slot(k), children(k), :) = sigma(:, k, :)
+      end do
+   end subroutine coarse_patch
+end module twomem_estimate_alg_flux

@@ -1,0 +1,474 @@
+!> The a posteriori estimators of the paper (Theorem 5.1, Corollary 5.6) for an arbitrary
+!> iterate X of any of the Newton methods: from X, the algebraic residual lifting, the
+!> discretization and algebraic flux reconstructions, then per triangle and in total
+!>   η_F,K,α   = ‖μ_α^{1/2}∇u_α + μ_α^{−1/2}σ_α‖_K   (σ = σ_disc + σ_alg),
+!>   η_osc,K,α = (h_K/π) μ_α^{−1/2}‖f_α − Π_p f_α‖_K  (RT0: of f_α ∓ λ_h, see below),
+!>   η_C,K     = 2(λ⁺, u1 − u2)_K   (signed; summed, never squared),
+!>   η_nonc,1,K = |||s_h − u_h|||_K,  η_nonc,2,K = C‖λ⁻‖_K,  η_nonc,3,K = 2C‖λ⁺‖_Ω η_nonc,1,K,
+!> with s_h the nodewise projection onto u1 ≥ u2 (the mean where u1 < u2) and
+!> C = h_Ω C_PF (1/μ1 + 1/μ2)^{1/2}. The caller passes h_Ω C_PF: a Poincaré–Friedrichs constant
+!> of the domain, ‖v‖ ≤ h_Ω C_PF ‖∇v‖ on H¹_0 (see `poincare_constant`).
+!> The guaranteed bound is η = {(η_1 + η_nonc,1 + η_nonc,2)² + η_nonc,3 + Σ_K η_C,K}^{1/2} (41),
+!> split into η_disc, η_lin, η_alg with η ≤ η_disc + η_lin + η_alg (Cor. 5.6, p = 1).
+!> The parts of λ_h are integrated exactly (each triangle clipped at λ_h = 0), not by quadrature.
+!> With RT0 the fluxes only match the means of f_α ∓ λ_h − r_α, so the oscillation term takes
+!> the whole f_α ∓ λ_h − Π_0(f_α ∓ λ_h) (r_α drops out: σ_alg carries Π_0 r_α): the bound stays
+!> guaranteed, at the price of a λ_h-dependent term.
+module twomem_estimate_estimators
+   use twomem_base_kinds, only: dp, ip
+   use twomem_base_errors, only: error_t, make_error, exit_io
+   use twomem_mesh_triangulation, only: mesh_t
+   use twomem_mesh_hierarchy, only: mesh_hierarchy_t
+   use twomem_fem_problem, only: problem_data_t
+   use twomem_fem_discrete, only: discrete_problem_t
+   use twomem_fem_assembly, only: p1_gradients
+   use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, make_frame
+   use twomem_estimate_lifting, only: algebraic_residuals, residual_lifting
+   use twomem_estimate_disc_flux, only: discretization_flux, load_moments, patch_integrals_t
+   use twomem_estimate_alg_flux, only: algebraic_flux_t, level_flux_t
+   implicit none
+   private
+
+   public :: estimator_t, estimates_t, poincare_constant
+
+   real(dp), parameter :: pi = acos(-1.0_dp)
+
+   !> One evaluation: global values and the per-triangle fields of `/estimators`.
+   type :: estimates_t
+      !> the components of Cor. 5.6 and the bound (41)
+      real(dp) :: disc = 0, lin = 0, alg = 0, total = 0
+      !> the parts: η_1, ‖η_F‖, ‖η_osc‖, Σ η_C, η_nonc,1..3
+      real(dp) :: eta_1 = 0, flux = 0, osc = 0, contact = 0, nonc1 = 0, nonc2 = 0, nonc3 = 0
+      !> per triangle, for each membrane: η_disc,K,α (without oscillation), η_alg,K,α, η_F,K,α, η_osc,K,α
+      real(dp), allocatable :: disc_k(:, :), alg_k(:, :), flux_k(:, :), osc_k(:, :)
+      !> per triangle: η_C,K, η_nonc,β,K and η_lin,K of the local criteria (65a)
+      real(dp), allocatable :: contact_k(:), nonc1_k(:), nonc2_k(:), nonc3_k(:), lin_k(:)
+   contains
+      procedure :: local_criteria
+      procedure :: field
+   end type estimates_t
+
+   type :: estimator_t
+      type(rt_space_t) :: space
+      type(algebraic_flux_t) :: alg
+      type(patch_integrals_t) :: integrals
+      !> (f_α ψ_i, q_k)_K and, for RT1, (h_K/π)‖f_α − Π_1 f_α‖_K (data only, fixed on the mesh)
+      real(dp), allocatable :: moments(:, :, :, :), osc_data(:, :)
+      !> ancestors(j, t): the triangle of the j-th level of σ_alg containing finest triangle t
+      integer(ip), allocatable :: ancestors(:, :)
+      real(dp) :: mu(2) = 1, c_omega = 1
+   contains
+      procedure :: init
+      procedure :: evaluate
+   end type estimator_t
+
+contains
+
+   !> h_Ω C_PF with ‖v‖ ≤ h_Ω C_PF ‖∇v‖ on H¹_0: 1/j_{0,1} on the unit disk (sharp; it also holds
+   !> on the inscribed polygon, a subset), √2/π on the square (−1,1)² (sharp), and otherwise the
+   !> diameter over π, safe for any domain (Ω lies in a strip of that width, where the
+   !> one-dimensional Friedrichs inequality applies across the strip).
+   pure real(dp) function poincare_constant(domain, diameter) result(c)
+      character(len=*), intent(in) :: domain
+      real(dp), intent(in) :: diameter
+
+      real(dp), parameter :: bessel_j0_first_zero = 2.404825557695773_dp
+
+      select case (domain)
+      case ('disk')
+         c = 1/bessel_j0_first_zero
+      case ('square')
+         c = sqrt(2.0_dp)/pi
+      case default
+         c = diameter/pi
+      end select
+   end function poincare_constant
+
+   !> flux_order 0 or 1; alg_meshes: how many of the finest meshes the algebraic flux uses;
+   !> poincare: h_Ω C_PF.
+   subroutine init(self, hierarchy, data, flux_order, alg_meshes, poincare, err)
+      class(estimator_t), intent(out) :: self
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
+      class(problem_data_t), intent(in) :: data
+      integer, intent(in) :: flux_order, alg_meshes
+      real(dp), intent(in) :: poincare
+      type(error_t), allocatable, intent(out) :: err
+
+      integer :: j, l, n_levels, first
+      integer(ip) :: t
+
+      associate (mesh => hierarchy%meshes(hierarchy%levels))
+         call self%space%init(flux_order)
+         self%mu = [data%mu1, data%mu2]
+         self%c_omega = poincare*sqrt(1/data%mu1 + 1/data%mu2)
+         allocate (self%moments(self%space%n_div, 3, mesh%nt, 2))
+         call load_moments(self%space, mesh, data, self%moments)
+         call self%integrals%init(self%space, mesh)
+         if (flux_order == 1) call data_oscillation(self%space, mesh, data, self%mu, self%osc_data)
+         call self%alg%init(self%space, hierarchy, data, alg_meshes, err)
+         if (allocated(err)) return
+         first = self%alg%first()
+         n_levels = self%alg%finest - first + 1
+         allocate (self%ancestors(n_levels, mesh%nt))
+         do t = 1, mesh%nt
+            self%ancestors(n_levels, t) = t
+            do j = n_levels - 1, 1, -1
+               l = first + j
+               self%ancestors(j, t) = hierarchy%maps(l)%triangle_parent(self%ancestors(j + 1, t))
+            end do
+         end do
+      end associate
+   end subroutine init
+
+   !> (h_K/π) μ_α^{−1/2} ‖f_α − Π_1 f_α‖_K with the load's degree-5 rule.
+   subroutine data_oscillation(space, mesh, data, mu, osc)
+      type(rt_space_t), intent(in) :: space
+      type(mesh_t), intent(in) :: mesh
+      class(problem_data_t), intent(in) :: data
+      real(dp), intent(in) :: mu(2)
+      real(dp), allocatable, intent(out) :: osc(:, :)
+
+      type(rt_frame_t) :: frame
+      real(dp) :: x(2), w, q(3), gram(3, 3), b(3, 2), f(2), ff(2)
+      integer :: k, i, alpha
+      integer(ip) :: t
+
+      allocate (osc(2, mesh%nt))
+      !$omp parallel do default(none) shared(space, mesh, data, mu, osc) &
+      !$omp private(t, frame, x, w, q, gram, b, f, ff, k, i, alpha) schedule(static)
+      do t = 1, mesh%nt
+         frame = make_frame(mesh%vertices(:, mesh%triangles(:, t)))
+         gram = 0.0_dp
+         b = 0.0_dp
+         ff = 0.0_dp
+         do k = 1, space%rule%n
+            x = matmul(frame%vertices, space%rule%bary(:, k))
+            w = space%rule%weights(k)*frame%area
+            q = space%div_test_values(frame, x)
+            f = [data%load(1, x), data%load(2, x)]
+            do i = 1, 3
+               gram(:, i) = gram(:, i) + w*q*q(i)
+            end do
+            do alpha = 1, 2
+               b(:, alpha) = b(:, alpha) + w*f(alpha)*q
+            end do
+            ff = ff + w*f**2
+         end do
+         ! ‖f − Π f‖² = ‖f‖² − (Π f, f) = ‖f‖² − bᵀ G⁻¹ b
+         do alpha = 1, 2
+            osc(alpha, t) = mesh%h(t)/pi/sqrt(mu(alpha))* &
+                            sqrt(max(0.0_dp, ff(alpha) - dot_product(b(:, alpha), solve3(gram, b(:, alpha)))))
+         end do
+      end do
+      !$omp end parallel do
+   end subroutine data_oscillation
+
+   pure function solve3(a, b) result(x)
+      real(dp), intent(in) :: a(3, 3), b(3)
+      real(dp) :: x(3)
+
+      real(dp) :: det
+
+      det = a(1, 1)*(a(2, 2)*a(3, 3) - a(2, 3)*a(3, 2)) - a(1, 2)*(a(2, 1)*a(3, 3) - a(2, 3)*a(3, 1)) + &
+            a(1, 3)*(a(2, 1)*a(3, 2) - a(2, 2)*a(3, 1))
+      x(1) = b(1)*(a(2, 2)*a(3, 3) - a(2, 3)*a(3, 2)) - a(1, 2)*(b(2)*a(3, 3) - a(2, 3)*b(3)) + &
+             a(1, 3)*(b(2)*a(3, 2) - a(2, 2)*b(3))
+      x(2) = a(1, 1)*(b(2)*a(3, 3) - a(2, 3)*b(3)) - b(1)*(a(2, 1)*a(3, 3) - a(2, 3)*a(3, 1)) + &
+             a(1, 3)*(a(2, 1)*b(3) - b(2)*a(3, 1))
+      x(3) = a(1, 1)*(a(2, 2)*b(3) - b(2)*a(3, 2)) - a(1, 2)*(a(2, 1)*b(3) - b(2)*a(3, 1)) + &
+             b(1)*(a(2, 1)*a(3, 2) - a(2, 2)*a(3, 1))
+      x = x/det
+   end function solve3
+
+   !> Every estimator for the iterate x = [X1; X2; X3] of the discrete problem p on the finest mesh.
+   subroutine evaluate(self, hierarchy, data, p, x, est, err)
+      class(estimator_t), intent(inout) :: self
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
+      class(problem_data_t), intent(in) :: data
+      type(discrete_problem_t), intent(in) :: p
+      real(dp), intent(in) :: x(:)
+      type(estimates_t), intent(out) :: est
+      type(error_t), allocatable, intent(out) :: err
+
+      real(dp), allocatable :: u(:, :), lambda(:), s(:, :), grad_u(:, :, :), residual(:, :), r(:, :, :)
+      real(dp), allocatable :: sigma(:, :, :), r1(:), r2(:)
+      type(level_flux_t), allocatable :: levels(:)
+      real(dp) :: positive_norm, lin_factor
+      integer(ip) :: n, t
+      integer :: alpha
+      logical :: ok
+
+      n = p%n
+      associate (mesh => hierarchy%meshes(hierarchy%levels))
+         allocate (u(mesh%nv, 2), s(mesh%nv, 2), residual(mesh%nv, 2), grad_u(2, mesh%nt, 2), r(3, mesh%nt, 2))
+         u(:, 1) = p%to_nodal(x(1:n), p%g)
+         u(:, 2) = p%to_nodal(x(n + 1:2*n), 0.0_dp)
+         lambda = p%to_nodal(x(2*n + 1:3*n), 0.0_dp)
+         ! s_h: where u1 < u2 both take the mean
+         s = u
+         where (u(:, 1) < u(:, 2))
+            s(:, 1) = 0.5_dp*(u(:, 1) + u(:, 2))
+            s(:, 2) = s(:, 1)
+         end where
+         do t = 1, mesh%nt
+            do alpha = 1, 2
+               grad_u(:, t, alpha) = matmul(p1_gradients(mesh, t), u(mesh%triangles(:, t), alpha))
+            end do
+         end do
+         allocate (r1(n), r2(n))
+         call algebraic_residuals(p, x, r1, r2)
+         residual(:, 1) = p%to_nodal(r1, 0.0_dp)
+         residual(:, 2) = p%to_nodal(r2, 0.0_dp)
+         do alpha = 1, 2
+            call residual_lifting(mesh, residual(:, alpha), r(:, :, alpha))
+         end do
+
+         allocate (sigma(self%space%n_flux, mesh%nt, 2))
+         call discretization_flux(self%space, mesh, self%alg%matrices(self%alg%finest), self%integrals, self%mu, &
+                                  self%moments, grad_u, lambda, r, sigma, ok)
+         if (.not. ok) then
+            call make_error(err, exit_io, 'discretization flux', 'a patch system is singular (degenerate triangles?)')
+            return
+         end if
+         call self%alg%compute(hierarchy, residual, r, levels, err)
+         if (allocated(err)) return
+
+         allocate (est%disc_k(2, mesh%nt), est%alg_k(2, mesh%nt), est%flux_k(2, mesh%nt), est%osc_k(2, mesh%nt))
+         allocate (est%contact_k(mesh%nt), est%nonc1_k(mesh%nt), est%nonc2_k(mesh%nt), est%nonc3_k(mesh%nt), &
+                   est%lin_k(mesh%nt))
+         call element_estimators(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, positive_norm)
+      end associate
+
+      est%nonc3_k = 2*self%c_omega*positive_norm*est%nonc1_k
+      est%eta_1 = sqrt(sum((est%flux_k + est%osc_k)**2))
+      est%flux = sqrt(sum(est%flux_k**2))
+      est%osc = sqrt(sum(est%osc_k**2))
+      est%contact = sum(est%contact_k)
+      est%nonc1 = sqrt(sum(est%nonc1_k**2))
+      est%nonc2 = sqrt(sum(est%nonc2_k**2))
+      est%nonc3 = 2*self%c_omega*positive_norm*est%nonc1
+      est%total = sqrt(max(0.0_dp, (est%eta_1 + est%nonc1 + est%nonc2)**2 + est%nonc3 + est%contact))
+      est%disc = sqrt(sum((est%disc_k + est%osc_k)**2)) + sqrt(abs(est%contact))
+      est%lin = est%nonc1 + est%nonc2 + sqrt(est%nonc3)
+      est%alg = sqrt(sum(est%alg_k**2))
+      ! (65a): the local linearization estimator whose criterion implies the global one
+      lin_factor = 1.0_dp
+      if (est%nonc1 > 0.0_dp) lin_factor = 1 + sqrt(2*self%c_omega*positive_norm/est%nonc1)
+      est%lin_k = lin_factor*est%nonc1_k + est%nonc2_k
+   end subroutine evaluate
+
+   !> The per-triangle parts; positive_norm returns ‖λ⁺‖_Ω.
+   subroutine element_estimators(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, positive_norm)
+      class(estimator_t), intent(in) :: self
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
+      class(problem_data_t), intent(in) :: data
+      real(dp), intent(in) :: u(:, :), lambda(:), s(:, :), grad_u(:, :, :), sigma(:, :, :)
+      type(level_flux_t), intent(in) :: levels(:)
+      type(estimates_t), intent(inout) :: est
+      real(dp), intent(out) :: positive_norm
+
+      type(rt_frame_t) :: frame, level_frames(size(levels))
+      real(dp) :: x(2), w, v_disc(2, 2), v_alg(2, 2), sq(3, 2), f(2), lam_x, osc_mean(2), osc_sq(2), osc_w
+      real(dp) :: pos_lw, pos_ll, neg_lw, neg_ll, sum_pos, grad_s(2, 2)
+      !> f ∓ λ_h at the 7 points of the degree-5 rule (RT0 only)
+      real(dp) :: osc_values(2, 7)
+      real(dp), parameter :: lambda_sign(2) = [1.0_dp, -1.0_dp]
+      integer(ip) :: t, anc
+      integer :: k, j, alpha
+      integer(ip) :: v(3)
+      integer :: finest
+      type(rt_space_t) :: space
+
+      sum_pos = 0.0_dp
+      finest = hierarchy%levels
+      space = self%space
+      !$omp parallel do default(none) &
+      !$omp shared(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, finest, space) &
+      !$omp private(t, anc, k, j, alpha, v, frame, level_frames, x, w, v_disc, v_alg, sq, f, lam_x, osc_mean, osc_sq) &
+      !$omp private(osc_w, pos_lw, pos_ll, neg_lw, neg_ll, grad_s, osc_values) reduction(+:sum_pos) schedule(static)
+      do t = 1, hierarchy%meshes(finest)%nt
+         v = hierarchy%meshes(finest)%triangles(:, t)
+         frame = make_frame(hierarchy%meshes(finest)%vertices(:, v))
+         do j = 1, size(levels)
+            anc = self%ancestors(j, t)
+            associate (lm => hierarchy%meshes(levels(j)%level))
+               level_frames(j) = make_frame(lm%vertices(:, lm%triangles(:, anc)))
+            end associate
+         end do
+         sq = 0.0_dp
+         osc_mean = 0.0_dp
+         osc_sq = 0.0_dp
+         do k = 1, space%rule%n
+            x = matmul(frame%vertices, space%rule%bary(:, k))
+            w = space%rule%weights(k)*frame%area
+            do alpha = 1, 2
+               v_disc(:, alpha) = self%mu(alpha)*grad_u(:, t, alpha) + &
+                                  matmul(space%flux_values(frame, x), sigma(:, t, alpha))
+            end do
+            v_alg = 0.0_dp
+            do j = 1, size(levels)
+               anc = self%ancestors(j, t)
+               do alpha = 1, 2
+                  v_alg(:, alpha) = v_alg(:, alpha) + matmul(space%flux_values(level_frames(j), x), &
+                                                             levels(j)%sigma(:, anc, alpha))
+               end do
+            end do
+            do alpha = 1, 2
+               sq(1, alpha) = sq(1, alpha) + w*sum(v_disc(:, alpha)**2)
+               sq(2, alpha) = sq(2, alpha) + w*sum(v_alg(:, alpha)**2)
+               sq(3, alpha) = sq(3, alpha) + w*sum((v_disc(:, alpha) + v_alg(:, alpha))**2)
+            end do
+            if (space%order == 0) then
+               ! RT0: the oscillation of f_α ∓ λ_h around its mean
+               lam_x = dot_product(lambda(v), space%rule%bary(:, k))
+               f = [data%load(1, x), data%load(2, x)] + lambda_sign*lam_x
+               osc_values(:, k) = f
+               osc_mean = osc_mean + w*f
+            end if
+         end do
+         do alpha = 1, 2
+            est%disc_k(alpha, t) = sqrt(sq(1, alpha)/self%mu(alpha))
+            est%alg_k(alpha, t) = sqrt(sq(2, alpha)/self%mu(alpha))
+            est%flux_k(alpha, t) = sqrt(sq(3, alpha)/self%mu(alpha))
+         end do
+         if (space%order == 0) then
+            osc_mean = osc_mean/frame%area
+            do k = 1, space%rule%n
+               osc_w = space%rule%weights(k)*frame%area
+               osc_sq = osc_sq + osc_w*(osc_values(:, k) - osc_mean)**2
+            end do
+            est%osc_k(:, t) = hierarchy%meshes(finest)%h(t)/acos(-1.0_dp)*sqrt(osc_sq/self%mu)
+         else
+            est%osc_k(:, t) = self%osc_data(:, t)
+         end if
+
+         call sign_split(frame%vertices, lambda(v), u(v, 1) - u(v, 2), pos_lw, pos_ll)
+         call sign_split(frame%vertices, -lambda(v), u(v, 1) - u(v, 2), neg_lw, neg_ll)
+         est%contact_k(t) = 2*pos_lw
+         est%nonc2_k(t) = self%c_omega*sqrt(neg_ll)
+         sum_pos = sum_pos + pos_ll
+         do alpha = 1, 2
+            grad_s(:, alpha) = matmul(p1_gradients(hierarchy%meshes(finest), t), s(v, alpha)) - grad_u(:, t, alpha)
+         end do
+         est%nonc1_k(t) = sqrt(frame%area*(self%mu(1)*sum(grad_s(:, 1)**2) + self%mu(2)*sum(grad_s(:, 2)**2)))
+      end do
+      !$omp end parallel do
+      positive_norm = sqrt(sum_pos)
+   end subroutine element_estimators
+
+   !> Exact ∫_{l>0} l w and ∫_{l>0} l² over a triangle for linear l and w given at its vertices:
+   !> clip at l = 0 and integrate the quadratics with the edge-midpoint rule on a fan.
+   pure subroutine sign_split(p, l, w, int_lw, int_ll)
+      real(dp), intent(in) :: p(2, 3), l(3), w(3)
+      real(dp), intent(out) :: int_lw, int_ll
+
+      real(dp) :: pts(2, 4), lv(4), wv(4), s, area, lm, wm
+      integer :: i, j, np, k, e
+      integer, parameter :: ends(2, 3) = reshape([0, 1, 1, 2, 2, 0], [2, 3])
+      integer :: fan(0:2)
+
+      np = 0
+      do i = 1, 3
+         j = modulo(i, 3) + 1
+         if (l(i) >= 0.0_dp) then
+            np = np + 1
+            pts(:, np) = p(:, i)
+            lv(np) = l(i)
+            wv(np) = w(i)
+         end if
+         if ((l(i) > 0.0_dp .and. l(j) < 0.0_dp) .or. (l(i) < 0.0_dp .and. l(j) > 0.0_dp)) then
+            s = l(i)/(l(i) - l(j))
+            np = np + 1
+            pts(:, np) = p(:, i) + s*(p(:, j) - p(:, i))
+            lv(np) = 0.0_dp
+            wv(np) = w(i) + s*(w(j) - w(i))
+         end if
+      end do
+      int_lw = 0.0_dp
+      int_ll = 0.0_dp
+      do k = 2, np - 1
+         area = 0.5_dp*abs((pts(1, k) - pts(1, 1))*(pts(2, k + 1) - pts(2, 1)) - &
+                           (pts(1, k + 1) - pts(1, 1))*(pts(2, k) - pts(2, 1)))
+         fan = [1, k, k + 1]
+         do e = 1, 3
+            lm = 0.5_dp*(lv(fan(ends(1, e))) + lv(fan(ends(2, e))))
+            wm = 0.5_dp*(wv(fan(ends(1, e))) + wv(fan(ends(2, e))))
+            int_lw = int_lw + area/3*lm*wm
+            int_ll = int_ll + area/3*lm**2
+         end do
+      end do
+   end subroutine sign_split
+
+   !> The local stopping criteria (64) of the paper: (64a) η_alg,ω_a,α ≤ min_{K ⊂ ω_a} γ_alg
+   !> max(η_disc,K,α, η_lin,K) on every vertex patch and membrane; (64b) η_lin,K ≤ γ_lin min_α
+   !> η_disc,K,α on every triangle.
+   subroutine local_criteria(self, mesh, gamma_alg, gamma_lin, alg_ok, lin_ok)
+      class(estimates_t), intent(in) :: self
+      type(mesh_t), intent(in) :: mesh
+      real(dp), intent(in) :: gamma_alg, gamma_lin
+      logical, intent(out) :: alg_ok, lin_ok
+
+      integer(ip) :: a, m, t
+      integer :: alpha
+      real(dp) :: patch_alg, bound
+
+      lin_ok = all(self%lin_k <= gamma_lin*minval(self%disc_k, dim=1))
+      alg_ok = .true.
+      do a = 1, mesh%nv
+         do alpha = 1, 2
+            patch_alg = 0.0_dp
+            bound = huge(1.0_dp)
+            do m = mesh%patch_ptr(a), mesh%patch_ptr(a + 1) - 1
+               t = mesh%patch_triangles(m)
+               patch_alg = patch_alg + self%alg_k(alpha, t)**2
+               bound = min(bound, gamma_alg*max(self%disc_k(alpha, t), self%lin_k(t)))
+            end do
+            if (sqrt(patch_alg) > bound) then
+               alg_ok = .false.
+               return
+            end if
+         end do
+      end do
+   end subroutine local_criteria
+
+   !> The per-triangle field `name` of `/estimators` and its global value (docs/output.md).
+   subroutine field(self, name, values, total)
+      class(estimates_t), intent(in) :: self
+      character(len=*), intent(in) :: name
+      real(dp), allocatable, intent(out) :: values(:)
+      real(dp), intent(out) :: total
+
+      select case (name)
+      case ('eta_disc')
+         values = sqrt(sum((self%disc_k + self%osc_k)**2, dim=1) + abs(self%contact_k))
+         total = self%disc
+      case ('eta_lin')
+         values = self%lin_k
+         total = self%lin
+      case ('eta_alg')
+         values = sqrt(sum(self%alg_k**2, dim=1))
+         total = self%alg
+      case ('eta_total')
+         values = sqrt(sum((self%flux_k + self%osc_k)**2, dim=1) + abs(self%contact_k)) + self%lin_k
+         total = self%total
+      case ('eta_F')
+         values = sqrt(sum(self%flux_k**2, dim=1))
+         total = self%flux
+      case ('eta_osc')
+         values = sqrt(sum(self%osc_k**2, dim=1))
+         total = self%osc
+      case ('eta_C')
+         values = self%contact_k
+         total = self%contact
+      case ('eta_nonc1')
+         values = self%nonc1_k
+         total = self%nonc1
+      case ('eta_nonc2')
+         values = self%nonc2_k
+         total = self%nonc2
+      case default
+         values = self%nonc3_k
+         total = self%nonc3
+      end select
+   end subroutine field
+end module twomem_estimate_estimators

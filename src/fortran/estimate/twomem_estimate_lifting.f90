@@ -1,0 +1,79 @@
+!> The algebraic residual as a function (paper §4.1): from R_α = F_α − (rows α of E X) at the
+!> interior vertices, the piecewise P1 function r_α with (r_α, ψ_a)_K = R_α(a)/N_a on every
+!> triangle K of the patch of a (N_a triangles) and r_α = 0 at boundary vertices. Summing over
+!> the patch gives (r_α, ψ_a) = R_α(a), so the first two block rows of the inexact Newton system
+!> read as exact equilibria with source f_α ∓ λ_h − r_α, which the flux reconstructions need.
+module twomem_estimate_lifting
+   use twomem_base_kinds, only: dp, ip
+   use twomem_mesh_triangulation, only: mesh_t
+   use twomem_fem_discrete, only: discrete_problem_t
+   implicit none
+   private
+
+   public :: algebraic_residuals, residual_lifting
+
+contains
+
+   !> R_1 = F_1 − μ1 S X1 + D X3 and R_2 = F_2 − μ2 S X2 − D X3 at the interior vertices.
+   subroutine algebraic_residuals(p, x, r1, r2)
+      type(discrete_problem_t), intent(in) :: p
+      real(dp), intent(in) :: x(:)
+      real(dp), intent(out) :: r1(:), r2(:)
+
+      real(dp), allocatable :: s(:)
+      integer(ip) :: n
+
+      n = p%n
+      allocate (s(n))
+      call p%stiffness%matvec(x(1:n), s)
+      r1 = p%f1 - p%mu1*s + p%mass*x(2*n + 1:3*n)
+      call p%stiffness%matvec(x(n + 1:2*n), s)
+      r2 = p%f2 - p%mu2*s - p%mass*x(2*n + 1:3*n)
+   end subroutine algebraic_residuals
+
+   !> r(:, t) = values of r at the three vertices of triangle t, from nodal residuals
+   !> (zero at boundary vertices).
+   subroutine residual_lifting(mesh, residual, r)
+      type(mesh_t), intent(in) :: mesh
+      real(dp), intent(in) :: residual(:)
+      real(dp), intent(out) :: r(:, :)
+
+      integer(ip) :: t
+      integer :: i, j, n_free, free(3)
+      real(dp) :: m(3, 3), rhs(3), det
+
+      !$omp parallel do default(none) shared(mesh, residual, r) &
+      !$omp private(t, i, j, n_free, free, m, rhs, det) schedule(static)
+      do t = 1, mesh%nt
+         r(:, t) = 0.0_dp
+         n_free = 0
+         do i = 1, 3
+            associate (a => mesh%triangles(i, t))
+               if (.not. mesh%boundary_vertex(a)) then
+                  n_free = n_free + 1
+                  free(n_free) = i
+                  rhs(n_free) = residual(a)/(mesh%patch_ptr(a + 1) - mesh%patch_ptr(a))
+               end if
+            end associate
+         end do
+         ! the P1 mass matrix of t is |t|/12 (1 + δ_ij): solve its free-vertex block
+         do i = 1, n_free
+            do j = 1, n_free
+               m(i, j) = merge(2.0_dp, 1.0_dp, i == j)*mesh%area(t)/12
+            end do
+         end do
+         select case (n_free)
+         case (1)
+            r(free(1), t) = rhs(1)/m(1, 1)
+         case (2)
+            det = m(1, 1)*m(2, 2) - m(1, 2)*m(2, 1)
+            r(free(1), t) = (m(2, 2)*rhs(1) - m(1, 2)*rhs(2))/det
+            r(free(2), t) = (m(1, 1)*rhs(2) - m(2, 1)*rhs(1))/det
+         case (3)
+            ! inverse of (|t|/12)(I + 11ᵀ): (12/|t|)(I − 11ᵀ/4)
+            r(:, t) = 12/mesh%area(t)*(rhs - sum(rhs)/4)
+         end select
+      end do
+      !$omp end parallel do
+   end subroutine residual_lifting
+end module twomem_estimate_lifting
