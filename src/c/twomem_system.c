@@ -98,11 +98,24 @@ void twomem_sys_exit(int code) { exit(code); }
 
 int twomem_sys_getpid(void) { return (int)getpid(); }
 
-/* ru_maxrss is in KiB on Linux; -1 if the kernel does not say. */
+/* Peak resident memory in KiB: VmHWM of /proc/self/status, which belongs to this process
+ * alone. getrusage's ru_maxrss is the fallback; it survives exec, so a twomem started from a
+ * large parent (a Python study driver) would report the parent's peak. -1 if neither says. */
 int64_t twomem_sys_peak_rss_kib(void)
 {
     struct rusage usage;
+    FILE *status = fopen("/proc/self/status", "r");
 
+    if (status != NULL) {
+        char line[256];
+        long long kib = -1;
+
+        while (fgets(line, sizeof line, status) != NULL) {
+            if (sscanf(line, "VmHWM: %lld kB", &kib) == 1) break;
+        }
+        fclose(status);
+        if (kib >= 0) return (int64_t)kib;
+    }
     if (getrusage(RUSAGE_SELF, &usage) != 0) return -1;
     return (int64_t)usage.ru_maxrss;
 }

@@ -151,6 +151,7 @@ contains
       last_damped = 0
 
       row = not_computed()
+      reuse_inner = .false.
       call lin%residual(x, row%lin_residual, c, da, db)
       call record(0, row)
       previous = active
