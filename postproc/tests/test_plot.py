@@ -1,12 +1,12 @@
-"""Tests of `python -m twomem_post plot`: synthetic result files built with h5py, and a real
-result when the executable is known (env TWOMEM_EXE) or the stored regression reference.
+"""Tests of `python -m twomem_post plot`: synthetic result files built with h5py (synthetic.py),
+the stored regression reference, and a tiny real result when the executable is found (--twomem
+discovery: TWOMEM_EXE, else build/release/twomem).
 
 Run: .venv/bin/python -m pytest -q postproc/tests
 """
 from __future__ import annotations
 
 import io
-import os
 import struct
 import subprocess
 import sys
@@ -16,93 +16,23 @@ import h5py
 import numpy as np
 import pytest
 
+from synthetic import env_with_package, make_result
+
 POSTPROC = Path(__file__).resolve().parents[1]
 REPO = POSTPROC.parent
 if str(POSTPROC) not in sys.path:  # works without the editable install too
     sys.path.insert(0, str(POSTPROC))
 
-from twomem_post import plot as tp  # noqa: E402
+from twomem_post import geometry, maps, plot as tp, result as tr  # noqa: E402
 from twomem_post.__main__ import main  # noqa: E402
+from twomem_post.errors import EnvironmentFailure  # noqa: E402
+from twomem_post.runner import find_twomem  # noqa: E402
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-MAPS = ["u1", "u2", "membranes", "lambda", "contact"]
-
-
-# ----------------------------------------------------------------------------------------------
-# synthetic result files
-
-def square_mesh(n: int = 4):
-    """[-1, 1]^2 cut into n x n squares, two counter-clockwise triangles each."""
-    s = np.linspace(-1.0, 1.0, n + 1)
-    x, y = np.meshgrid(s, s)
-    xy = np.column_stack([x.ravel(), y.ravel()])
-    tri = []
-    for j in range(n):
-        for i in range(n):
-            a = j * (n + 1) + i
-            b, c, d = a + 1, a + n + 1, a + n + 2
-            tri += [[a, b, d], [a, d, c]]
-    return xy, np.array(tri, dtype=np.int32)
-
-
-def history_rows(gmres: bool, eta: bool):
-    """Newton rows (inner 0) and, with gmres, one inner row inside every step."""
-    rows = []  # newton_it, gmres_it, inner
-    if gmres:
-        rows = [(0, 0, 0), (1, 10, 1), (1, 17, 0), (2, 27, 1), (2, 30, 0), (3, 38, 0)]
-    else:
-        rows = [(0, 0, 0), (1, 0, 0), (2, 0, 0), (3, 0, 0)]
-    k = np.array([r[0] for r in rows], dtype=np.int32)
-    n = len(rows)
-    decay = 10.0 ** (-3.0 * np.arange(n))
-    h = {
-        "newton_it": k,
-        "gmres_it": np.array([r[1] for r in rows], dtype=np.int32),
-        "inner": np.array([r[2] for r in rows], dtype=np.int32),
-        "lin_residual": 0.3 * decay,
-        "alg_residual": np.where(np.arange(n) == 0, 0.0, 1e-2 * decay),
-        "energy_error": 1e-2 + 1e-2 * decay,
-        "active": np.full(n, 5, dtype=np.int32),
-        "active_changed": np.zeros(n, dtype=np.int32),
-        "step": np.ones(n),
-        "wall_time": np.linspace(0.0, 1.0, n),
-    }
-    for name in ("eta_disc", "eta_lin", "eta_alg", "eta_total"):
-        h[name] = (1.5 * h["energy_error"] if name == "eta_total" else 0.5 * h["energy_error"]) \
-            if eta else np.full(n, np.nan)
-    return h
-
-
-def make_result(path: Path, *, case="synthetic", error=True, estimators=False, gmres=True,
-                history=True, solution=("u1", "u2", "lambda"), mesh=True, n=4) -> Path:
-    xy, tri = square_mesh(n)
-    r2 = (xy ** 2).sum(axis=1)
-    bump = 0.2 * np.maximum(r2 - 0.3, 0.0)
-    fields = {"u1": 0.1 + bump, "u2": 0.1 - bump, "lambda": np.where(r2 < 0.3, 1.0 - r2, 0.0)}
-    fields["u2"][r2 < 0.3] -= 1e-14  # GMRES-like round-off in the gap of contact vertices
-    rng = np.random.default_rng(1)
-    with h5py.File(path, "w") as f:
-        f.attrs["version"] = "0.1.0"
-        f.attrs["input"] = f"! twomem input: case '{case}' from 'input/{case}.nml'\n&mesh\n/\n"
-        f.attrs["status"] = "converged"
-        if mesh:
-            f["mesh/vertices"] = xy
-            f["mesh/triangles"] = tri
-        for name in solution:
-            f[f"solution/{name}"] = fields[name]
-        if error:
-            e = rng.uniform(1e-4, 1e-2, len(tri))
-            e[:3] = 0.0  # exact on a few elements: must not break the log scale
-            f["error/energy"] = e
-            f["error/energy"].attrs["total"] = np.sqrt((e ** 2).sum())
-        if estimators:
-            f["estimators/eta_total"] = rng.uniform(1e-4, 3e-2, len(tri))
-        if history:
-            for name, values in history_rows(gmres, estimators).items():
-                f[f"history/{name}"] = values
-        s = f.create_group("summary")
-        s.attrs["nv"], s.attrs["nt"] = len(xy), len(tri)
-    return path
+MAPS = {"u1", "u2", "membranes", "lambda", "contact"}
+NEWTON = {"history_newton", "estimators_newton"}
+GMRES = {"history_gmres", "estimators_gmres"}
+HISTORY = NEWTON | GMRES
 
 
 def png_size(path: Path) -> tuple[int, int]:
@@ -133,35 +63,59 @@ def check_pngs(written):
 # ----------------------------------------------------------------------------------------------
 # figures
 
-def test_full_result_draws_every_figure(tmp_path):
+def test_result_without_estimators(tmp_path):
+    """What twomem writes today: estimator columns NaN, no /estimators."""
     f = make_result(tmp_path / "r.h5")
     written, out, err = run_plot(f, tmp_path / "figs" / "sub")  # outdir created, parents too
-    assert names(written) == set(MAPS) | {"error", "history_newton", "history_gmres"}
+    assert names(written) == MAPS | {"error"} | HISTORY
     check_pngs(written)
     assert out.splitlines() == [str(p) for p in written]
-    # estimators all NaN: no effectivity, said in one line
-    assert "effectivity" in err and len(err.splitlines()) == 1
+    notes = err.splitlines()  # each absence said in one line
+    assert len(notes) == 2 and "energy error only" in notes[0] and "effectivity" in notes[1]
+
+
+def test_every_figure_with_estimators(tmp_path):
+    f = make_result(tmp_path / "r.h5", estimators=True)
+    written, out, err = run_plot(f, tmp_path / "figs")
+    assert names(written) == MAPS | {"error", "effectivity"} | HISTORY
+    check_pngs(written)
+    assert err == ""
+    w, h = png_size(tmp_path / "figs" / "error.png")
+    assert w > 1.6 * h  # estimate and error side by side
+    w1, h1 = png_size(tmp_path / "figs" / "u1.png")
+    assert w1 < 1.6 * h1
+
+
+def test_estimator_figures_show_the_estimators(tmp_path):
+    """The lines drawn are the history's estimator columns, at the rows the axis asks for."""
+    f = make_result(tmp_path / "r.h5", estimators=True)
+    r = tr.load(f)
+    h = r.history
+    drawn = {}
+
+    class Keep(tp.Writer):
+        def save(self, fig, name):
+            drawn[name] = {line.get_label(): line.get_xydata() for line in fig.axes[0].lines}
+
+    from twomem_post import convergence
+    convergence.plot_convergence(r, Keep(tmp_path, "png", io.StringIO(), io.StringIO()))
+    newton = np.flatnonzero(h["inner"] == 0)
+    eta = drawn["estimators_newton"][r"$\eta_{\mathrm{lin}}$"]
+    assert np.array_equal(eta[:, 0], h["newton_it"][newton])
+    assert np.allclose(eta[:, 1], h["eta_lin"][newton])
+    along_gmres = drawn["estimators_gmres"][r"$\eta$"]
+    assert np.array_equal(along_gmres[:, 0], h["gmres_it"])  # inner rows included
+    k, eff = drawn["effectivity"][r"$\eta/|\!|\!|u-u_h|\!|\!|$"].T
+    assert np.allclose(eff, h["eta_total"][newton] / h["energy_error"][newton])
 
 
 def test_direct_solver_without_exact_solution(tmp_path):
     f = make_result(tmp_path / "r.h5", error=False, gmres=False)
     written, out, err = run_plot(f, tmp_path / "figs")
-    assert names(written) == set(MAPS) | {"history_newton"}
+    assert names(written) == MAPS | NEWTON  # estimators_newton: the history's energy error
     check_pngs(written)
-    assert "error" in err and not (tmp_path / "figs" / "error.png").exists()
-    assert not (tmp_path / "figs" / "history_gmres.png").exists()
-
-
-def test_estimators_side_by_side_and_effectivity(tmp_path):
-    f = make_result(tmp_path / "r.h5", estimators=True)
-    written, out, err = run_plot(f, tmp_path / "figs")
-    assert {"error", "effectivity", "history_newton", "history_gmres"} <= names(written)
-    check_pngs(written)
-    w, h = png_size(tmp_path / "figs" / "error.png")
-    assert w > 1.6 * h  # two panels side by side
-    w1, h1 = png_size(tmp_path / "figs" / "u1.png")
-    assert w1 < 1.6 * h1
-    assert err == ""
+    assert "error.png skipped" in err and not (tmp_path / "figs" / "error.png").exists()
+    assert "no GMRES iterations" in err
 
 
 def test_estimator_without_exact_solution(tmp_path):
@@ -174,7 +128,7 @@ def test_estimator_without_exact_solution(tmp_path):
 def test_shared_colour_scale_covers_both(tmp_path):
     eta = np.array([1e-3, 2e-2, 0.0])
     err = np.array([5e-4, 1e-3, 1e-18])
-    norm, clipped = tp._log_norm(eta, err)
+    norm, clipped = maps._log_norm(eta, err)
     assert norm.vmax == pytest.approx(2e-2) and norm.vmin == pytest.approx(5e-4)
     assert clipped  # 0 and round-off lie below the scale
 
@@ -190,10 +144,10 @@ def test_missing_datasets_are_skipped(tmp_path, what):
     written, out, err = run_plot(f, tmp_path / "figs")
     check_pngs(written)
     got = names(written)
-    expect = {"mesh": {"history_newton", "history_gmres"},
-              "solution": {"error", "history_newton", "history_gmres"},
-              "history": set(MAPS) | {"error"},
-              "u2": {"u1", "lambda", "error", "history_newton", "history_gmres"},
+    expect = {"mesh": HISTORY,
+              "solution": {"error"} | HISTORY,
+              "history": MAPS | {"error"},
+              "u2": {"u1", "lambda", "error"} | HISTORY,
               "everything": set()}[what]
     assert got == expect
     assert err, "a skipped figure is noted"
@@ -232,7 +186,7 @@ def test_pdf_format(tmp_path):
     rc = main(["plot", str(f), "-o", str(tmp_path / "figs"), "--format", "pdf"])
     assert rc == 0
     pdfs = sorted((tmp_path / "figs").glob("*.pdf"))
-    assert {p.stem for p in pdfs} == set(MAPS) | {"error", "history_newton", "history_gmres"}
+    assert {p.stem for p in pdfs} == MAPS | {"error"} | HISTORY
     for p in pdfs:
         assert p.read_bytes()[:5] == b"%PDF-"
 
@@ -241,9 +195,9 @@ def test_pdf_format(tmp_path):
 # helpers
 
 def test_case_name():
-    assert tp.case_name("! twomem input: case 'paper_p1' from 'x.nml'\n&mesh\n/", "f") == "paper_p1"
-    assert tp.case_name("&mesh\n/", "fallback") == "fallback"
-    assert tp.case_name(None, "fallback") == "fallback"
+    assert tr.case_name("! twomem input: case 'paper_p1' from 'x.nml'\n&mesh\n/", "f") == "paper_p1"
+    assert tr.case_name("&mesh\n/", "fallback") == "fallback"
+    assert tr.case_name(None, "fallback") == "fallback"
 
 
 def test_contact_set_tolerates_solver_round_off():
@@ -251,36 +205,30 @@ def test_contact_set_tolerates_solver_round_off():
     u2 = np.array([0.1, 0.1 - 2e-12, 0.1 - 1e-6, 0.0])
     lam = np.array([0.5, 0.3, 0.0, 0.0])
     # gap 2e-12 with lambda > 0: in contact; gap 1e-6 with lambda = 0: not
-    assert tp.contact_vertices(u1, u2, lam).tolist() == [True, True, False, False]
+    assert geometry.contact_vertices(u1, u2, lam).tolist() == [True, True, False, False]
     # without lambda only the gap tolerance (1e-12 max|u|) counts
-    assert tp.contact_vertices(u1, u2, None).tolist() == [True, False, False, False]
+    assert geometry.contact_vertices(u1, u2, None).tolist() == [True, False, False, False]
 
 
 def test_region_outline_of_two_triangles():
     xy = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
     tri = np.array([[0, 1, 2], [0, 2, 3]])
-    seg = tp.region_outline(tri, np.array([True, True]), xy)
+    seg = geometry.region_outline(tri, np.array([True, True]), xy)
     assert seg.shape == (4, 2, 2)  # the square's sides, not the shared diagonal
-    assert tp.region_outline(tri, np.array([False, False]), xy).shape == (0, 2, 2)
+    assert geometry.region_outline(tri, np.array([False, False]), xy).shape == (0, 2, 2)
 
 
 # ----------------------------------------------------------------------------------------------
 # command line and errors
 
-def _env():
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join([str(POSTPROC), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
-    return env
-
-
 def test_command_line(tmp_path):
     f = make_result(tmp_path / "r.h5", case="cli_case")
     outdir = tmp_path / "figs"
     proc = subprocess.run([sys.executable, "-m", "twomem_post", "plot", str(f), "-o", str(outdir)],
-                          capture_output=True, text=True, cwd=tmp_path, env=_env(), timeout=300)
+                          capture_output=True, text=True, cwd=tmp_path, env=env_with_package(), timeout=300)
     assert proc.returncode == 0, proc.stderr
     paths = proc.stdout.splitlines()
-    assert {Path(p).stem for p in paths} == set(MAPS) | {"error", "history_newton", "history_gmres"}
+    assert {Path(p).stem for p in paths} == MAPS | {"error"} | HISTORY
     check_pngs(paths)
     assert all(Path(p).parent == outdir for p in paths)
 
@@ -290,7 +238,7 @@ def test_broken_file_command_line(tmp_path):
     bad.write_bytes(b"this is not HDF5\n" * 10)
     proc = subprocess.run([sys.executable, "-m", "twomem_post", "plot", str(bad), "-o",
                            str(tmp_path / "figs")], capture_output=True, text=True, cwd=tmp_path,
-                          env=_env(), timeout=300)
+                          env=env_with_package(), timeout=300)
     assert proc.returncode == 2
     lines = proc.stderr.splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"twomem_post: error: {bad}: "), proc.stderr
@@ -347,7 +295,7 @@ def test_unusable_file_exits_2_with_one_line(tmp_path, capsys, make):
 def _plot_real(path: Path, outdir: Path):
     written, out, err = run_plot(path, outdir)
     got = names(written)
-    assert set(MAPS) | {"history_newton"} <= got
+    assert MAPS | NEWTON <= got
     check_pngs(written)
     return got
 
@@ -359,16 +307,22 @@ def test_stored_reference_result(tmp_path):
     assert "error" in _plot_real(ref, tmp_path / "figs")
 
 
-def test_real_result(tmp_path):
-    exe = os.environ.get("TWOMEM_EXE")
-    if not exe:
-        pytest.skip("TWOMEM_EXE not set")
-    if os.sep in exe:  # a relative path still works from the temporary directory
-        exe = str(Path(exe).resolve())
+def twomem_or_skip() -> Path:
+    try:
+        return find_twomem()
+    except EnvironmentFailure as exc:
+        pytest.skip(f"no twomem executable ({exc.why})")
+
+
+@pytest.mark.parametrize("linear", ["direct", "gmres"])
+def test_real_result(tmp_path, linear):
+    """Smoke test on a tiny result of the real program (default case: exact solution known)."""
     result = tmp_path / "r.h5"
-    proc = subprocess.run([exe, "run", str(REPO / "input" / "default.nml"), "mesh.levels=1",
-                           f"output.file={result}"], capture_output=True, text=True, cwd=tmp_path,
-                          timeout=600)
+    proc = subprocess.run([str(twomem_or_skip()), "run", str(REPO / "input" / "default.nml"),
+                           "mesh.levels=0", f"newton.linear={linear}", "gmres.precond=ilu0",
+                           f"output.file={result}"], capture_output=True, text=True,
+                          cwd=tmp_path, timeout=600)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr
     got = _plot_real(result, tmp_path / "figs")
-    assert "error" in got  # the default case knows its exact solution
+    assert "error" in got
+    assert (GMRES <= got) == (linear == "gmres")

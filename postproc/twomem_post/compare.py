@@ -5,7 +5,6 @@ was not computed in either file). Used by the regression tests against stored re
 """
 from __future__ import annotations
 
-import argparse
 import sys
 
 import h5py

@@ -1,0 +1,46 @@
+"""The solution methods a study compares, as twomem command-line overrides.
+
+The names are the paper's (§8, criteria (84), (85) and (63)), so that a study's rows line up
+with the published ones (paper.py):
+
+``exact``     Newton-min with GMRES solved to 2e-12 in every step: the paper's "exact" method.
+``inexact``   GMRES stopped once the algebraic residual is below the linearization residual.
+``adaptive``  the estimator-based stopping of both GMRES and Newton (the paper's method).
+``direct``    Newton-min with UMFPACK: no algebraic error, a reference for the others.
+
+GMRES methods use ILU(0): Jacobi and no preconditioner stagnate on the full Newton matrix beyond
+small meshes (README).
+"""
+from __future__ import annotations
+
+METHODS: dict[str, tuple[str, ...]] = {
+    "exact": ("newton.linear=gmres", "gmres.forcing=fixed", "gmres.rtol=2e-12",
+              "gmres.precond=ilu0"),
+    "inexact": ("newton.linear=gmres", "gmres.forcing=paper", "gmres.precond=ilu0"),
+    "adaptive": ("newton.linear=adaptive", "gmres.precond=ilu0"),
+    "direct": ("newton.linear=direct",),
+}
+
+#: the paper's three methods, in its order
+PAPER_METHODS = ("exact", "inexact", "adaptive")
+
+#: a fixed colour and marker per method, the same on every study figure
+STYLE = {
+    "exact": ("tab:blue", "o"),
+    "inexact": ("tab:orange", "s"),
+    "adaptive": ("tab:green", "D"),
+    "direct": ("tab:gray", "^"),
+}
+
+
+def parse(text: str) -> list[str]:
+    """Method names from 'a,b,c'; ValueError naming the unknown ones."""
+    names = [m.strip() for m in text.split(",") if m.strip()]
+    unknown = [m for m in names if m not in METHODS]
+    if unknown or not names:
+        raise ValueError(f"unknown method{'s' if len(unknown) > 1 else ''} "
+                         f"{', '.join(map(repr, unknown)) or '(none given)'} "
+                         f"(valid: {', '.join(METHODS)})")
+    if len(set(names)) != len(names):
+        raise ValueError(f"a method is listed twice in {text!r}")
+    return names
