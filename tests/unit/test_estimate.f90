@@ -1,0 +1,674 @@
+!> The a posteriori estimators (src/fortran/estimate): the Raviart–Thomas element against Green's
+!> formula, the residual lifting against the P1 mass matrix, equilibrium and normal continuity of
+!> both flux reconstructions, and the estimators at and away from the discrete solution. Expected
+!> values are computed here (exact P1/barycentric integrals), not taken from the code under test.
+module test_estimate
+   use twomem_base_kinds, only: dp, ip
+   use twomem_mesh_triangulation, only: mesh_t
+   use twomem_mesh_generators, only: make_disk, make_square
+   use twomem_mesh_hierarchy, only: mesh_hierarchy_t
+   use twomem_fem_problem, only: problem_data_t
+   use twomem_fem_discrete, only: discrete_problem_t
+   use twomem_fem_assembly, only: p1_gradients
+   use twomem_fem_cases, only: make_problem
+   use twomem_fem_error, only: energy_error_per_element
+   use twomem_linalg_dense, only: cholesky_factor
+   use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_solve
+   use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, rt_matrices_t, make_frame, edge_gauss
+   use twomem_estimate_lifting, only: algebraic_residuals, residual_lifting
+   use twomem_estimate_disc_flux, only: discretization_flux, load_moments, patch_integrals_t
+   use twomem_estimate_alg_flux, only: algebraic_flux_t, level_flux_t
+   use twomem_estimate_estimators, only: estimator_t, estimates_t, poincare_constant
+   use twomem_testing, only: unittest_t, new_unittest, check, check_close, error_t
+   use test_refinement, only: square_hierarchy
+   implicit none
+   private
+
+   public :: collect_estimate
+
+   real(dp), parameter :: pi = acos(-1.0_dp)
+   !> λ enters the first membrane's equilibrium with +, the second's with −
+   real(dp), parameter :: lambda_sign(2) = [1.0_dp, -1.0_dp]
+
+   !> μ1 = 1, μ2 = 2 and loads f_α = a_α + b_α·x + c_α x1 x2: linear loads have moments exact by
+   !> barycentric formulas, the x1 x2 term an exactly computable P1 oscillation.
+   type, extends(problem_data_t) :: poly_data_t
+      real(dp) :: a(2) = [-1.0_dp, 3.0_dp], b(2, 2) = reshape([0.5_dp, -0.25_dp, 1.0_dp, 0.75_dp], [2, 2])
+      real(dp) :: c(2) = 0.0_dp
+   contains
+      procedure :: load => poly_load
+   end type poly_data_t
+
+contains
+
+   subroutine collect_estimate(tests)
+      type(unittest_t), allocatable, intent(out) :: tests(:)
+
+      tests = [new_unittest('rt_green_formula', test_rt_green), &
+               new_unittest('rt_mass_and_orientation', test_rt_mass), &
+               new_unittest('residual_and_lifting', test_lifting), &
+               new_unittest('disc_flux_equilibrium_continuity', test_disc_flux), &
+               new_unittest('alg_flux_divergence_continuity', test_alg_flux), &
+               new_unittest('at_discrete_solution', test_at_solution), &
+               new_unittest('nonconforming_iterate', test_nonconforming), &
+               new_unittest('poincare_constant', test_poincare), &
+               new_unittest('local_criteria', test_local_criteria)]
+   end subroutine collect_estimate
+
+   !> Green's formula per basis function, (∇·φ_i, q) + (φ_i, ∇q) = ⟨φ_i·n, q⟩_∂K, for q = 1 and
+   !> (RT1) q = ξ1, ξ2, whose edge traces are written in the trace basis {1, t}: it ties the
+   !> divergence, the mass matrix ((φ_i, ∇ξ_k) = (φ_i, φ_k)/h_K) and both trace moments together.
+   subroutine test_rt_green(err)
+      type(error_t), allocatable, intent(out) :: err
+      real(dp), parameter :: v(2, 3) = reshape([0.1_dp, -0.2_dp, 1.3_dp, 0.1_dp, 0.4_dp, 0.9_dp], [2, 3])
+      type(rt_space_t) :: space
+      real(dp), allocatable :: mass(:, :), div(:, :), trace(:, :, :)
+      real(dp) :: h, xi(2, 3), rhs, scale
+      integer :: order, i, k, m, s, e
+
+      h = max(norm2(v(:, 2) - v(:, 1)), norm2(v(:, 3) - v(:, 2)), norm2(v(:, 1) - v(:, 3)))
+      xi = (v - spread(sum(v, dim=2)/3, 2, 3))/h
+      do order = 0, 1
+         call space%init(order)
+         allocate (mass(space%n_flux, space%n_flux), div(space%n_div, space%n_flux), trace(space%n_trace, space%n_flux, 3))
+         call space%element_matrices(make_frame(v), [.true., .true., .true.], mass, div, trace)
+         scale = maxval(abs(trace))
+         do i = 1, space%n_flux
+            call check_close(err, div(1, i), sum(trace(1, i, :)), 0.0_dp, 1.0e-14_dp*scale, 'divergence theorem')
+            do k = 1, 2*order
+               rhs = 0.0_dp
+               do m = 1, 3
+                  s = modulo(m, 3) + 1 ! forward: t runs from local vertex m+1 (t = −1) to m+2 (t = 1)
+                  e = modulo(m + 1, 3) + 1
+                  rhs = rhs + 0.5_dp*(xi(k, s) + xi(k, e))*trace(1, i, m) + 0.5_dp*(xi(k, e) - xi(k, s))*trace(2, i, m)
+               end do
+               call check_close(err, div(1 + k, i) + mass(k, i)/h, rhs, 0.0_dp, 1.0e-14_dp*scale, 'Green with q = xi_k')
+            end do
+         end do
+         deallocate (mass, div, trace)
+      end do
+   end subroutine test_rt_green
+
+   !> The mass matrix is symmetric positive definite, with the exact moments (1, 1) = |K|,
+   !> (1, 2) = 0, (1, ξ1) = 0 (barycentre) and, for RT0, ∫|ξ|² = |K|/12 Σ_i |ξ(v_i)|². Reversing
+   !> an edge flips the sign of its t-moment (not identically zero, else the flip would be
+   !> invisible) and leaves its mean alone.
+   subroutine test_rt_mass(err)
+      type(error_t), allocatable, intent(out) :: err
+      real(dp), parameter :: v(2, 3) = reshape([2.0_dp, 1.0_dp, 2.3_dp, 1.05_dp, 2.1_dp, 1.4_dp], [2, 3])
+      type(rt_space_t) :: space
+      real(dp), allocatable :: mass(:, :), div(:, :), trace(:, :, :)
+      real(dp) :: area, h, xi2, tr_fwd(2, 8, 3)
+      integer :: order, m
+      logical :: ok
+
+      area = 0.5_dp*abs((v(1, 2) - v(1, 1))*(v(2, 3) - v(2, 1)) - (v(1, 3) - v(1, 1))*(v(2, 2) - v(2, 1)))
+      h = max(norm2(v(:, 2) - v(:, 1)), norm2(v(:, 3) - v(:, 2)), norm2(v(:, 1) - v(:, 3)))
+      xi2 = sum((v - spread(sum(v, dim=2)/3, 2, 3))**2)/h**2
+      do order = 0, 1
+         call space%init(order)
+         allocate (mass(space%n_flux, space%n_flux), div(space%n_div, space%n_flux), trace(space%n_trace, space%n_flux, 3))
+         call space%element_matrices(make_frame(v), [.false., .true., .false.], mass, div, trace)
+         call check(err, maxval(abs(mass - transpose(mass))) <= 1.0e-15_dp*maxval(abs(mass)), 'mass symmetric')
+         call check_close(err, mass(1, 1), area, 1.0e-14_dp, 0.0_dp, '(phi_1, phi_1) = |K|')
+         call check_close(err, mass(1, 2), 0.0_dp, 0.0_dp, 1.0e-15_dp*area, '(phi_1, phi_2) = 0')
+         call check_close(err, mass(1, 3), 0.0_dp, 0.0_dp, 1.0e-15_dp*area, 'first moment about the barycentre')
+         if (order == 0) call check_close(err, mass(3, 3), area/12*xi2, 1.0e-14_dp, 0.0_dp, '(xi, xi)')
+         if (order == 1) then
+            call space%element_matrices(make_frame(v), [.true., .true., .true.], mass, div, tr_fwd)
+            call check(err, all(trace(1, :, :) == tr_fwd(1, :, :)), 'mean moment independent of orientation')
+            do m = 1, 3
+               call check(err, maxval(abs(tr_fwd(2, :, m))) > 1.0e-2_dp*area, 't-moment not identically zero')
+               call check(err, all(trace(2, :, m) == merge(1, -1, m == 2)*tr_fwd(2, :, m)), 't-moment sign follows forward')
+            end do
+         end if
+         call cholesky_factor(mass, ok)
+         call check(err, ok, 'mass positive definite')
+         deallocate (mass, div, trace)
+      end do
+   end subroutine test_rt_mass
+
+   !> algebraic_residuals is F_1 − μ1 S X1 + D X3 and F_2 − μ2 S X2 − D X3 (S X and D = |ω_a|/3
+   !> assembled here triangle by triangle); its lifting satisfies (r, ψ_a) = R(a) at interior
+   !> vertices (exact P1 mass matrix |K|/12 (1 + δ_ij)) and vanishes at boundary vertices.
+   subroutine test_lifting(err)
+      type(error_t), allocatable, intent(out) :: err
+      type(mesh_hierarchy_t) :: h
+      type(poly_data_t) :: data
+      type(discrete_problem_t) :: p
+      real(dp), allocatable :: x(:), r1(:), r2(:), sx(:, :), d(:), u(:, :), expected(:), r(:, :), moment(:)
+      integer(ip) :: n, t, v(3), i
+      integer :: alpha
+
+      call mesh_problem('disk', 0.5_dp, 1, data, h, p, err)
+      if (allocated(err)) return
+      n = p%n
+      x = random_vector(3*n, 11)
+      allocate (r1(n), r2(n))
+      call algebraic_residuals(p, x, r1, r2)
+      associate (mesh => h%meshes(1))
+         allocate (sx(mesh%nv, 2), d(mesh%nv), u(mesh%nv, 2), r(3, mesh%nt), moment(mesh%nv))
+         u = reshape([p%to_nodal(x(1:n), 0.0_dp), p%to_nodal(x(n + 1:2*n), 0.0_dp)], [mesh%nv, 2])
+         sx = 0.0_dp
+         d = 0.0_dp
+         do t = 1, mesh%nt
+            v = mesh%triangles(:, t)
+            do alpha = 1, 2
+               sx(v, alpha) = sx(v, alpha) + mesh%area(t)*matmul(transpose(p1_gradients(mesh, t)), &
+                                                                 matmul(p1_gradients(mesh, t), u(v, alpha)))
+            end do
+            d(v) = d(v) + mesh%area(t)/3
+         end do
+         expected = p%f1 - p%mu1*sx(p%interior, 1) + d(p%interior)*x(2*n + 1:)
+         call check(err, maxval(abs(r1 - expected)) <= 1.0e-13_dp*maxval(abs(expected)), 'R_1')
+         expected = p%f2 - p%mu2*sx(p%interior, 2) - d(p%interior)*x(2*n + 1:)
+         call check(err, maxval(abs(r2 - expected)) <= 1.0e-13_dp*maxval(abs(expected)), 'R_2')
+
+         call residual_lifting(mesh, p%to_nodal(r1, 0.0_dp), r)
+         moment = 0.0_dp
+         do t = 1, mesh%nt
+            v = mesh%triangles(:, t)
+            moment(v) = moment(v) + mesh%area(t)/12*(r(:, t) + sum(r(:, t)))
+            do i = 1, 3
+               if (mesh%boundary_vertex(v(i))) call check(err, r(i, t) == 0.0_dp, 'r = 0 at boundary vertices')
+            end do
+         end do
+         call check(err, maxval(abs(moment(p%interior) - r1)) <= 1.0e-12_dp*maxval(abs(r1)), '(r, psi_a) = R(a)')
+      end associate
+   end subroutine test_lifting
+
+   !> σ_disc for a random iterate and linear loads, RT0 and RT1, on a disk and on a 7×7 square
+   !> (whose corner triangles have three boundary vertices): load_moments are the exact
+   !> (f ψ_i, q_k)_K, on every triangle the moments of ∇·σ_α against P_p are those of
+   !> f_α ± λ_h − r_α, and σ·n is continuous across interior edges.
+   subroutine test_disc_flux(err)
+      type(error_t), allocatable, intent(out) :: err
+      character(len=6), parameter :: domains(2) = ['disk  ', 'square']
+      type(mesh_hierarchy_t) :: h
+      type(poly_data_t) :: data
+      type(discrete_problem_t) :: p
+      type(rt_space_t) :: space
+      type(rt_matrices_t) :: matrices
+      type(patch_integrals_t) :: integrals
+      type(level_flux_t) :: levels(1)
+      type(rt_frame_t) :: frame
+      real(dp), allocatable :: lambda(:), grad_u(:, :, :), residual(:, :), r(:, :, :), moments(:, :, :, :), lhs(:), rhs(:)
+      real(dp) :: x(2), w, dev, scale, q(3, 3), fv(3), exact, tri(3, 3, 3), mu(2)
+      integer(ip) :: t, v(3)
+      integer :: domain, order, alpha, k, i, j, l
+      logical :: ok
+
+      ! ∫ λ_i λ_j λ_l = |K|/60 (1 + δ_ij + δ_il + δ_jl + 2 δ_ijl)
+      tri = reshape([(((real(1 + merge(1, 0, i == j) + merge(1, 0, i == l) + merge(1, 0, j == l) + &
+                            merge(2, 0, i == j .and. j == l), dp)/60, i=1, 3), j=1, 3), l=1, 3)], [3, 3, 3])
+      do domain = 1, 2
+         call mesh_problem(trim(domains(domain)), merge(0.4_dp, 0.3_dp, domain == 1), 0, data, h, p, err)
+         if (allocated(err)) return
+         call iterate_fields(p, h%meshes(0), random_vector(3*p%n, 20 + domain), lambda, grad_u, residual, r)
+         mu = [p%mu1, p%mu2]
+         associate (mesh => h%meshes(0))
+            do order = 0, 1
+               call space%init(order)
+               call space%mesh_matrices(mesh, matrices, ok)
+               call check(err, ok, 'element matrices regular')
+               if (allocated(moments)) deallocate (moments, lhs, rhs, levels(1)%sigma)
+               allocate (moments(space%n_div, 3, mesh%nt, 2), lhs(space%n_div), rhs(space%n_div), &
+                         levels(1)%sigma(space%n_flux, mesh%nt, 2))
+               call load_moments(space, mesh, data, moments)
+               call integrals%init(space, mesh)
+               call discretization_flux(space, mesh, matrices, integrals, mu, moments, grad_u, lambda, r, &
+                                        levels(1)%sigma, ok)
+               call check(err, ok, 'patch systems regular')
+               dev = 0.0_dp
+               do t = 1, mesh%nt
+                  v = mesh%triangles(:, t)
+                  ! q_k at the vertices: 1, (v − barycentre)/h_K
+                  q(1, :) = 1.0_dp
+                  q(2:3, :) = (mesh%vertices(:, v) - spread(sum(mesh%vertices(:, v), dim=2)/3, 2, 3))/mesh%h(t)
+                  do alpha = 1, 2
+                     fv = [(data%load(alpha, mesh%vertices(:, v(j))), j=1, 3)]
+                     do i = 1, 3
+                        do k = 1, space%n_div
+                           exact = mesh%area(t)*dot_product(fv, matmul(tri(i, :, :), q(k, :)))
+                           dev = max(dev, abs(moments(k, i, t, alpha) - exact))
+                        end do
+                     end do
+                  end do
+               end do
+               call check(err, dev <= 1.0e-14_dp*maxval(abs(moments)), 'load moments exact')
+               dev = 0.0_dp
+               scale = 0.0_dp
+               do t = 1, mesh%nt
+                  v = mesh%triangles(:, t)
+                  frame = make_frame(mesh%vertices(:, v))
+                  do alpha = 1, 2
+                     lhs = 0.0_dp
+                     rhs = sum(moments(:, :, t, alpha), dim=2)
+                     do k = 1, space%rule%n
+                        x = matmul(mesh%vertices(:, v), space%rule%bary(:, k))
+                        w = space%rule%weights(k)*mesh%area(t)
+                        lhs = lhs + w*dot_product(space%divergence_values(frame, x), levels(1)%sigma(:, t, alpha)) &
+                              *space%div_test_values(frame, x)
+                        rhs = rhs + w*(lambda_sign(alpha)*dot_product(lambda(v), space%rule%bary(:, k)) &
+                                       - dot_product(r(:, t, alpha), space%rule%bary(:, k)))*space%div_test_values(frame, x)
+                     end do
+                     dev = max(dev, maxval(abs(lhs - rhs)))
+                     scale = max(scale, maxval(abs(rhs)), mu(alpha)*norm2(grad_u(:, t, alpha))*mesh%area(t)/mesh%h(t))
+                  end do
+               end do
+               call check(err, dev <= 1.0e-12_dp*scale, 'divergence moments of sigma_disc on the '//trim(domains(domain)))
+               levels(1)%level = 0
+               call check_normal_continuity(err, space, h, levels, 1.0e-12_dp, 'sigma_disc')
+            end do
+         end associate
+      end do
+   end subroutine test_disc_flux
+
+   !> σ_alg on a twice refined square, with 1, 2 and 3 meshes: for RT1 the divergences of all
+   !> levels add up to r_α at every quadrature point of every finest triangle, for RT0 to its
+   !> mean; σ·n is continuous across the finest interior edges.
+   subroutine test_alg_flux(err)
+      type(error_t), allocatable, intent(out) :: err
+      type(mesh_hierarchy_t) :: h
+      type(poly_data_t) :: data
+      type(discrete_problem_t) :: p
+      type(rt_space_t) :: space
+      type(algebraic_flux_t) :: alg
+      type(level_flux_t), allocatable :: levels(:)
+      real(dp), allocatable :: lambda(:), grad_u(:, :, :), residual(:, :), r(:, :, :)
+      real(dp) :: x(2), value(2), div, r_x, dev
+      integer(ip) :: t
+      integer :: order, n_meshes, alpha, k
+      character(len=40) :: what
+
+      call mesh_problem('square', 0.5_dp, 2, data, h, p, err)
+      if (allocated(err)) return
+      call iterate_fields(p, h%meshes(2), random_vector(3*p%n, 30), lambda, grad_u, residual, r)
+      associate (mesh => h%meshes(2))
+         do order = 0, 1
+            call space%init(order)
+            do n_meshes = 1, 3
+               write (what, '("RT",i0,", ",i0," meshes")') order, n_meshes
+               call alg%init(space, h, data, n_meshes, err)
+               if (allocated(err)) return
+               call alg%compute(h, residual, r, levels, err)
+               if (allocated(err)) return
+               call check(err, size(levels) == max(1, n_meshes - 1), 'one flux part per level with patches')
+               dev = 0.0_dp
+               do t = 1, mesh%nt
+                  do k = 1, merge(1, space%rule%n, order == 0)
+                     ! RT0 divergences are constant: compare with the mean of r, at the barycentre
+                     x = matmul(mesh%vertices(:, mesh%triangles(:, t)), merge(spread(1.0_dp/3, 1, 3), space%rule%bary(:, k), &
+                                                                              order == 0))
+                     do alpha = 1, 2
+                        call flux_sum(space, h, levels, t, x, alpha, value, div)
+                        r_x = merge(sum(r(:, t, alpha))/3, dot_product(r(:, t, alpha), space%rule%bary(:, k)), order == 0)
+                        dev = max(dev, abs(div - r_x))
+                     end do
+                  end do
+               end do
+               call check(err, dev <= 1.0e-11_dp*maxval(abs(r)), 'sum of level divergences = r, '//trim(what))
+               call check_normal_continuity(err, space, h, levels, 1.0e-11_dp, 'sigma_alg, '//trim(what))
+            end do
+         end do
+      end associate
+   end subroutine test_alg_flux
+
+   !> At the Newton solution (exact linear solves) for both known solutions, RT0 and RT1: the
+   !> algebraic residual, hence σ_alg, is round-off (η_alg ≪ η_disc); s_h = u_h and λ_h ≥ 0, so
+   !> η_lin vanishes (up to the round-off of the active rows u1 − u2 = 0); η_total bounds the
+   !> energy error (Theorem 5.1) without being wildly pessimistic.
+   subroutine test_at_solution(err)
+      type(error_t), allocatable, intent(out) :: err
+      character(len=6), parameter :: cases(2) = ['radial', 'bbbv  ']
+      type(mesh_hierarchy_t) :: h
+      class(problem_data_t), allocatable :: data
+      type(discrete_problem_t) :: p
+      type(newton_result_t) :: res
+      type(estimator_t) :: estimator
+      type(estimates_t) :: est
+      real(dp) :: energy
+      integer :: c, order
+      character(len=16) :: what
+
+      do c = 1, 2
+         call solved_disk(trim(cases(c)), data, h, p, res, err)
+         if (allocated(err)) return
+         energy = norm2(energy_error_per_element(h%meshes(2), data, p%to_nodal(res%x(1:p%n), p%g), &
+                                                 p%to_nodal(res%x(p%n + 1:2*p%n), 0.0_dp)))
+         do order = 0, 1
+            write (what, '(a," RT",i0)') trim(cases(c)), order
+            call estimator%init(h, data, order, 3, poincare_constant('disk', 2.0_dp), err)
+            if (allocated(err)) return
+            call estimator%evaluate(h, data, p, res%x, est, err)
+            if (allocated(err)) return
+            call check(err, est%alg < 1.0e-10_dp*est%disc, 'eta_alg negligible at the solution: '//what)
+            call check(err, est%nonc2 == 0.0_dp, 'eta_nonc2 = 0 at the solution: '//what)
+            call check(err, est%lin <= 1.0e-10_dp*est%disc, 'eta_lin = 0 at the solution: '//what)
+            call check(err, est%total >= energy, 'eta_total >= energy error: '//what)
+            call check(err, est%total <= 3*energy, 'effectivity below 3: '//what)
+         end do
+      end do
+   end subroutine test_at_solution
+
+   !> A random iterate (u1 < u2 and λ < 0 at many vertices) with a load x1 x2 outside P1: η_nonc,1
+   !> = |||s_h − u_h|||, η_nonc,2 = C‖λ⁻‖, η_nonc,3 = 2C‖λ⁺‖η_nonc,1 (parts of λ integrated
+   !> exactly on the clipped triangles), η_lin = η_nonc,1 + η_nonc,2 + √η_nonc,3, the RT1
+   !> oscillation (h_K/π)μ^{−1/2}‖f − Π_1 f‖ (Π_1 in the barycentric basis), and the components
+   !> bound the total (Cor. 5.6).
+   subroutine test_nonconforming(err)
+      type(error_t), allocatable, intent(out) :: err
+      type(mesh_hierarchy_t) :: h
+      type(poly_data_t) :: data
+      type(discrete_problem_t) :: p
+      type(estimator_t) :: estimator
+      type(estimates_t) :: est
+      real(dp), allocatable :: x(:), u(:, :), ds(:, :), lambda(:)
+      real(dp) :: c_omega, nonc1, neg, pos, osc, g(2, 3), f(7), b(3), mu(2)
+      integer(ip) :: n, t, v(3)
+      integer :: alpha, k
+
+      data%c = [2.0_dp, -1.5_dp]
+      call mesh_problem('disk', 0.5_dp, 1, data, h, p, err)
+      if (allocated(err)) return
+      n = p%n
+      x = random_vector(3*n, 40)
+      call estimator%init(h, data, 1, 2, poincare_constant('disk', 2.0_dp), err)
+      if (allocated(err)) return
+      call estimator%evaluate(h, data, p, x, est, err)
+      if (allocated(err)) return
+      mu = [p%mu1, p%mu2]
+      c_omega = poincare_constant('disk', 2.0_dp)*sqrt(1/mu(1) + 1/mu(2))
+      associate (mesh => h%meshes(1))
+         u = reshape([p%to_nodal(x(1:n), p%g), p%to_nodal(x(n + 1:2*n), 0.0_dp)], [mesh%nv, 2])
+         lambda = p%to_nodal(x(2*n + 1:), 0.0_dp)
+         ! s_h − u_h: ±(u2 − u1)/2 where u1 < u2
+         ds = spread(0.5_dp*max(0.0_dp, u(:, 2) - u(:, 1)), 2, 2)*spread([1.0_dp, -1.0_dp], 1, mesh%nv)
+         nonc1 = 0.0_dp
+         neg = 0.0_dp
+         pos = 0.0_dp
+         osc = 0.0_dp
+         do t = 1, mesh%nt
+            v = mesh%triangles(:, t)
+            g = p1_gradients(mesh, t)
+            nonc1 = nonc1 + mesh%area(t)*(mu(1)*sum(matmul(g, ds(v, 1))**2) + mu(2)*sum(matmul(g, ds(v, 2))**2))
+            neg = neg + positive_square(mesh%area(t), -lambda(v))
+            pos = pos + positive_square(mesh%area(t), lambda(v))
+            do alpha = 1, 2
+               ! Π_1 f = Σ c_i λ_i with c = M⁻¹ b, b_i = ∫ f λ_i, M⁻¹ = (12/|K|)(I − 11ᵀ/4); the
+               ! degree-5 rule integrates (f − Π_1 f)² exactly
+               do k = 1, 7
+                  f(k) = data%load(alpha, matmul(mesh%vertices(:, v), estimator%space%rule%bary(:, k)))
+               end do
+               b = mesh%area(t)*matmul(estimator%space%rule%bary, estimator%space%rule%weights*f)
+               b = 12/mesh%area(t)*(b - sum(b)/4)
+               osc = osc + (mesh%h(t)/pi)**2/mu(alpha)*mesh%area(t)* &
+                     sum(estimator%space%rule%weights*(f - matmul(b, estimator%space%rule%bary))**2)
+            end do
+         end do
+      end associate
+      nonc1 = sqrt(nonc1)
+      call check(err, nonc1 > 0.0_dp .and. neg > 0.0_dp .and. pos > 0.0_dp, 'u1 < u2, lambda < 0 and > 0 somewhere')
+      call check_close(err, est%nonc1, nonc1, 1.0e-12_dp, 0.0_dp, 'eta_nonc1')
+      call check_close(err, est%nonc2, c_omega*sqrt(neg), 1.0e-12_dp, 0.0_dp, 'eta_nonc2')
+      call check_close(err, est%nonc3, 2*c_omega*sqrt(pos)*nonc1, 1.0e-12_dp, 0.0_dp, 'eta_nonc3')
+      call check_close(err, est%lin, nonc1 + c_omega*sqrt(neg) + sqrt(2*c_omega*sqrt(pos)*nonc1), 1.0e-12_dp, 0.0_dp, &
+                       'eta_lin')
+      call check_close(err, est%osc, sqrt(osc), 1.0e-10_dp, 0.0_dp, 'eta_osc')
+      call check(err, est%total <= (est%disc + est%lin + est%alg)*(1 + 1.0e-12_dp), 'total <= disc + lin + alg')
+   end subroutine test_nonconforming
+
+   !> The disk's constant is 1/j_{0,1}: J_0 vanishes at its reciprocal (intrinsic bessel_j0) and
+   !> changes sign there; the square's is 1/√λ_1 with λ_1 = π²/2; otherwise diameter/π.
+   subroutine test_poincare(err)
+      type(error_t), allocatable, intent(out) :: err
+      real(dp) :: c
+
+      c = poincare_constant('disk', 2.0_dp)
+      call check(err, abs(bessel_j0(1/c)) < 1.0e-15_dp, 'J_0(1/C) = 0')
+      call check(err, bessel_j0(0.999_dp/c) > 0 .and. bessel_j0(1.001_dp/c) < 0, 'first zero of J_0')
+      call check_close(err, poincare_constant('square', 2*sqrt(2.0_dp)), 1/sqrt(pi**2/2), 1.0e-15_dp, 0.0_dp, 'square')
+      call check_close(err, poincare_constant('gmsh', 3.0_dp), 3/pi, 1.0e-15_dp, 0.0_dp, 'diameter/pi')
+   end subroutine test_poincare
+
+   !> (64a) compares the patch sum √Σ η_alg,K² with the min over the patch of γ max(η_disc, η_lin),
+   !> (64b) η_lin,K with γ min_α η_disc,K,α. Hand-made values on the four triangles around the
+   !> centre of the square, each case flipping one branch.
+   subroutine test_local_criteria(err)
+      type(error_t), allocatable, intent(out) :: err
+      type(mesh_hierarchy_t) :: h
+      type(estimates_t) :: est
+      logical :: alg_ok, lin_ok
+
+      call square_hierarchy(0, h, err)
+      if (allocated(err)) return
+      allocate (est%disc_k(2, 4), est%alg_k(2, 4), est%lin_k(4))
+      est%disc_k = 1.0_dp
+      est%lin_k = 0.1_dp
+      est%alg_k = 0.2_dp
+      call criteria('both hold', .true., .true.)
+      ! each triangle's 0.3 is below 0.5, but the centre patch sums to √(4·0.09) = 0.6
+      est%alg_k = 0.3_dp
+      call criteria('patch sum, not max', .false., .true.)
+      ! membrane 2 of triangle 1 tightens every patch containing it to 0.5·0.1; min over α in (64b)
+      est%alg_k = 0.2_dp
+      est%disc_k(2, 1) = 0.1_dp
+      call criteria('small disc on one triangle', .false., .false.)
+      ! a large η_lin lifts the bound again (max(disc, lin)) but fails (64b)
+      est%lin_k(1) = 1.0_dp
+      call criteria('max with eta_lin', .true., .false.)
+      est%disc_k = 1.0_dp
+      est%lin_k = 0.1_dp
+      est%lin_k(3) = 0.25_dp
+      call criteria('eta_lin above gamma disc', .true., .false.)
+
+   contains
+
+      subroutine criteria(what, alg_expected, lin_expected)
+         character(len=*), intent(in) :: what
+         logical, intent(in) :: alg_expected, lin_expected
+
+         call est%local_criteria(h%meshes(0), 0.5_dp, 0.2_dp, alg_ok, lin_ok)
+         call check(err, alg_ok .eqv. alg_expected, 'alg criterion: '//what)
+         call check(err, lin_ok .eqv. lin_expected, 'lin criterion: '//what)
+      end subroutine criteria
+   end subroutine test_local_criteria
+
+   ! ---- fixtures and helpers ----
+
+   pure real(dp) function poly_load(self, alpha, x)
+      class(poly_data_t), intent(in) :: self
+      integer, intent(in) :: alpha
+      real(dp), intent(in) :: x(2)
+
+      poly_load = self%a(alpha) + dot_product(self%b(:, alpha), x) + self%c(alpha)*x(1)*x(2)
+   end function poly_load
+
+   !> The discrete problem of `data` (μ2 = 2μ1) on the unit disk (boundary spacing half the
+   !> interior one) or the square (−1, 1)², of mesh size coarse_h, refined `levels` times.
+   subroutine mesh_problem(domain, coarse_h, levels, data, h, p, err)
+      character(len=*), intent(in) :: domain
+      real(dp), intent(in) :: coarse_h
+      integer, intent(in) :: levels
+      type(poly_data_t), intent(inout) :: data
+      type(mesh_hierarchy_t), intent(out) :: h
+      type(discrete_problem_t), intent(out) :: p
+      type(error_t), allocatable, intent(out) :: err
+
+      type(mesh_t) :: coarse
+
+      if (domain == 'disk') then
+         call make_disk(coarse_h, coarse_h/2, coarse, err)
+      else
+         call make_square(coarse_h, coarse, err)
+      end if
+      if (allocated(err)) return
+      call h%init(coarse, levels, err)
+      if (allocated(err)) return
+      data%mu2 = 2*data%mu1
+      call p%init(h%meshes(levels), data, err)
+   end subroutine mesh_problem
+
+   !> A known-solution case on a disk whose boundary is well resolved (boundary spacing a third
+   !> of the interior one, twice refined: the polygon's geometric error, invisible to the
+   !> estimators, stays well below the discretization error), solved by exact Newton-min.
+   subroutine solved_disk(exact, data, h, p, res, err)
+      character(len=*), intent(in) :: exact
+      class(problem_data_t), allocatable, intent(out) :: data
+      type(mesh_hierarchy_t), intent(out) :: h
+      type(discrete_problem_t), intent(out) :: p
+      type(newton_result_t), intent(out) :: res
+      type(error_t), allocatable, intent(out) :: err
+
+      type(mesh_t) :: coarse
+      type(newton_options_t) :: options
+
+      call make_problem(exact, 1.0_dp, 2.0_dp, -1.0_dp, 3.0_dp, 0.05_dp, data, err)
+      if (allocated(err)) return
+      call make_disk(0.45_dp, 0.15_dp, coarse, err)
+      if (allocated(err)) return
+      call h%init(coarse, 2, err)
+      if (allocated(err)) return
+      call p%init(h%meshes(2), data, err)
+      if (allocated(err)) return
+      options%verbose = .false.
+      options%linear = 'direct'
+      call newton_solve(p, options, [spread(p%g, 1, p%n), spread(0.0_dp, 1, 2*p%n)], res, err)
+      if (.not. allocated(err)) call check(err, res%converged, 'Newton did not converge: '//res%status)
+   end subroutine solved_disk
+
+   !> Nodal λ_h, ∇u_α per triangle, nodal residuals and their lifting r_α for the iterate x.
+   subroutine iterate_fields(p, mesh, x, lambda, grad_u, residual, r)
+      type(discrete_problem_t), intent(in) :: p
+      type(mesh_t), intent(in) :: mesh
+      real(dp), intent(in) :: x(:)
+      real(dp), allocatable, intent(out) :: lambda(:), grad_u(:, :, :), residual(:, :), r(:, :, :)
+
+      real(dp), allocatable :: u(:, :), r1(:), r2(:)
+      integer(ip) :: n, t
+      integer :: alpha
+
+      n = p%n
+      allocate (grad_u(2, mesh%nt, 2), residual(mesh%nv, 2), r(3, mesh%nt, 2), r1(n), r2(n))
+      u = reshape([p%to_nodal(x(1:n), p%g), p%to_nodal(x(n + 1:2*n), 0.0_dp)], [mesh%nv, 2])
+      lambda = p%to_nodal(x(2*n + 1:3*n), 0.0_dp)
+      call algebraic_residuals(p, x, r1, r2)
+      residual = reshape([p%to_nodal(r1, 0.0_dp), p%to_nodal(r2, 0.0_dp)], [mesh%nv, 2])
+      do alpha = 1, 2
+         do t = 1, mesh%nt
+            grad_u(:, t, alpha) = matmul(p1_gradients(mesh, t), u(mesh%triangles(:, t), alpha))
+         end do
+         call residual_lifting(mesh, residual(:, alpha), r(:, :, alpha))
+      end do
+   end subroutine iterate_fields
+
+   !> Σ over the flux parts (ascending levels) of σ_l(x) and ∇·σ_l(x), x in finest triangle t,
+   !> each part taken on the ancestor of t on its level.
+   subroutine flux_sum(space, h, levels, t, x, alpha, value, div)
+      type(rt_space_t), intent(in) :: space
+      type(mesh_hierarchy_t), intent(in) :: h
+      type(level_flux_t), intent(in) :: levels(:)
+      integer(ip), intent(in) :: t
+      real(dp), intent(in) :: x(2)
+      integer, intent(in) :: alpha
+      real(dp), intent(out) :: value(2), div
+
+      type(rt_frame_t) :: frame
+      integer(ip) :: anc
+      integer :: j, level
+
+      value = 0.0_dp
+      div = 0.0_dp
+      anc = t
+      level = h%levels
+      do j = size(levels), 1, -1
+         do while (level > levels(j)%level)
+            anc = h%maps(level)%triangle_parent(anc)
+            level = level - 1
+         end do
+         frame = make_frame(h%meshes(level)%vertices(:, h%meshes(level)%triangles(:, anc)))
+         value = value + matmul(space%flux_values(frame, x), levels(j)%sigma(:, anc, alpha))
+         div = div + dot_product(space%divergence_values(frame, x), levels(j)%sigma(:, anc, alpha))
+      end do
+   end subroutine flux_sum
+
+   !> |σ·n| jumps across the finest interior edges, at 3 Gauss points each, below tol max|σ|.
+   subroutine check_normal_continuity(err, space, h, levels, tol, what)
+      type(error_t), allocatable, intent(inout) :: err
+      type(rt_space_t), intent(in) :: space
+      type(mesh_hierarchy_t), intent(in) :: h
+      type(level_flux_t), intent(in) :: levels(:)
+      real(dp), intent(in) :: tol
+      character(len=*), intent(in) :: what
+
+      real(dp) :: a(2), b(2), normal(2), x(2), s1(2), s2(2), d1, d2, jump, biggest
+      integer(ip) :: e
+      integer :: g, alpha
+      character(len=160) :: msg
+
+      jump = 0.0_dp
+      biggest = 0.0_dp
+      associate (mesh => h%meshes(h%levels))
+         do e = 1, mesh%ne
+            if (mesh%boundary_edge(e)) cycle
+            a = mesh%vertices(:, mesh%edges(1, e))
+            b = mesh%vertices(:, mesh%edges(2, e))
+            normal = [b(2) - a(2), a(1) - b(1)]/norm2(b - a)
+            do g = 1, 3
+               x = a + 0.5_dp*(1 + edge_gauss(1, g))*(b - a)
+               do alpha = 1, 2
+                  call flux_sum(space, h, levels, mesh%edge_triangles(1, e), x, alpha, s1, d1)
+                  call flux_sum(space, h, levels, mesh%edge_triangles(2, e), x, alpha, s2, d2)
+                  jump = max(jump, abs(dot_product(s1 - s2, normal)))
+                  biggest = max(biggest, norm2(s1), norm2(s2))
+               end do
+            end do
+         end do
+      end associate
+      write (msg, '(a,": normal jump ",es9.2," vs max |sigma| ",es9.2)') what, jump, biggest
+      call check(err, jump <= tol*biggest, trim(msg))
+   end subroutine check_normal_continuity
+
+   !> ∫_K (l⁺)² for l linear with vertex values l: with one positive vertex p the positive part
+   !> lives on the triangle cut off at the zeros on its two edges, of area |K| s_j s_k, where it
+   !> is l_p times a hat function; with two, the complement of the negative part of the whole.
+   pure real(dp) function positive_square(area, l) result(s)
+      real(dp), intent(in) :: area, l(3)
+
+      if (count(l > 0) >= 2) then
+         s = area/12*(sum(l**2) + sum(l)**2) - one_positive(-l)
+      else
+         s = one_positive(l)
+      end if
+
+   contains
+
+      pure real(dp) function one_positive(m)
+         real(dp), intent(in) :: m(3)
+
+         integer :: p
+
+         one_positive = 0.0_dp
+         if (all(m <= 0)) return
+         p = maxloc(m, dim=1)
+         one_positive = area*m(p)**2/6*(m(p)/(m(p) - m(modulo(p, 3) + 1)))*(m(p)/(m(p) - m(modulo(p + 1, 3) + 1)))
+      end function one_positive
+   end function positive_square
+
+   !> n uniform values in [−1/2, 1/2), reproducible from `seed`.
+   function random_vector(n, seed) result(v)
+      integer(ip), intent(in) :: n
+      integer, intent(in) :: seed
+      real(dp), allocatable :: v(:)
+
+      integer, allocatable :: state(:)
+      integer :: k, i
+
+      call random_seed(size=k)
+      state = [(seed*7919 + 104729*i, i=1, k)]
+      call random_seed(put=state)
+      allocate (v(n))
+      call random_number(v)
+      v = v - 0.5_dp
+   end function random_vector
+end module test_estimate
