@@ -69,6 +69,9 @@ case "$mode" in
     build/release/twomem run input/default.nml || status=$?
     if [ $status -le 1 ] && [ -f results/default.h5 ]; then
       say "result: $root/results/default.h5 (ParaView: results/default.xdmf)"
+      say "figures of the default case"
+      .venv/bin/python -m twomem_post plot results/default.h5 -o results/figures || status=$?
+      [ $status -le 1 ] && say "figures: $root/results/figures"
     fi
     exit $status
     ;;
