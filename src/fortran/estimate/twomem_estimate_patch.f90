@@ -2,9 +2,10 @@
 !> prescribed divergence moments, normal flux continuous inside the patch, zero normal flux on
 !> the patch boundary (except on ∂Ω where the patch touches it), minimizing ‖σ − σ_0‖ in the
 !> mixed sense (paper eqs. (36) and (1.80) of the thesis). Solved by hybridization: each
-!> triangle's own mixed system (with the zero-flux constraints of its patch-boundary edges) is
-!> eliminated locally, leaving a small symmetric positive (semi)definite system for the
-!> multipliers of normal continuity on the patch's inner edges. For a vertex patch of RT1 that
+!> triangle's own mixed system is eliminated locally with its inverse, precomputed once per mesh
+!> (rt_matrices_t), the zero-flux constraints of its patch-boundary edge by a 2×2 Schur
+!> complement, leaving a small symmetric positive (semi)definite system for the multipliers of
+!> normal continuity on the patch's inner edges. For a vertex patch of RT1 that
 !> is 2 unknowns per inner edge (12 for six triangles) instead of a ~40-unknown indefinite
 !> system, and for the refined patches of the multilevel algebraic flux 60 instead of ~180.
 !> When no edge touches ∂Ω the multipliers are defined up to a constant (the Neumann

@@ -98,8 +98,8 @@ contains
       if (choice%xdmf .and. with_mesh) then
          allocate (cells(0))
          if (allocated(rec%energy_error)) cells = [character(len=64) :: '/error/energy']
-         if (allocated(rec%estimators)) cells = [cells, [('/estimators/'//rec%estimator_names(i), &
-                                                            i=1, size(rec%estimator_names))]]
+         if (allocated(rec%estimators)) cells = [character(len=64) :: cells, &
+                                                 ('/estimators/'//rec%estimator_names(i), i=1, size(rec%estimator_names))]
          if (choice%fields) then
             call write_xdmf(xdmf_path_for(path), base_name(path), mesh%nv, mesh%nt, &
                             [character(len=64) :: '/solution/u1', '/solution/u2', '/solution/lambda'], &
