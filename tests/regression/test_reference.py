@@ -6,11 +6,13 @@ discrete equations and energy error are checked independently by test_discrete.p
 convergence rate by test_convergence.py, the estimators' guaranteed bound by
 test_estimators.py, and every method reaches the direct solution in test_methods.py. These
 tests guard against unintended changes of any number in the result file (wall times
-excepted). Tolerances: the direct solve rtol 1e-9, atol 1e-12 — differences beyond round-off
-mean a change of the discretization or the solver; the GMRES-based methods rtol 1e-7,
-atol 1e-10 — the same iteration counts are required, only round-off accumulated over the
-iterations may differ (dot products are summed in a fixed order, so thread counts do not
-matter). Regenerate (after checking why a result changed) with:
+excepted). Tolerances: Newton-min with direct solves rtol 1e-9, atol 1e-12 — differences
+beyond round-off mean a change of the discretization or the solver; Fischer–Burmeister and
+the GMRES-based methods rtol 1e-7, atol 1e-8 — the same iteration counts are required, and
+beyond round-off accumulated over the iterations, their converged iterates leave
+nonconformities of the size of newton.tol (η_lin ≈ 3e-9 against η ≈ 1e-2) whose value is
+round-off: the debug and release builds differ there by up to 3e-10 (dot products are summed
+in a fixed order, so thread counts do not matter). Regenerate (after checking why a result changed) with:
     twomem run input/default.nml mesh.levels=1 METHOD_OVERRIDES \
         output.file=tests/regression/reference/radial_small_METHOD.h5
 using the overrides of METHODS below.
@@ -25,9 +27,9 @@ from twomem_post.compare import compare
 REFERENCES = SOURCE / "tests" / "regression" / "reference"
 METHODS = {
     "direct": (("newton.linear=direct",), 1e-9, 1e-12),
-    "direct_fb": (("newton.linear=direct", "newton.cfun=fb"), 1e-9, 1e-12),
-    "gmres": (("newton.linear=gmres",), 1e-7, 1e-10),
-    "adaptive": (("newton.linear=adaptive",), 1e-7, 1e-10),
+    "direct_fb": (("newton.linear=direct", "newton.cfun=fb"), 1e-7, 1e-8),
+    "gmres": (("newton.linear=gmres",), 1e-7, 1e-8),
+    "adaptive": (("newton.linear=adaptive",), 1e-7, 1e-8),
 }
 
 

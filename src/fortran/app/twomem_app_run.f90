@@ -175,11 +175,11 @@ contains
          rec%newton_iterations, hierarchy%meshes(finest)%nv, hierarchy%meshes(finest)%nt
       if (data%has_exact()) write (output_unit, '("energy error: ",es12.5)') rec%energy_error_total
       if (need_estimates) write (output_unit, '("estimators: eta ",es12.5," (disc ",es10.3,", lin ",es10.3,", alg ",es10.3, &
-           &"), ",i0," evaluations in ",f0.2," s")') rec%eta_total, rec%eta_disc, rec%eta_lin, rec%eta_alg, &
-         rec%estimator_evaluations, rec%estimator_time
-      if (need_estimates .and. data%has_exact()) write (output_unit, '("effectivity: ",f0.4)') rec%effectivity
-      write (output_unit, '("wall time: ",f0.2," s, peak memory: ",f0.1," MiB")') rec%wall_time, &
-         real(rec%peak_memory_kib, dp)/1024
+           &"), ",i0," evaluations in ",a," s")') rec%eta_total, rec%eta_disc, rec%eta_lin, rec%eta_alg, &
+         rec%estimator_evaluations, fixed(rec%estimator_time, 2)
+      if (need_estimates .and. data%has_exact()) write (output_unit, '("effectivity: ",a)') fixed(rec%effectivity, 4)
+      write (output_unit, '("wall time: ",a," s, peak memory: ",a," MiB")') fixed(rec%wall_time, 2), &
+         fixed(real(rec%peak_memory_kib, dp)/1024, 1)
       write (output_unit, '("result: ",a)') trim(cfg%output%file)
       if (choice%xdmf .and. (choice%fields .or. data%has_exact())) &
          write (output_unit, '("paraview: ",a)') xdmf_path_for(trim(cfg%output%file))
@@ -212,6 +212,19 @@ contains
       options%gamma_alg = cfg%estimate%gamma_alg
       options%local_criteria = trim(cfg%estimate%criteria) == 'local'
    end subroutine newton_options_from
+
+   !> x with `digits` decimals and a leading zero (f0.d drops it: '.43').
+   pure function fixed(x, digits) result(text)
+      real(dp), intent(in) :: x
+      integer, intent(in) :: digits
+      character(len=:), allocatable :: text
+
+      character(len=32) :: buffer, format
+
+      write (format, '("(f32.",i0,")")') digits
+      write (buffer, format) x
+      text = trim(adjustl(buffer))
+   end function fixed
 
    !> The `/estimators` fields of docs/output.md from one evaluation.
    subroutine estimator_fields(est, rec)
