@@ -19,7 +19,7 @@ module twomem_estimate_alg_flux
    use twomem_linalg_dense, only: lu_factor, lu_solve
    use twomem_linalg_umfpack, only: umfpack_solver_t
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, rt_matrices_t, make_frame
-   use twomem_estimate_patch, only: solve_patch, edge_free, edge_neumann
+   use twomem_estimate_patch, only: solve_patch, inner_edge, edge_free, edge_neumann
    implicit none
    private
 
@@ -359,13 +359,7 @@ contains
                else if (opposite) then
                   links(m, ne) = edge_neumann
                else
-                  i = findloc(inner(1:n_inner), e, dim=1)
-                  if (i == 0) then
-                     n_inner = n_inner + 1
-                     inner(n_inner) = e
-                     i = n_inner
-                  end if
-                  links(m, ne) = i
+                  call inner_edge(inner, n_inner, e, links(m, ne))
                end if
             end do
             rhs_div(:, ne, :) = 0.0_dp

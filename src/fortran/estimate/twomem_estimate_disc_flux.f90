@@ -12,7 +12,7 @@ module twomem_estimate_disc_flux
    use twomem_fem_problem, only: problem_data_t
    use twomem_fem_assembly, only: p1_gradients
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, rt_matrices_t, make_frame
-   use twomem_estimate_patch, only: solve_patch, edge_free, edge_neumann
+   use twomem_estimate_patch, only: solve_patch, inner_edge, edge_free, edge_neumann
    implicit none
    private
 
@@ -166,13 +166,7 @@ contains
             else if (mesh%boundary_edge(e)) then
                links(m, k) = edge_free
             else
-               i = findloc(inner(1:n_inner), e, dim=1)
-               if (i == 0) then
-                  n_inner = n_inner + 1
-                  inner(n_inner) = e
-                  i = n_inner
-               end if
-               links(m, k) = i
+               call inner_edge(inner, n_inner, e, links(m, k))
             end if
          end do
 

@@ -22,6 +22,7 @@ module twomem_estimate_estimators
    use twomem_fem_problem, only: problem_data_t
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_fem_assembly, only: p1_gradients
+   use twomem_linalg_dense, only: lu_factor, lu_solve
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, make_frame
    use twomem_estimate_lifting, only: algebraic_residuals, residual_lifting
    use twomem_estimate_disc_flux, only: discretization_flux, load_moments, patch_integrals_t
@@ -129,13 +130,14 @@ contains
       real(dp), allocatable, intent(out) :: osc(:, :)
 
       type(rt_frame_t) :: frame
-      real(dp) :: x(2), w, q(3), gram(3, 3), b(3, 2), f(2), ff(2)
-      integer :: k, i, alpha
+      real(dp) :: x(2), w, q(3), gram(3, 3), b(3, 2), projection(3, 2), f(2), ff(2)
+      integer :: k, i, alpha, piv(3)
+      logical :: ok
       integer(ip) :: t
 
       allocate (osc(2, mesh%nt))
       !$omp parallel do default(none) shared(space, mesh, data, mu, osc) &
-      !$omp private(t, frame, x, w, q, gram, b, f, ff, k, i, alpha) schedule(static)
+      !$omp private(t, frame, x, w, q, gram, b, projection, f, ff, k, i, alpha, piv, ok) schedule(static)
       do t = 1, mesh%nt
          frame = make_frame(mesh%vertices(:, mesh%triangles(:, t)))
          gram = 0.0_dp
@@ -155,30 +157,16 @@ contains
             ff = ff + w*f**2
          end do
          ! ‖f − Π f‖² = ‖f‖² − (Π f, f) = ‖f‖² − bᵀ G⁻¹ b
+         projection = b
+         call lu_factor(gram, piv, ok)
+         call lu_solve(gram, piv, projection)
          do alpha = 1, 2
             osc(alpha, t) = mesh%h(t)/pi/sqrt(mu(alpha))* &
-                            sqrt(max(0.0_dp, ff(alpha) - dot_product(b(:, alpha), solve3(gram, b(:, alpha)))))
+                            sqrt(max(0.0_dp, ff(alpha) - dot_product(b(:, alpha), projection(:, alpha))))
          end do
       end do
       !$omp end parallel do
    end subroutine data_oscillation
-
-   pure function solve3(a, b) result(x)
-      real(dp), intent(in) :: a(3, 3), b(3)
-      real(dp) :: x(3)
-
-      real(dp) :: det
-
-      det = a(1, 1)*(a(2, 2)*a(3, 3) - a(2, 3)*a(3, 2)) - a(1, 2)*(a(2, 1)*a(3, 3) - a(2, 3)*a(3, 1)) + &
-            a(1, 3)*(a(2, 1)*a(3, 2) - a(2, 2)*a(3, 1))
-      x(1) = b(1)*(a(2, 2)*a(3, 3) - a(2, 3)*a(3, 2)) - a(1, 2)*(b(2)*a(3, 3) - a(2, 3)*b(3)) + &
-             a(1, 3)*(b(2)*a(3, 2) - a(2, 2)*b(3))
-      x(2) = a(1, 1)*(b(2)*a(3, 3) - a(2, 3)*b(3)) - b(1)*(a(2, 1)*a(3, 3) - a(2, 3)*a(3, 1)) + &
-             a(1, 3)*(a(2, 1)*b(3) - b(2)*a(3, 1))
-      x(3) = a(1, 1)*(a(2, 2)*b(3) - b(2)*a(3, 2)) - a(1, 2)*(a(2, 1)*b(3) - b(2)*a(3, 1)) + &
-             b(1)*(a(2, 1)*a(3, 2) - a(2, 2)*a(3, 1))
-      x = x/det
-   end function solve3
 
    !> Every estimator for the iterate x = [X1; X2; X3] of the discrete problem p on the finest mesh.
    subroutine evaluate(self, hierarchy, data, p, x, est, err)

@@ -17,12 +17,28 @@ module twomem_estimate_patch
    implicit none
    private
 
-   public :: solve_patch, edge_free, edge_neumann
+   public :: solve_patch, inner_edge, edge_free, edge_neumann
 
    !> edge kinds in `links`: a positive value numbers an inner edge of the patch
    integer, parameter :: edge_free = 0, edge_neumann = -1
 
 contains
+
+   !> i: the patch's number of mesh edge e, numbering edges in order of first appearance; inner
+   !> holds the edges numbered so far (n_inner of them).
+   pure subroutine inner_edge(inner, n_inner, e, i)
+      integer(ip), intent(inout) :: inner(:)
+      integer, intent(inout) :: n_inner
+      integer(ip), intent(in) :: e
+      integer, intent(out) :: i
+
+      i = findloc(inner(1:n_inner), e, dim=1)
+      if (i == 0) then
+         n_inner = n_inner + 1
+         inner(n_inner) = e
+         i = n_inner
+      end if
+   end subroutine inner_edge
 
    !> elements(k): the mesh triangle of patch triangle k, whose precomputed operators are in
    !> `matrices`; links(m,k): the edge opposite local vertex m is inner edge links(m,k) > 0, or

@@ -26,6 +26,8 @@ module twomem_newton_history
       !> the paper's local stopping criteria (64a) and (64b) at this iterate, when evaluated
       logical :: local_alg_ok = .false., local_lin_ok = .false.
       real(dp) :: wall_time = 0.0_dp
+   contains
+      procedure :: take_observations
    end type history_row_t
 
    type :: history_t
@@ -52,6 +54,21 @@ contains
       row%lin_residual = nan
       row%alg_residual = nan
    end function not_computed
+
+   !> What an observer computed for an iterate (estimators, exact error, local criteria), taken
+   !> from another row of the same iterate.
+   pure subroutine take_observations(self, from)
+      class(history_row_t), intent(inout) :: self
+      type(history_row_t), intent(in) :: from
+
+      self%energy_error = from%energy_error
+      self%eta_disc = from%eta_disc
+      self%eta_lin = from%eta_lin
+      self%eta_alg = from%eta_alg
+      self%eta_total = from%eta_total
+      self%local_alg_ok = from%local_alg_ok
+      self%local_lin_ok = from%local_lin_ok
+   end subroutine take_observations
 
    subroutine append(self, row)
       class(history_t), intent(inout) :: self

@@ -286,13 +286,7 @@ contains
          seen_hash(k) = hash_set(active)
          seen_count(k) = row%active
          if (reuse_inner) then
-            row%energy_error = last_inner%energy_error
-            row%eta_disc = last_inner%eta_disc
-            row%eta_lin = last_inner%eta_lin
-            row%eta_alg = last_inner%eta_alg
-            row%eta_total = last_inner%eta_total
-            row%local_alg_ok = last_inner%local_alg_ok
-            row%local_lin_ok = last_inner%local_lin_ok
+            call row%take_observations(last_inner)
          else if (present(observer)) then
             call observer%observe(x, row)
          end if
