@@ -11,7 +11,10 @@ import h5py
 import numpy as np
 
 #: values that measure the machine, not the computation
-SKIPPED = {"/history/wall_time", "/summary@wall_time", "/summary@peak_memory_kib", "/summary@estimator_time"}
+SKIPPED = {"/history/wall_time", "/summary@wall_time", "/summary@peak_memory_kib", "/summary@estimator_time",
+           "/summary@omp_threads"}
+#: groups that measure the machine: every item below them is skipped
+SKIPPED_GROUPS = ("/performance",)
 
 
 def _collect(f: h5py.File) -> dict[str, np.ndarray]:
@@ -36,7 +39,7 @@ def compare(a_path: str, b_path: str, rtol: float, atol: float, out=sys.stdout) 
         a, b = _collect(fa), _collect(fb)
     failures = 0
     for key in sorted(set(a) | set(b)):
-        if key in SKIPPED:
+        if key in SKIPPED or key.startswith(SKIPPED_GROUPS):
             continue
         if key not in a or key not in b:
             print(f"{key}: only in {'the first' if key in a else 'the second'} file", file=out)

@@ -28,8 +28,8 @@ REFERENCES = SOURCE / "tests" / "regression" / "reference"
 METHODS = {
     "direct": (("newton.linear=direct",), 1e-9, 1e-12),
     "direct_fb": (("newton.linear=direct", "newton.cfun=fb"), 1e-7, 1e-8),
-    "gmres": (("newton.linear=gmres",), 1e-7, 1e-8),
-    "adaptive": (("newton.linear=adaptive",), 1e-7, 1e-8),
+    "gmres": (("newton.linear=gmres", "gmres.precond=ilu0"), 1e-7, 1e-8),
+    "adaptive": (("newton.linear=adaptive", "gmres.precond=ilu0"), 1e-7, 1e-8),
 }
 
 

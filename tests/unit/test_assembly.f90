@@ -5,7 +5,7 @@ module test_assembly
    use twomem_mesh_hierarchy, only: mesh_hierarchy_t
    use twomem_linalg_csr, only: csr_t
    use twomem_fem_problem, only: constant_data_t
-   use twomem_fem_assembly, only: assemble_stiffness, lumped_mass, assemble_load
+   use twomem_fem_assembly, only: assemble_stiffness, lumped_mass, assemble_loads
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_testing, only: unittest_t, new_unittest, check, check_close, error_t
    use test_refinement, only: square_hierarchy
@@ -81,14 +81,16 @@ contains
       type(error_t), allocatable, intent(out) :: err
       type(mesh_hierarchy_t) :: h
       type(constant_data_t) :: data
+      real(dp), allocatable :: loads(:, :)
 
       call square_hierarchy(2, h, err)
       if (allocated(err)) return
       data%f1 = 3.0_dp
       data%f2 = -2.0_dp
       call check_close(err, sum(lumped_mass(h%meshes(2))), 4.0_dp, 1.0e-14_dp, 0.0_dp, 'lumped mass')
-      call check_close(err, sum(assemble_load(h%meshes(2), data, 1)), 12.0_dp, 1.0e-14_dp, 0.0_dp, 'load 1')
-      call check_close(err, sum(assemble_load(h%meshes(2), data, 2)), -8.0_dp, 1.0e-14_dp, 0.0_dp, 'load 2')
+      loads = assemble_loads(h%meshes(2), data)
+      call check_close(err, sum(loads(:, 1)), 12.0_dp, 1.0e-14_dp, 0.0_dp, 'load 1')
+      call check_close(err, sum(loads(:, 2)), -8.0_dp, 1.0e-14_dp, 0.0_dp, 'load 2')
    end subroutine test_mass_load
 
    !> With f = 0 and λ = 0 the interior solution of μ1 S X1 = F1 is the constant g.

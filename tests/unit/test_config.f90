@@ -190,7 +190,7 @@ contains
       call check(err, ref%newton%cfun == 'min' .and. ref%newton%linear == 'adaptive' .and. ref%newton%max_it == 100 &
                  .and. ref%newton%tol == 1.0e-10_dp .and. ref%newton%gamma_lin == 0.3_dp, 'newton defaults')
       call check(err, ref%gmres%restart == 30 .and. ref%gmres%max_it == 5000 .and. ref%gmres%rtol == 1.0e-10_dp &
-                 .and. ref%gmres%precond == 'ilu0', 'gmres defaults')
+                 .and. ref%gmres%precond == 'mg', 'gmres defaults')
       call check(err, ref%estimate%gamma_alg == 0.3_dp .and. ref%estimate%enabled, 'estimate defaults')
       call check(err, ref%output%file == '' .and. ref%output%fields .and. ref%output%estimators &
                  .and. ref%output%history .and. ref%output%xdmf, 'output defaults')
@@ -369,7 +369,7 @@ contains
                         [character(len=60) :: ':2:', '&mesh', 'domain must be one of', "'disk', 'square', 'gmsh'", &
                          "got 'circle'"])
       call expect_error(err, 'config_word_precond.nml', '&gmres precond = ''ILU'' /', &
-                        [character(len=60) :: '&gmres', 'precond', "'ilu0', 'jacobi', 'none'", "got 'ilu'"])
+                        [character(len=60) :: '&gmres', 'precond', "'mg', 'ilu0', 'jacobi', 'none'", "got 'ilu'"])
       call expect_error(err, 'config_word_cfun.nml', '&newton cfun = '''' /', &
                         [character(len=60) :: 'cfun must be one of', "'min', 'fb'"])
       call expect_error(err, 'config_word_linear.nml', '&newton linear = "umfpack" /', &

@@ -13,7 +13,7 @@ module test_estimate
    use twomem_fem_cases, only: make_problem
    use twomem_fem_error, only: energy_error_per_element
    use twomem_linalg_dense, only: cholesky_factor
-   use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_solve
+   use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_solve, method_direct
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, rt_matrices_t, make_frame, edge_gauss
    use twomem_estimate_lifting, only: algebraic_residuals, residual_lifting
    use twomem_estimate_disc_flux, only: discretization_flux, load_moments, patch_integrals_t
@@ -532,7 +532,7 @@ contains
       call p%init(h%meshes(2), data, err)
       if (allocated(err)) return
       options%verbose = .false.
-      options%linear = 'direct'
+      options%linear = method_direct
       call newton_solve(p, options, [spread(p%g, 1, p%n), spread(0.0_dp, 1, 2*p%n)], res, err)
       if (.not. allocated(err)) call check(err, res%converged, 'Newton did not converge: '//res%status)
    end subroutine solved_disk

@@ -727,7 +727,7 @@ contains
    end subroutine jacobi_setup
 
    subroutine jacobi_apply(self, r, z)
-      class(jacobi_t), intent(in) :: self
+      class(jacobi_t), intent(inout) :: self
       real(dp), intent(in) :: r(:)
       real(dp), intent(out) :: z(:)
 

@@ -170,7 +170,7 @@ contains
    !> Iterations of x ← x + M⁻¹(b − A x) from x = 0 until the error is below 1e-8 relative,
    !> for a random solution; a large number if it does not get there in 1000.
    integer function richardson_iterations(m, a, state) result(it)
-      type(ilu0_preconditioner_t), intent(in) :: m
+      type(ilu0_preconditioner_t), intent(inout) :: m
       type(csr_t), intent(in) :: a
       integer(i8), intent(inout) :: state
 
@@ -293,7 +293,7 @@ contains
    !> (da = 0, db = 1) Newton-min rows.
    subroutine newton_matrix(levels, p, sys, active, err)
       integer, intent(in) :: levels
-      type(discrete_problem_t), intent(out) :: p
+      type(discrete_problem_t), target, intent(out) :: p
       type(newton_system_t), intent(out) :: sys
       logical, allocatable, intent(out) :: active(:)
       type(error_t), allocatable, intent(out) :: err
@@ -303,7 +303,7 @@ contains
 
       call square_problem(levels, h, p, err)
       if (allocated(err)) return
-      call sys%init(p)
+      call sys%init(p, .true.)
       ! a contact region (the left half) plus scattered active vertices elsewhere
       allocate (active(p%n))
       do i = 1, p%n
@@ -314,7 +314,7 @@ contains
 
    subroutine test_newton_matrix(err)
       type(error_t), allocatable, intent(out) :: err
-      type(discrete_problem_t) :: p
+      type(discrete_problem_t), target :: p
       type(newton_system_t) :: sys
       type(ilu0_preconditioner_t) :: m
       logical, allocatable :: active(:)
@@ -463,7 +463,7 @@ contains
 
    subroutine test_jacobi_newton(err)
       type(error_t), allocatable, intent(out) :: err
-      type(discrete_problem_t) :: p
+      type(discrete_problem_t), target :: p
       type(newton_system_t) :: sys
       type(jacobi_preconditioner_t) :: m
       logical, allocatable :: active(:)

@@ -11,7 +11,7 @@ module twomem_app_observer
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_fem_error, only: energy_error_per_element
    use twomem_newton_history, only: history_row_t
-   use twomem_newton_solver, only: newton_observer_t
+   use twomem_newton_inner, only: newton_observer_t
    use twomem_estimate_estimators, only: estimator_t, estimates_t
    implicit none
    private
@@ -26,7 +26,8 @@ module twomem_app_observer
       logical :: with_error = .false., with_estimates = .false.
       real(dp) :: gamma_alg = 0.3_dp, gamma_lin = 0.3_dp
       integer :: evaluations = 0
-      real(dp) :: estimator_time = 0.0_dp
+      !> time spent in estimator evaluations and in exact-error evaluations
+      real(dp) :: estimator_time = 0.0_dp, error_time = 0.0_dp
       !> the last evaluation and its iterate: the final result reuses it when Newton ended there
       real(dp), allocatable :: last_x(:)
       type(estimates_t) :: last
@@ -47,6 +48,7 @@ contains
 
       type(estimates_t) :: est
       integer(ip) :: n
+      real(dp) :: t0
 
       if (self%with_estimates .and. .not. allocated(self%err)) then
          call self%estimate(x, est)
@@ -60,10 +62,12 @@ contains
          end if
       end if
       if (self%with_error) then
+         t0 = wall_time()
          n = self%p%n
          row%energy_error = norm2(energy_error_per_element(self%hierarchy%meshes(self%hierarchy%levels), self%data, &
                                                            self%p%to_nodal(x(1:n), self%data%g), &
                                                            self%p%to_nodal(x(n + 1:2*n), 0.0_dp)))
+         self%error_time = self%error_time + (wall_time() - t0)
       end if
    end subroutine observe
 

@@ -9,6 +9,9 @@ module twomem_app_run
    use twomem_base_errors, only: error_t, make_error, exit_ok, exit_not_converged, exit_bad_input, exit_io
    use twomem_base_system, only: make_directories, parent_directory, peak_memory_kib, process_id, remove_file, &
       is_directory
+   use twomem_base_phases, only: phase_clock_t, phase_mesh, phase_assembly, phase_solve, phase_estimators, &
+      phase_error, phase_output
+   use omp_lib, only: omp_get_max_threads
    use twomem_base_timer, only: wall_time
    use twomem_base_version, only: twomem_version
    use twomem_input_config, only: config_t, config_echo
@@ -20,7 +23,13 @@ module twomem_app_run
    use twomem_fem_cases, only: make_problem
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_fem_error, only: energy_error_per_element
-   use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_observer_t, newton_solve
+   use twomem_fem_transfer, only: interior_prolongations
+   use twomem_linalg_csr, only: csr_t
+   use twomem_linalg_multigrid, only: multigrid_transfer_t
+   use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_observer_t, newton_solve, &
+      method_direct, method_gmres, method_adaptive, forcing_paper, forcing_fixed
+   use twomem_newton_cfun, only: cfun_kind, c_function_fb
+   use twomem_newton_linear, only: precond_kind, precond_mg
    use twomem_estimate_estimators, only: estimator_t, estimates_t, poincare_constant
    use twomem_app_observer, only: run_observer_t
    use twomem_io_result, only: result_record_t, output_choice_t, write_result, xdmf_path_for
@@ -62,17 +71,15 @@ contains
       type(newton_result_t) :: newton
       type(run_observer_t), target :: observer
       type(estimator_t), target :: estimator
-      type(estimates_t) :: final
       type(coarse_work_t) :: coarse
       type(result_record_t) :: rec
       type(output_choice_t) :: choice
-      real(dp) :: t0, nan
+      type(phase_clock_t) :: clock
       integer :: finest
       logical :: need_estimates
 
       exit_code = exit_bad_input
-      t0 = wall_time()
-      nan = ieee_value(1.0_dp, ieee_quiet_nan)
+      call clock%start(phase_mesh)
       call prepare(cfg, err)
       if (allocated(err)) return
       ! the mesh first: bad input must not leave even an output directory behind
@@ -82,6 +89,7 @@ contains
       if (allocated(err)) return
       finest = hierarchy%levels
 
+      call clock%switch(phase_assembly)
       call make_problem(trim(cfg%problem%exact), cfg%problem%mu1, cfg%problem%mu2, cfg%problem%f1, &
                         cfg%problem%f2, cfg%problem%g, data, err)
       if (allocated(err)) return
@@ -92,8 +100,9 @@ contains
 
       call newton_options_from(cfg, options)
       ! estimator work only when the method or the output asks for it
-      need_estimates = options%linear == 'adaptive' .or. cfg%estimate%enabled
+      need_estimates = options%linear == method_adaptive .or. cfg%estimate%enabled
       if (need_estimates) then
+         call clock%switch(phase_estimators)
          call estimator%init(hierarchy, data, merge(1, 0, trim(cfg%estimate%flux) == 'rt1'), cfg%estimate%alg_levels, &
                              poincare_constant(trim(cfg%mesh%domain), hierarchy%meshes(finest)%diameter), err)
          if (allocated(err)) then
@@ -108,18 +117,62 @@ contains
       observer%gamma_alg = cfg%estimate%gamma_alg
       observer%gamma_lin = cfg%newton%gamma_lin
       observer%with_error = data%has_exact() .and. cfg%output%history
-      observer%with_estimates = options%linear == 'adaptive' .or. (cfg%estimate%enabled .and. cfg%output%history)
+      observer%with_estimates = options%linear == method_adaptive .or. (cfg%estimate%enabled .and. cfg%output%history)
+
+      call clock%switch(phase_solve)
       if (observer%with_error .or. observer%with_estimates) then
-         call solve_levels(cfg, hierarchy, data, p, options, newton, coarse, err, observer)
+         call solve_levels(cfg, hierarchy, data, p, options, clock, newton, coarse, err, observer)
       else
-         call solve_levels(cfg, hierarchy, data, p, options, newton, coarse, err)
+         call solve_levels(cfg, hierarchy, data, p, options, clock, newton, coarse, err)
       end if
+      ! what the observer measured inside the Newton loop is not solver time
+      call clock%charge(phase_estimators, observer%estimator_time)
+      call clock%charge(phase_error, observer%error_time)
       if (.not. allocated(err) .and. allocated(observer%err)) call move_alloc(observer%err, err)
       if (allocated(err)) then
          exit_code = err%code
          return
       end if
 
+      call fill_record(cfg, hierarchy, data, p, newton, coarse, need_estimates, observer, clock, rec, err)
+      if (allocated(err)) then
+         exit_code = err%code
+         return
+      end if
+      choice%fields = cfg%output%fields
+      choice%estimators = cfg%output%estimators
+      choice%history = cfg%output%history
+      choice%xdmf = cfg%output%xdmf
+      call clock%switch(phase_output)
+      call write_result(trim(cfg%output%file), hierarchy%meshes(finest), rec, choice, err, clock)
+      if (allocated(err)) then
+         exit_code = exit_io
+         return
+      end if
+      call clock%switch(0)
+      call print_summary(cfg, hierarchy%meshes(finest), data%has_exact(), need_estimates, choice, rec, clock)
+      exit_code = merge(exit_ok, exit_not_converged, newton%converged)
+   end subroutine run_case
+
+   !> Everything the result file holds, from the run's objects: fields, the final estimators
+   !> (reusing the last evaluation when it saw the final iterate) and the exact error.
+   subroutine fill_record(cfg, hierarchy, data, p, newton, coarse, need_estimates, observer, clock, rec, err)
+      type(config_t), intent(in) :: cfg
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
+      class(problem_data_t), intent(in) :: data
+      type(discrete_problem_t), intent(in) :: p
+      type(newton_result_t), intent(in) :: newton
+      type(coarse_work_t), intent(in) :: coarse
+      logical, intent(in) :: need_estimates
+      type(run_observer_t), intent(inout) :: observer
+      type(phase_clock_t), intent(inout) :: clock
+      type(result_record_t), intent(out) :: rec
+      type(error_t), allocatable, intent(out) :: err
+
+      type(estimates_t) :: final
+      real(dp) :: nan
+
+      nan = ieee_value(1.0_dp, ieee_quiet_nan)
       rec%version = twomem_version
       rec%input_text = config_echo(cfg)
       rec%status = newton%status
@@ -139,14 +192,15 @@ contains
       rec%effectivity = nan
       rec%energy_error_total = nan
       if (data%has_exact()) then
-         rec%energy_error = energy_error_per_element(hierarchy%meshes(finest), data, rec%u1, rec%u2)
+         call clock%switch(phase_error)
+         rec%energy_error = energy_error_per_element(hierarchy%meshes(hierarchy%levels), data, rec%u1, rec%u2)
          rec%energy_error_total = norm2(rec%energy_error)
       end if
       if (need_estimates) then
+         call clock%switch(phase_estimators)
          call observer%estimate(newton%x, final)
          if (allocated(observer%err)) then
             call move_alloc(observer%err, err)
-            exit_code = err%code
             return
          end if
          rec%eta_total = final%total
@@ -158,40 +212,55 @@ contains
       end if
       rec%estimator_evaluations = observer%evaluations
       rec%estimator_time = observer%estimator_time
-      rec%wall_time = wall_time() - t0
       rec%peak_memory_kib = peak_memory_kib()
-      choice%fields = cfg%output%fields
-      choice%estimators = cfg%output%estimators
-      choice%history = cfg%output%history
-      choice%xdmf = cfg%output%xdmf
+      rec%omp_threads = omp_get_max_threads()
+      rec%wall_time = clock%total()
+   end subroutine fill_record
 
-      call write_result(trim(cfg%output%file), hierarchy%meshes(finest), rec, choice, err)
-      if (allocated(err)) then
-         exit_code = exit_io
-         return
-      end if
+   !> The closing lines of a run: status, sizes, errors and estimators, where the time went.
+   subroutine print_summary(cfg, mesh, has_exact, need_estimates, choice, rec, clock)
+      type(config_t), intent(in) :: cfg
+      type(mesh_t), intent(in) :: mesh
+      logical, intent(in) :: has_exact, need_estimates
+      type(output_choice_t), intent(in) :: choice
+      type(result_record_t), intent(in) :: rec
+      type(phase_clock_t), intent(in) :: clock
+
+      character(len=64), allocatable :: lines(:)
+      integer :: i
+
       write (output_unit, '("status: ",a)') rec%status
-      write (output_unit, '("summary: ",i0," Newton steps, ",i0," vertices, ",i0," triangles")') &
-         rec%newton_iterations, hierarchy%meshes(finest)%nv, hierarchy%meshes(finest)%nt
-      if (data%has_exact()) write (output_unit, '("energy error: ",es12.5)') rec%energy_error_total
+      write (output_unit, '("summary: ",i0," Newton steps, ",i0," vertices, ",i0," triangles, ",i0," threads")') &
+         rec%newton_iterations, mesh%nv, mesh%nt, rec%omp_threads
+      if (has_exact) write (output_unit, '("energy error: ",es12.5)') rec%energy_error_total
       if (need_estimates) write (output_unit, '("estimators: eta ",es12.5," (disc ",es10.3,", lin ",es10.3,", alg ",es10.3, &
            &"), ",i0," evaluations in ",a," s")') rec%eta_total, rec%eta_disc, rec%eta_lin, rec%eta_alg, &
          rec%estimator_evaluations, fixed(rec%estimator_time, 2)
-      if (need_estimates .and. data%has_exact()) write (output_unit, '("effectivity: ",a)') fixed(rec%effectivity, 4)
-      write (output_unit, '("wall time: ",a," s, peak memory: ",a," MiB")') fixed(rec%wall_time, 2), &
-         fixed(real(rec%peak_memory_kib, dp)/1024, 1)
+      if (need_estimates .and. has_exact) write (output_unit, '("effectivity: ",a)') fixed(rec%effectivity, 4)
+      call clock%table(lines)
+      do i = 1, size(lines)
+         write (output_unit, '("time: ",a)') trim(lines(i))
+      end do
+      write (output_unit, '("wall time: ",a," s, peak memory: ",a," MiB")') fixed(clock%total(), 2), &
+         fixed(real(peak_memory_kib(), dp)/1024, 1)
       write (output_unit, '("result: ",a)') trim(cfg%output%file)
-      if (choice%xdmf .and. (choice%fields .or. data%has_exact())) &
+      if (choice%xdmf .and. (choice%fields .or. has_exact)) &
          write (output_unit, '("paraview: ",a)') xdmf_path_for(trim(cfg%output%file))
-      exit_code = merge(exit_ok, exit_not_converged, newton%converged)
-   end subroutine run_case
+   end subroutine print_summary
 
    subroutine newton_options_from(cfg, options)
       type(config_t), intent(in) :: cfg
       type(newton_options_t), intent(out) :: options
 
-      options%cfun = trim(cfg%newton%cfun)
-      options%linear = trim(cfg%newton%linear)
+      options%cfun = cfun_kind(trim(cfg%newton%cfun))
+      select case (trim(cfg%newton%linear))
+      case ('direct')
+         options%linear = method_direct
+      case ('gmres')
+         options%linear = method_gmres
+      case default
+         options%linear = method_adaptive
+      end select
       options%max_it = cfg%newton%max_it
       options%tol = cfg%newton%tol
       select case (trim(cfg%newton%line_search))
@@ -200,10 +269,10 @@ contains
       case ('off')
          options%line_search = .false.
       case default
-         options%line_search = options%cfun == 'fb'
+         options%line_search = options%cfun == c_function_fb
       end select
-      options%forcing = trim(cfg%gmres%forcing)
-      options%precond = trim(cfg%gmres%precond)
+      options%forcing = merge(forcing_fixed, forcing_paper, trim(cfg%gmres%forcing) == 'fixed')
+      options%precond = precond_kind(trim(cfg%gmres%precond))
       options%gmres%restart = cfg%gmres%restart
       options%gmres%max_it = cfg%gmres%max_it
       options%gmres%rtol = cfg%gmres%rtol
@@ -250,12 +319,13 @@ contains
    !> newton.initial = 'nested', from the solution of the next coarser level, interpolated:
    !> solving level by level from T_0 keeps the number of Newton steps on the finest level
    !> nearly independent of the mesh (the contact front starts one layer from its place).
-   subroutine solve_levels(cfg, hierarchy, data, p, options, newton, coarse, err, observer)
+   subroutine solve_levels(cfg, hierarchy, data, p, options, clock, newton, coarse, err, observer)
       type(config_t), intent(in) :: cfg
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       class(problem_data_t), intent(in) :: data
       type(discrete_problem_t), intent(in) :: p
       type(newton_options_t), intent(in) :: options
+      type(phase_clock_t), intent(inout) :: clock
       type(newton_result_t), intent(out) :: newton
       type(coarse_work_t), intent(out) :: coarse
       type(error_t), allocatable, intent(out) :: err
@@ -264,35 +334,49 @@ contains
       type(discrete_problem_t) :: pl
       type(newton_options_t) :: quiet
       type(newton_result_t) :: step
+      type(multigrid_transfer_t), target :: transfer
       real(dp), allocatable :: u(:, :), fine(:, :)
+      real(dp) :: t_level
       integer :: l, k, finest
 
       finest = hierarchy%levels
+      ! the multigrid preconditioner of every level uses the levels below it
+      if (options%precond == precond_mg .and. options%linear /= method_direct) then
+         call transfer%init(interior_prolongations(hierarchy, finest), err)
+      else
+         call transfer%init([csr_t ::], err)
+      end if
+      if (allocated(err)) return
       if (trim(cfg%newton%initial) /= 'nested' .or. finest == 0) then
-         call newton_solve(p, options, [spread(data%g, 1, p%n), spread(0.0_dp, 1, 2*p%n)], newton, err, observer)
+         call newton_solve(p, options, [spread(data%g, 1, p%n), spread(0.0_dp, 1, 2*p%n)], newton, err, observer, &
+                           transfer)
          return
       end if
       quiet = options
       quiet%verbose = .false.
       ! the estimators live on the finest hierarchy: coarser levels of an adaptive run use the
       ! paper's inexact GMRES instead
-      if (quiet%linear == 'adaptive') then
-         quiet%linear = 'gmres'
-         quiet%forcing = 'paper'
+      if (quiet%linear == method_adaptive) then
+         quiet%linear = method_gmres
+         quiet%forcing = forcing_paper
       end if
       do l = 0, finest - 1
+         t_level = wall_time()
+         call clock%switch(phase_assembly)
          call pl%init(hierarchy%meshes(l), data, err)
+         call clock%switch(phase_solve)
          if (allocated(err)) return
          if (l == 0) then
-            call newton_solve(pl, quiet, [spread(data%g, 1, pl%n), spread(0.0_dp, 1, 2*pl%n)], step, err)
+            call newton_solve(pl, quiet, [spread(data%g, 1, pl%n), spread(0.0_dp, 1, 2*pl%n)], step, err, &
+                              transfer=transfer)
          else
-            call newton_solve(pl, quiet, interior_values(pl, fine), step, err)
+            call newton_solve(pl, quiet, interior_values(pl, fine), step, err, transfer=transfer)
          end if
          if (allocated(err)) return
          coarse%newton_iterations = coarse%newton_iterations + step%iterations
          coarse%gmres_iterations = coarse%gmres_iterations + step%linear_iterations
-         write (output_unit, '("nested: level ",i2,": ",i4," Newton steps, ",i6," GMRES iterations (",a,")")') &
-            l, step%iterations, step%linear_iterations, step%status
+         write (output_unit, '("nested: level ",i2,": ",i4," Newton steps, ",i6," GMRES iterations (",a,"), ",a," s")') &
+            l, step%iterations, step%linear_iterations, step%status, fixed(wall_time() - t_level, 2)
          if (.not. step%converged) write (output_unit, '(a,i0,a)') 'warning: level ', l, &
             ' did not converge; its iterate still serves as the initial guess of the next level'
          ! nodal fields on level l, interpolated to level l+1
@@ -306,7 +390,7 @@ contains
          end do
          deallocate (u)
       end do
-      call newton_solve(p, options, interior_values(p, fine), newton, err, observer)
+      call newton_solve(p, options, interior_values(p, fine), newton, err, observer, transfer)
    end subroutine solve_levels
 
    !> [X1; X2; X3] at the interior vertices of `p` from nodal fields (nv, 3).

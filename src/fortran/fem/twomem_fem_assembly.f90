@@ -1,8 +1,10 @@
 !> P1 finite-element assembly on one mesh: the stiffness matrix (unit coefficient), the lumped
-!> mass |ω_a|/3 and load vectors (f, ψ_a) by quadrature. Element contributions are computed in a
-!> parallel loop over triangles into per-element arrays, then gathered in a parallel loop over
-!> vertices, each thread writing only its own rows: no atomics, no colouring, same result for
-!> any thread count.
+!> mass |ω_a|/3 and the load vectors (f, ψ_a) by quadrature. Every vector and matrix row is
+!> gathered by its own vertex from the triangles of its patch, in one parallel loop over
+!> vertices: each thread writes only its own rows, so there are no atomics, no colouring and no
+!> searches in a global pattern, and the result is the same for any thread count. A matrix
+!> row is built in a small local list (a vertex has a handful of neighbours), sorted, and
+!> written once; a first pass over the same loop counts the rows' lengths.
 module twomem_fem_assembly
    use twomem_base_kinds, only: dp, ip
    use twomem_mesh_triangulation, only: mesh_t
@@ -12,7 +14,7 @@ module twomem_fem_assembly
    implicit none
    private
 
-   public :: p1_gradients, assemble_stiffness, lumped_mass, assemble_load
+   public :: p1_gradients, assemble_stiffness, stiffness_rows, lumped_mass, assemble_loads
 
 contains
 
@@ -34,38 +36,133 @@ contains
       end do
    end function p1_gradients
 
-   !> K_ab = ∫ ∇ψ_a·∇ψ_b on all vertices (boundary rows included; the caller restricts).
+   !> K_ab = ∫ ∇ψ_a·∇ψ_b on all vertices (boundary rows included).
    subroutine assemble_stiffness(mesh, k)
       type(mesh_t), intent(in) :: mesh
       type(csr_t), intent(inout) :: k
 
-      real(dp), allocatable :: local(:, :, :)
-      real(dp) :: grad(2, 3)
-      integer(ip) :: t, a, m, i, j, pos
-      integer(ip), allocatable :: row_ptr(:), col(:)
+      integer(ip) :: a
+      real(dp), allocatable :: coupling(:)
 
-      call p1_pattern(mesh, row_ptr, col)
-      call k%init_pattern(row_ptr, col)
-      allocate (local(3, 3, mesh%nt))
-      !$omp parallel do default(none) shared(mesh, local) private(t, grad) schedule(static)
-      do t = 1, mesh%nt
-         grad = p1_gradients(mesh, t)
-         local(:, :, t) = mesh%area(t)*matmul(transpose(grad), grad)
+      call stiffness_rows(mesh, [(a, a=1, mesh%nv)], k, coupling)
+   end subroutine assemble_stiffness
+
+   !> K restricted to the vertices with unknown(a) > 0, numbered by `unknown`, and for each of
+   !> their rows coupling(i) = Σ K_ab over the neighbours b with unknown(b) = 0 (what a constant
+   !> Dirichlet value on those vertices contributes to the right-hand side).
+   subroutine stiffness_rows(mesh, unknown, k, coupling)
+      type(mesh_t), intent(in) :: mesh
+      integer(ip), intent(in) :: unknown(:)
+      type(csr_t), intent(inout) :: k
+      real(dp), allocatable, intent(out) :: coupling(:)
+
+      integer(ip), allocatable :: rows(:), row_ptr(:), col(:)
+      real(dp), allocatable :: val(:)
+      integer(ip) :: n, i, a, width
+
+      n = maxval(unknown)
+      allocate (rows(n), row_ptr(n + 1), coupling(n))
+      do a = 1, mesh%nv
+         if (unknown(a) > 0) rows(unknown(a)) = a
+      end do
+      ! a row has at most one column per patch triangle plus the diagonal
+      width = maxval(mesh%patch_ptr(2:) - mesh%patch_ptr(:mesh%nv)) + 2
+      row_ptr(1) = 1
+      !$omp parallel do default(none) shared(mesh, unknown, rows, row_ptr, n, width) private(i) schedule(static)
+      do i = 1, n
+         row_ptr(i + 1) = row_length(mesh, unknown, rows(i), width)
       end do
       !$omp end parallel do
-      !$omp parallel do default(none) shared(mesh, local, k) private(a, m, t, i, j, pos) schedule(static)
-      do a = 1, mesh%nv
-         do m = mesh%patch_ptr(a), mesh%patch_ptr(a + 1) - 1
-            t = mesh%patch_triangles(m)
-            i = local_index(mesh, t, a)
-            do j = 1, 3
-               pos = k%find(a, mesh%triangles(j, t))
-               k%val(pos) = k%val(pos) + local(i, j, t)
-            end do
+      do i = 1, n
+         row_ptr(i + 1) = row_ptr(i + 1) + row_ptr(i)
+      end do
+      allocate (col(row_ptr(n + 1) - 1), val(row_ptr(n + 1) - 1))
+      !$omp parallel do default(none) shared(mesh, unknown, rows, row_ptr, col, val, coupling, n, width) private(i) &
+      !$omp schedule(static)
+      do i = 1, n
+         call gather_row(mesh, unknown, rows(i), width, col(row_ptr(i):row_ptr(i + 1) - 1), &
+                         val(row_ptr(i):row_ptr(i + 1) - 1), coupling(i))
+      end do
+      !$omp end parallel do
+      k%n = n
+      k%ncol = n
+      call move_alloc(row_ptr, k%row_ptr)
+      call move_alloc(col, k%col)
+      call move_alloc(val, k%val)
+   end subroutine stiffness_rows
+
+   !> Number of distinct unknowns among vertex a's neighbours (itself included).
+   pure integer(ip) function row_length(mesh, unknown, a, width) result(count)
+      type(mesh_t), intent(in) :: mesh
+      integer(ip), intent(in) :: unknown(:), a, width
+
+      integer(ip) :: cols(width), m, c
+      integer :: j
+
+      count = 0
+      do m = mesh%patch_ptr(a), mesh%patch_ptr(a + 1) - 1
+         do j = 1, 3
+            c = unknown(mesh%triangles(j, mesh%patch_triangles(m)))
+            if (c == 0) cycle
+            if (any(cols(1:count) == c)) cycle
+            count = count + 1
+            cols(count) = c
          end do
       end do
-      !$omp end parallel do
-   end subroutine assemble_stiffness
+   end function row_length
+
+   !> Row of vertex a: columns sorted, values summed over the patch in patch order.
+   pure subroutine gather_row(mesh, unknown, a, width, col, val, coupling)
+      type(mesh_t), intent(in) :: mesh
+      integer(ip), intent(in) :: unknown(:), a, width
+      integer(ip), intent(out) :: col(:)
+      real(dp), intent(out) :: val(:)
+      real(dp), intent(out) :: coupling
+
+      integer(ip) :: cols(width), m, t, c, key
+      real(dp) :: vals(width), grad(2, 3), entry, v
+      integer :: i, j, count, q, p
+
+      count = 0
+      coupling = 0.0_dp
+      do m = mesh%patch_ptr(a), mesh%patch_ptr(a + 1) - 1
+         t = mesh%patch_triangles(m)
+         grad = p1_gradients(mesh, t)
+         i = findloc(mesh%triangles(:, t), a, dim=1)
+         do j = 1, 3
+            entry = mesh%area(t)*(grad(1, i)*grad(1, j) + grad(2, i)*grad(2, j))
+            c = unknown(mesh%triangles(j, t))
+            if (c == 0) then
+               coupling = coupling + entry
+               cycle
+            end if
+            q = findloc(cols(1:count), c, dim=1)
+            if (q == 0) then
+               count = count + 1
+               cols(count) = c
+               vals(count) = entry
+            else
+               vals(q) = vals(q) + entry
+            end if
+         end do
+      end do
+      ! insertion sort by column (a handful of entries)
+      do q = 2, count
+         key = cols(q)
+         v = vals(q)
+         p = q - 1
+         do while (p >= 1)
+            if (cols(p) <= key) exit
+            cols(p + 1) = cols(p)
+            vals(p + 1) = vals(p)
+            p = p - 1
+         end do
+         cols(p + 1) = key
+         vals(p + 1) = v
+      end do
+      col = cols(1:count)
+      val = vals(1:count)
+   end subroutine gather_row
 
    !> |ω_a|/3: the weights of the lumped product ⟨w, v⟩_h.
    function lumped_mass(mesh) result(d)
@@ -74,90 +171,52 @@ contains
 
       integer(ip) :: a
 
+      !$omp parallel do default(none) shared(mesh, d) private(a) schedule(static)
       do a = 1, mesh%nv
          d(a) = sum(mesh%area(mesh%patch_triangles(mesh%patch_ptr(a):mesh%patch_ptr(a + 1) - 1)))/3
       end do
+      !$omp end parallel do
    end function lumped_mass
 
-   !> (f_alpha, ψ_a) for every vertex, by the degree-5 rule (data may jump inside elements).
-   function assemble_load(mesh, data, alpha) result(f)
+   !> f(:, α) = (f_α, ψ_a) for every vertex, both loads, by the degree-5 rule (data may jump
+   !> inside elements).
+   function assemble_loads(mesh, data) result(f)
       type(mesh_t), intent(in) :: mesh
       class(problem_data_t), intent(in) :: data
-      integer, intent(in) :: alpha
-      real(dp) :: f(mesh%nv)
+      real(dp) :: f(mesh%nv, 2)
 
       type(quadrature_t) :: rule
-      real(dp), allocatable :: local(:, :)
-      real(dp) :: x(2), fx
+      real(dp), allocatable :: local(:, :, :)
+      real(dp) :: x(2), wf(2), p(2, 3)
       integer(ip) :: t, a, m
-      integer :: q
+      integer :: q, i, alpha
 
       rule = triangle_rule(5)
-      allocate (local(3, mesh%nt))
-      !$omp parallel do default(none) shared(mesh, data, alpha, rule, local) private(t, q, x, fx) &
-      !$omp schedule(static)
+      allocate (local(3, 2, mesh%nt))
+      !$omp parallel do default(none) shared(mesh, data, rule, local) private(t, q, i, x, wf, p) schedule(static)
       do t = 1, mesh%nt
-         local(:, t) = 0.0_dp
+         p = mesh%vertices(:, mesh%triangles(:, t))
+         local(:, :, t) = 0.0_dp
          do q = 1, rule%n
-            x = matmul(mesh%vertices(:, mesh%triangles(:, t)), rule%bary(:, q))
-            fx = data%load(alpha, x)
-            local(:, t) = local(:, t) + rule%weights(q)*fx*rule%bary(:, q)
+            x = rule%bary(1, q)*p(:, 1) + rule%bary(2, q)*p(:, 2) + rule%bary(3, q)*p(:, 3)
+            wf = rule%weights(q)*[data%load(1, x), data%load(2, x)]
+            do i = 1, 3
+               local(i, :, t) = local(i, :, t) + wf*rule%bary(i, q)
+            end do
          end do
-         local(:, t) = mesh%area(t)*local(:, t)
+         local(:, :, t) = mesh%area(t)*local(:, :, t)
       end do
       !$omp end parallel do
-      !$omp parallel do default(none) shared(mesh, local, f) private(a, m, t) schedule(static)
+      !$omp parallel do default(none) shared(mesh, local, f) private(a, m, t, alpha) schedule(static)
       do a = 1, mesh%nv
-         f(a) = 0.0_dp
+         f(a, :) = 0.0_dp
          do m = mesh%patch_ptr(a), mesh%patch_ptr(a + 1) - 1
             t = mesh%patch_triangles(m)
-            f(a) = f(a) + local(local_index(mesh, t, a), t)
+            do alpha = 1, 2
+               f(a, alpha) = f(a, alpha) + local(findloc(mesh%triangles(:, t), a, dim=1), alpha, t)
+            end do
          end do
       end do
       !$omp end parallel do
-   end function assemble_load
-
-   pure integer(ip) function local_index(mesh, t, a) result(i)
-      type(mesh_t), intent(in) :: mesh
-      integer(ip), intent(in) :: t, a
-
-      do i = 1, 3
-         if (mesh%triangles(i, t) == a) return
-      end do
-      i = 0
-   end function local_index
-
-   !> Vertex adjacency (a vertex, its edge neighbours) as a CSR pattern.
-   subroutine p1_pattern(mesh, row_ptr, col)
-      type(mesh_t), intent(in) :: mesh
-      integer(ip), allocatable, intent(out) :: row_ptr(:), col(:)
-
-      integer(ip) :: a, e
-      integer(ip), allocatable :: fill(:)
-
-      allocate (row_ptr(mesh%nv + 1))
-      row_ptr = 1
-      do e = 1, mesh%ne
-         row_ptr(mesh%edges(:, e) + 1) = row_ptr(mesh%edges(:, e) + 1) + 1
-      end do
-      row_ptr(1) = 1
-      do a = 1, mesh%nv
-         row_ptr(a + 1) = row_ptr(a + 1) + row_ptr(a)
-      end do
-      allocate (col(row_ptr(mesh%nv + 1) - 1))
-      allocate (fill(mesh%nv))
-      fill = row_ptr(1:mesh%nv)
-      do a = 1, mesh%nv
-         col(fill(a)) = a
-         fill(a) = fill(a) + 1
-      end do
-      do e = 1, mesh%ne
-         associate (ab => mesh%edges(:, e))
-            col(fill(ab(1))) = ab(2)
-            fill(ab(1)) = fill(ab(1)) + 1
-            col(fill(ab(2))) = ab(1)
-            fill(ab(2)) = fill(ab(2)) + 1
-         end associate
-      end do
-   end subroutine p1_pattern
+   end function assemble_loads
 end module twomem_fem_assembly

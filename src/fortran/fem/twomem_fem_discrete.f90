@@ -8,7 +8,8 @@ module twomem_fem_discrete
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_linalg_csr, only: csr_t
    use twomem_fem_problem, only: problem_data_t
-   use twomem_fem_assembly, only: assemble_stiffness, lumped_mass, assemble_load
+   use twomem_fem_assembly, only: stiffness_rows, lumped_mass, assemble_loads
+   use twomem_fem_transfer, only: interior_numbering
    implicit none
    private
 
@@ -39,66 +40,28 @@ contains
       class(problem_data_t), intent(in) :: data
       type(error_t), allocatable, intent(out) :: err
 
-      type(csr_t) :: k_full
-      real(dp), allocatable :: d_full(:), f1_full(:), f2_full(:)
-      integer(ip), allocatable :: row_ptr(:), col(:)
-      integer(ip) :: a, i, m, nnz, b
+      real(dp), allocatable :: d_full(:), f_full(:, :), coupling(:)
+      integer(ip) :: a
 
       self%mu1 = data%mu1
       self%mu2 = data%mu2
       self%g = data%g
-      if (allocated(self%unknown)) deallocate (self%unknown)
-      allocate (self%unknown(mesh%nv))
-      self%unknown = 0
-      self%n = 0
-      do a = 1, mesh%nv
-         if (.not. mesh%boundary_vertex(a)) then
-            self%n = self%n + 1
-            self%unknown(a) = self%n
-         end if
-      end do
+      self%unknown = interior_numbering(mesh)
+      self%n = count(self%unknown > 0, kind=ip)
       if (self%n == 0) then
          call make_error(err, exit_bad_input, 'mesh', 'the mesh has no interior vertex: refine it')
          return
       end if
       self%interior = pack([(a, a=1, mesh%nv)], .not. mesh%boundary_vertex)
 
-      call assemble_stiffness(mesh, k_full)
+      ! K on the interior vertices; its boundary columns carry the lifting of u1 = g into F1
+      ! (u2 = 0 there, so F2 needs none)
+      call stiffness_rows(mesh, self%unknown, self%stiffness, coupling)
       d_full = lumped_mass(mesh)
-      f1_full = assemble_load(mesh, data, 1)
-      f2_full = assemble_load(mesh, data, 2)
-
-      ! restrict the stiffness to interior rows and columns; boundary columns of u1 go to the
-      ! right-hand side as the lifting of g (u2 = 0 there, so F2 needs none)
-      allocate (row_ptr(self%n + 1), col(k_full%nnz()))
-      self%f1 = f1_full(self%interior)
-      self%f2 = f2_full(self%interior)
+      f_full = assemble_loads(mesh, data)
       self%mass = d_full(self%interior)
-      nnz = 0
-      row_ptr(1) = 1
-      do i = 1, self%n
-         a = self%interior(i)
-         do m = k_full%row_ptr(a), k_full%row_ptr(a + 1) - 1
-            b = k_full%col(m)
-            if (self%unknown(b) > 0) then
-               nnz = nnz + 1
-               col(nnz) = self%unknown(b)
-            else
-               self%f1(i) = self%f1(i) - self%mu1*k_full%val(m)*self%g
-            end if
-         end do
-         row_ptr(i + 1) = nnz + 1
-      end do
-      call self%stiffness%init_pattern(row_ptr, col(1:nnz))
-      do i = 1, self%n
-         a = self%interior(i)
-         do m = k_full%row_ptr(a), k_full%row_ptr(a + 1) - 1
-            b = k_full%col(m)
-            if (self%unknown(b) > 0) then
-               self%stiffness%val(self%stiffness%find(i, self%unknown(b))) = k_full%val(m)
-            end if
-         end do
-      end do
+      self%f1 = f_full(self%interior, 1) - self%mu1*self%g*coupling
+      self%f2 = f_full(self%interior, 2)
    end subroutine discrete_init
 
    !> Nodal field on the whole mesh from interior values and a boundary value.

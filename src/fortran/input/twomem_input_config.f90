@@ -56,7 +56,8 @@ module twomem_input_config
       integer :: restart = 30
       integer :: max_it = 5000
       real(dp) :: rtol = 1.0e-10_dp
-      character(len=config_len) :: precond = 'ilu0'
+      !> 'mg' (block elimination, one multigrid V-cycle per SPD block), 'ilu0', 'jacobi', 'none'
+      character(len=config_len) :: precond = 'mg'
       !> 'paper': stop when the relative algebraic residual ≤ the relative linearization
       !> residual (the paper's inexact method); 'fixed': at gmres.rtol
       character(len=config_len) :: forcing = 'paper'
@@ -435,7 +436,7 @@ contains
          call check_int(err, origin, k_restart, g%restart, 1, 1000)
          call check_int(err, origin, k_gmres_max_it, g%max_it, 1, huge(1))
          call check_real(err, origin, k_rtol, g%rtol, gt=0.0_dp, lt=1.0_dp)
-         call check_word(err, origin, k_precond, g%precond, [character(len=8) :: 'ilu0', 'jacobi', 'none'])
+         call check_word(err, origin, k_precond, g%precond, [character(len=8) :: 'mg', 'ilu0', 'jacobi', 'none'])
          call check_word(err, origin, k_forcing, g%forcing, [character(len=8) :: 'paper', 'fixed'])
       end associate
 

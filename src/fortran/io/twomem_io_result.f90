@@ -10,6 +10,7 @@ module twomem_io_result
    use twomem_newton_history, only: history_t
    use twomem_io_hdf5, only: h5_file_t
    use twomem_io_xdmf, only: write_xdmf
+   use twomem_base_phases, only: phase_clock_t, phase_output, n_phases, phase_names
    implicit none
    private
 
@@ -37,6 +38,7 @@ module twomem_io_result
       real(dp) :: estimator_time = 0.0_dp
       real(dp) :: wall_time = 0.0_dp
       integer(i8) :: peak_memory_kib = 0
+      integer :: omp_threads = 1
    end type result_record_t
 
    !> The output.* switches.
@@ -63,12 +65,15 @@ contains
       xdmf = trim(path)//'.xdmf'
    end function xdmf_path_for
 
-   subroutine write_result(path, mesh, rec, choice, err)
+   !> Write the result atomically. With `clock` (the run's phase clock, in its output phase) the
+   !> file ends with the `/performance` group: each phase's time and peak memory up to then.
+   subroutine write_result(path, mesh, rec, choice, err, clock)
       character(len=*), intent(in) :: path
       type(mesh_t), intent(in) :: mesh
       type(result_record_t), intent(in) :: rec
       type(output_choice_t), intent(in) :: choice
       type(error_t), allocatable, intent(out) :: err
+      type(phase_clock_t), intent(inout), optional :: clock
 
       type(h5_file_t) :: h5
       type(error_t), allocatable :: cleanup_err
@@ -84,6 +89,7 @@ contains
       if (allocated(err)) return
       with_mesh = choice%fields .or. allocated(rec%energy_error) .or. allocated(rec%estimators)
       call write_contents(h5, mesh, rec, choice, with_mesh, err)
+      if (.not. allocated(err) .and. present(clock)) call write_performance(h5, clock, err)
       if (allocated(err)) then
          call h5%close(cleanup_err)
          call remove_file(tmp, cleanup_err)
@@ -218,5 +224,24 @@ contains
       if (.not. allocated(err)) call h5%write_attr('/summary', 'nt', int(mesh%nt), err)
       if (.not. allocated(err)) call h5%write_attr('/summary', 'levels', rec%levels, err)
       if (.not. allocated(err)) call h5%write_attr('/summary', 'peak_memory_kib', int(rec%peak_memory_kib), err)
+      if (.not. allocated(err)) call h5%write_attr('/summary', 'omp_threads', rec%omp_threads, err)
    end subroutine write_summary
+
+   !> `/performance`: attributes `<phase>_seconds` and `<phase>_peak_mib` for every phase.
+   subroutine write_performance(h5, clock, err)
+      type(h5_file_t), intent(inout) :: h5
+      type(phase_clock_t), intent(inout) :: clock
+      type(error_t), allocatable, intent(out) :: err
+
+      integer :: i
+
+      ! bring the output phase up to date: everything written so far
+      call clock%switch(phase_output)
+      do i = 1, n_phases
+         call h5%write_attr('/performance', trim(phase_names(i))//'_seconds', clock%seconds(i), err)
+         if (.not. allocated(err)) call h5%write_attr('/performance', trim(phase_names(i))//'_peak_mib', &
+                                                      real(clock%peak_kib(i), dp)/1024, err)
+         if (allocated(err)) return
+      end do
+   end subroutine write_performance
 end module twomem_io_result

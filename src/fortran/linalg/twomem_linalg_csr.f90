@@ -1,7 +1,8 @@
-!> Square sparse matrices in compressed sparse row form, 1-based, columns sorted within each
-!> row. The pattern is built once (P1 vertex adjacency, block systems) and values are refilled
-!> in place, so solvers can keep pattern-dependent work (UMFPACK's symbolic analysis, ILU
-!> patterns) between Newton steps.
+!> Sparse matrices in compressed sparse row form, 1-based, columns sorted within each row:
+!> square system matrices, and the rectangular prolongations of multigrid (`ncol` columns). The
+!> pattern is built once (P1 vertex adjacency, block systems) and values are refilled in place,
+!> so solvers can keep pattern-dependent work (UMFPACK's symbolic analysis, ILU patterns,
+!> Galerkin product patterns) between Newton steps.
 module twomem_linalg_csr
    use twomem_base_kinds, only: dp, ip
    implicit none
@@ -10,7 +11,8 @@ module twomem_linalg_csr
    public :: csr_t
 
    type :: csr_t
-      integer(ip) :: n = 0
+      !> rows and columns (ncol = n unless the pattern was given a column count)
+      integer(ip) :: n = 0, ncol = 0
       integer(ip), allocatable :: row_ptr(:), col(:)
       real(dp), allocatable :: val(:)
    contains
@@ -18,19 +20,26 @@ module twomem_linalg_csr
       procedure :: nnz
       procedure :: find
       procedure :: matvec
+      procedure :: residual
+      procedure :: subtract_product
       procedure :: diagonal
+      procedure :: transposed
    end type csr_t
 
 contains
 
-   !> Take a pattern given row by row; columns are sorted here, values set to zero.
-   subroutine init_pattern(self, row_ptr, col)
+   !> Take a pattern given row by row; columns are sorted here, values set to zero. `ncol`
+   !> defaults to the number of rows (a square matrix).
+   subroutine init_pattern(self, row_ptr, col, ncol)
       class(csr_t), intent(inout) :: self
       integer(ip), intent(in) :: row_ptr(:), col(:)
+      integer(ip), intent(in), optional :: ncol
 
       integer(ip) :: i
 
       self%n = int(size(row_ptr) - 1, ip)
+      self%ncol = self%n
+      if (present(ncol)) self%ncol = ncol
       self%row_ptr = row_ptr
       self%col = col(1:row_ptr(size(row_ptr)) - 1)
       do i = 1, self%n
@@ -79,7 +88,7 @@ contains
       integer(ip) :: i, k
       real(dp) :: s
 
-      !$omp parallel do default(none) shared(self, x, y) private(i, k, s) schedule(static)
+      !$omp parallel do default(none) shared(self, x, y) private(i, k, s) schedule(static) if(self%n > 4096)
       do i = 1, self%n
          s = 0.0_dp
          do k = self%row_ptr(i), self%row_ptr(i + 1) - 1
@@ -89,6 +98,46 @@ contains
       end do
       !$omp end parallel do
    end subroutine matvec
+
+   !> r = b − A x
+   subroutine residual(self, b, x, r)
+      class(csr_t), intent(in) :: self
+      real(dp), intent(in) :: b(:), x(:)
+      real(dp), intent(out) :: r(:)
+
+      integer(ip) :: i, k
+      real(dp) :: s
+
+      !$omp parallel do default(none) shared(self, b, x, r) private(i, k, s) schedule(static) if(self%n > 4096)
+      do i = 1, self%n
+         s = b(i)
+         do k = self%row_ptr(i), self%row_ptr(i + 1) - 1
+            s = s - self%val(k)*x(self%col(k))
+         end do
+         r(i) = s
+      end do
+      !$omp end parallel do
+   end subroutine residual
+
+   !> y = y − A x
+   subroutine subtract_product(self, x, y)
+      class(csr_t), intent(in) :: self
+      real(dp), intent(in) :: x(:)
+      real(dp), intent(inout) :: y(:)
+
+      integer(ip) :: i, k
+      real(dp) :: s
+
+      !$omp parallel do default(none) shared(self, x, y) private(i, k, s) schedule(static) if(self%n > 4096)
+      do i = 1, self%n
+         s = y(i)
+         do k = self%row_ptr(i), self%row_ptr(i + 1) - 1
+            s = s - self%val(k)*x(self%col(k))
+         end do
+         y(i) = s
+      end do
+      !$omp end parallel do
+   end subroutine subtract_product
 
    function diagonal(self) result(d)
       class(csr_t), intent(in) :: self
@@ -102,6 +151,36 @@ contains
          if (k > 0) d(i) = self%val(k)
       end do
    end function diagonal
+
+   !> Aᵀ with sorted columns (a counting sort by column, so rows come out in order).
+   function transposed(self) result(t)
+      class(csr_t), intent(in) :: self
+      type(csr_t) :: t
+
+      integer(ip) :: i, k, j
+      integer(ip), allocatable :: fill(:)
+
+      t%n = self%ncol
+      t%ncol = self%n
+      allocate (t%row_ptr(t%n + 1), t%col(self%nnz()), t%val(self%nnz()))
+      t%row_ptr = 0
+      do k = 1, self%nnz()
+         t%row_ptr(self%col(k) + 1) = t%row_ptr(self%col(k) + 1) + 1
+      end do
+      t%row_ptr(1) = 1
+      do i = 1, t%n
+         t%row_ptr(i + 1) = t%row_ptr(i + 1) + t%row_ptr(i)
+      end do
+      fill = t%row_ptr(1:t%n)
+      do i = 1, self%n
+         do k = self%row_ptr(i), self%row_ptr(i + 1) - 1
+            j = self%col(k)
+            t%col(fill(j)) = i
+            t%val(fill(j)) = self%val(k)
+            fill(j) = fill(j) + 1
+         end do
+      end do
+   end function transposed
 
    !> Insertion sort: rows hold a handful of entries.
    pure subroutine sort_ints(a)

@@ -76,17 +76,26 @@ module twomem_linalg_gmres
       end subroutine observer_observe
    end interface
 
-   !> The Krylov basis V (n × (m+1)), Z = M⁻¹V (n × m) and the small Hessenberg problem. A
-   !> caller solving many systems of one size (Newton steps) keeps one to avoid reallocating.
+   !> One vector of the Krylov basis, allocated when the iteration first reaches it.
+   type :: column_t
+      real(dp), allocatable :: x(:)
+   end type column_t
+
+   !> The Krylov basis V (n × (m+1)), Z = M⁻¹V (n × m) and the small Hessenberg problem. The
+   !> columns are allocated when first used and kept, so a solve that converges in k ≪ m
+   !> iterations holds 2k vectors, not 2m + 1, and a caller solving many systems of one size
+   !> (Newton steps) keeps one workspace to reuse them.
    type :: gmres_workspace_t
       private
       integer(ip) :: n = 0
       integer :: m = 0
-      real(dp), allocatable :: v(:, :), z(:, :), h(:, :), g(:), cs(:), sn(:), y(:)
+      type(column_t), allocatable :: v(:), z(:)
+      real(dp), allocatable :: h(:, :), g(:), cs(:), sn(:), y(:)
       real(dp), allocatable :: r(:), w(:), xc(:)
    contains
       procedure :: init => workspace_init
       procedure :: free => workspace_free
+      procedure :: columns => workspace_columns
    end type gmres_workspace_t
 
    !> How an Arnoldi cycle ended.
@@ -103,8 +112,8 @@ contains
       call self%free()
       self%n = n
       self%m = m
-      allocate (self%v(n, m + 1), self%z(n, m), self%h(m + 1, m), self%g(m + 1), self%cs(m), &
-                self%sn(m), self%y(m), self%r(n), self%w(n), self%xc(n))
+      allocate (self%v(m + 1), self%z(m), self%h(m + 1, m), self%g(m + 1), self%cs(m), self%sn(m), self%y(m), &
+                self%r(n), self%w(n), self%xc(n))
    end subroutine workspace_init
 
    subroutine workspace_free(self)
@@ -116,13 +125,38 @@ contains
       self%m = 0
    end subroutine workspace_free
 
+   !> Basis vectors held (V and Z together): what the solves so far have needed.
+   integer function workspace_columns(self) result(k)
+      class(gmres_workspace_t), intent(in) :: self
+
+      integer :: j
+
+      k = 0
+      if (.not. allocated(self%v)) return
+      do j = 1, size(self%v)
+         if (allocated(self%v(j)%x)) k = k + 1
+      end do
+      do j = 1, size(self%z)
+         if (allocated(self%z(j)%x)) k = k + 1
+      end do
+   end function workspace_columns
+
+   !> Make sure column j exists.
+   subroutine reach(columns, j, n)
+      type(column_t), intent(inout) :: columns(:)
+      integer, intent(in) :: j
+      integer(ip), intent(in) :: n
+
+      if (.not. allocated(columns(j)%x)) allocate (columns(j)%x(n))
+   end subroutine reach
+
    !> Solve A x = b; `x` holds the initial guess on entry. `err` is set only for misuse
    !> (sizes, options; the monitor's reason is then 'invalid arguments'); how the solve ended
    !> is `monitor%reason`. A zero b returns x = 0 at once: converged, 0 iterations, zero
    !> residuals. `workspace`, if given, is (re)allocated only when n or m changed.
    subroutine gmres_solve(op, prec, dot, b, x, options, monitor, err, observer, workspace)
       class(linear_operator_t), intent(in) :: op
-      class(preconditioner_t), intent(in) :: prec
+      class(preconditioner_t), intent(inout) :: prec
       class(inner_product_t), intent(in) :: dot
       real(dp), intent(in) :: b(:)
       real(dp), intent(inout) :: x(:)
@@ -175,7 +209,7 @@ contains
    !> The restart loop. Every decision is taken here, at a restart point, on the true residual.
    subroutine run_gmres(op, prec, dot, b, x, opt, mon, ws, observer)
       class(linear_operator_t), intent(in) :: op
-      class(preconditioner_t), intent(in) :: prec
+      class(preconditioner_t), intent(inout) :: prec
       class(inner_product_t), intent(in) :: dot
       real(dp), intent(in) :: b(:)
       real(dp), intent(inout) :: x(:)
@@ -277,7 +311,7 @@ contains
    subroutine arnoldi_cycle(op, prec, dot, x, beta, target, opt, ws, it, history, outcome, &
                             reorths, observer)
       class(linear_operator_t), intent(in) :: op
-      class(preconditioner_t), intent(in) :: prec
+      class(preconditioner_t), intent(inout) :: prec
       class(inner_product_t), intent(in) :: dot
       real(dp), intent(inout) :: x(:)
       real(dp), intent(in) :: beta, target
@@ -293,15 +327,18 @@ contains
       real(dp) :: colnorm, hnext, rr, estimate
       logical :: stop
 
-      ws%v(:, 1) = ws%r/beta
+      call reach(ws%v, 1, ws%n)
+      call copy(ws%r, ws%v(1)%x)
+      call divide(ws%v(1)%x, beta)
       ws%h = 0.0_dp
       ws%g = 0.0_dp
       ws%g(1) = beta
       k = 0
       outcome = cycle_full
       do j = 1, opt%restart
-         call prec%apply(ws%v(:, j), ws%z(:, j))
-         call op%apply(ws%z(:, j), ws%w)
+         call reach(ws%z, j, ws%n)
+         call prec%apply(ws%v(j)%x, ws%z(j)%x)
+         call op%apply(ws%z(j)%x, ws%w)
          call orthogonalize(dot, ws%v, j, opt%reorth_factor, ws%w, ws%h(1:j + 1, j), reorths)
          ! the Hessenberg column is small and replicated, so plain Fortran is fine here
          colnorm = norm2(ws%h(1:j + 1, j))
@@ -333,7 +370,9 @@ contains
             outcome = cycle_limit
          end if
          if (outcome /= cycle_full .or. j == opt%restart) exit
-         ws%v(:, j + 1) = ws%w/hnext
+         call reach(ws%v, j + 1, ws%n)
+         call copy(ws%w, ws%v(j + 1)%x)
+         call divide(ws%v(j + 1)%x, hnext)
          ! a cycle that ends here is observed at the restart, with its true residual
          if (present(observer) .and. mod(it, opt%observe_every) == 0) then
             call current_iterate(ws, j, x)
@@ -346,7 +385,7 @@ contains
       end do
       ! the same operations as for the observed iterate, so a stop returns it bit for bit
       call current_iterate(ws, k, x)
-      x = ws%xc
+      call copy(ws%xc, x)
    end subroutine arnoldi_cycle
 
    !> history(it) = value, doubling the array (lower bound 0) when full.
@@ -374,7 +413,7 @@ contains
    !> η is an option.
    subroutine orthogonalize(dot, v, j, eta, w, h, reorths)
       class(inner_product_t), intent(in) :: dot
-      real(dp), intent(in) :: v(:, :)
+      type(column_t), intent(in) :: v(:)
       integer, intent(in) :: j
       real(dp), intent(in) :: eta
       real(dp), intent(inout) :: w(:)
@@ -386,16 +425,16 @@ contains
 
       w0 = dot%norm(w)
       do i = 1, j
-         h(i) = dot%dot(w, v(:, i))
-         w = w - h(i)*v(:, i)
+         h(i) = dot%dot(w, v(i)%x)
+         call axpy(-h(i), v(i)%x, w)
       end do
       h(j + 1) = dot%norm(w)
       if (h(j + 1) < eta*w0) then
          reorths = reorths + 1
          do i = 1, j
-            c = dot%dot(w, v(:, i))
+            c = dot%dot(w, v(i)%x)
             h(i) = h(i) + c
-            w = w - c*v(:, i)
+            call axpy(-c, v(i)%x, w)
          end do
          h(j + 1) = dot%norm(w)
       end if
@@ -428,9 +467,9 @@ contains
       do i = k, 1, -1
          ws%y(i) = (ws%g(i) - sum(ws%h(i, i + 1:k)*ws%y(i + 1:k)))/ws%h(i, i)
       end do
-      ws%xc = x
+      call copy(x, ws%xc)
       do i = 1, k
-         ws%xc = ws%xc + ws%y(i)*ws%z(:, i)
+         call axpy(ws%y(i), ws%z(i)%x, ws%xc)
       end do
    end subroutine current_iterate
 
@@ -440,7 +479,54 @@ contains
       real(dp), intent(in) :: b(:), x(:)
       real(dp), intent(out) :: r(:)
 
+      integer(ip) :: i
+
       call op%apply(x, r)
-      r = b - r
+      !$omp parallel do default(none) shared(b, r) private(i) schedule(static)
+      do i = 1, size(r, kind=ip)
+         r(i) = b(i) - r(i)
+      end do
+      !$omp end parallel do
    end subroutine residual
+
+   !> y = y + a x, threaded (the vectors are long; the Hessenberg work is not)
+   subroutine axpy(a, x, y)
+      real(dp), intent(in) :: a, x(:)
+      real(dp), intent(inout) :: y(:)
+
+      integer(ip) :: i
+
+      !$omp parallel do default(none) shared(a, x, y) private(i) schedule(static)
+      do i = 1, size(y, kind=ip)
+         y(i) = y(i) + a*x(i)
+      end do
+      !$omp end parallel do
+   end subroutine axpy
+
+   subroutine copy(x, y)
+      real(dp), intent(in) :: x(:)
+      real(dp), intent(out) :: y(:)
+
+      integer(ip) :: i
+
+      !$omp parallel do default(none) shared(x, y) private(i) schedule(static)
+      do i = 1, size(y, kind=ip)
+         y(i) = x(i)
+      end do
+      !$omp end parallel do
+   end subroutine copy
+
+   !> x = x / a (a division, as the textbook normalization: the same bits as before threading)
+   subroutine divide(x, a)
+      real(dp), intent(inout) :: x(:)
+      real(dp), intent(in) :: a
+
+      integer(ip) :: i
+
+      !$omp parallel do default(none) shared(a, x) private(i) schedule(static)
+      do i = 1, size(x, kind=ip)
+         x(i) = x(i)/a
+      end do
+      !$omp end parallel do
+   end subroutine divide
 end module twomem_linalg_gmres

@@ -179,7 +179,7 @@ contains
    !> z = (L U)⁻¹ r: forward sweep with unit L, backward sweep with U, in place in z. Both
    !> sweeps are recurrences over the rows and stay serial (see factorize).
    subroutine ilu0_apply(self, r, z)
-      class(ilu0_preconditioner_t), intent(in) :: self
+      class(ilu0_preconditioner_t), intent(inout) :: self
       real(dp), intent(in) :: r(:)
       real(dp), intent(out) :: z(:)
 

@@ -59,7 +59,7 @@ contains
 
    !> z = D⁻¹ r; the identity before the first setup.
    subroutine jacobi_apply(self, r, z)
-      class(jacobi_preconditioner_t), intent(in) :: self
+      class(jacobi_preconditioner_t), intent(inout) :: self
       real(dp), intent(in) :: r(:)
       real(dp), intent(out) :: z(:)
 

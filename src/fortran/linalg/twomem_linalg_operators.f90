@@ -22,7 +22,7 @@ module twomem_linalg_operators
    contains
       !> (re)build from the matrix; the pattern may be kept between calls with the same pattern
       procedure(preconditioner_setup), deferred :: setup
-      !> z = M⁻¹ r
+      !> z = M⁻¹ r; inout because a preconditioner may keep its work vectors (multigrid)
       procedure(preconditioner_apply), deferred :: apply
    end type preconditioner_t
 
@@ -49,7 +49,7 @@ module twomem_linalg_operators
 
       subroutine preconditioner_apply(self, r, z)
          import :: preconditioner_t, dp
-         class(preconditioner_t), intent(in) :: self
+         class(preconditioner_t), intent(inout) :: self
          real(dp), intent(in) :: r(:)
          real(dp), intent(out) :: z(:)
       end subroutine preconditioner_apply
@@ -106,7 +106,7 @@ contains
    end subroutine identity_setup
 
    subroutine identity_apply(self, r, z)
-      class(identity_preconditioner_t), intent(in) :: self
+      class(identity_preconditioner_t), intent(inout) :: self
       real(dp), intent(in) :: r(:)
       real(dp), intent(out) :: z(:)
 

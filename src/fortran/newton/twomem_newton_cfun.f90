@@ -13,7 +13,11 @@ module twomem_newton_cfun
    implicit none
    private
 
-   public :: cfun_min, cfun_fb, cfun_eval
+   public :: cfun_min, cfun_fb, cfun_eval, cfun_kind, cfun_name
+   !> which C-function: Newton-min or Fischer–Burmeister
+   public :: c_function_min, c_function_fb
+
+   integer, parameter :: c_function_min = 1, c_function_fb = 2
 
 contains
 
@@ -57,26 +61,51 @@ contains
       end if
    end subroutine cfun_fb
 
-   !> C and its Jacobian entries at every vertex for the C-function `name` ('min' or 'fb').
-   subroutine cfun_eval(name, a, b, c, da, db)
-      character(len=*), intent(in) :: name
-      real(dp), intent(in) :: a(:), b(:)
+   !> C and its Jacobian entries at every vertex for C-function `which` (c_function_min or
+   !> c_function_fb) at the iterate x = [X1; X2; X3]: a = X1 − X2, b = X3.
+   subroutine cfun_eval(which, x, c, da, db)
+      integer, intent(in) :: which
+      real(dp), intent(in) :: x(:)
       real(dp), intent(out) :: c(:), da(:), db(:)
 
-      integer(ip) :: i
+      integer(ip) :: i, n
 
-      if (name == 'fb') then
-         !$omp parallel do default(none) shared(a, b, c, da, db) private(i) schedule(static)
-         do i = 1, size(a, kind=ip)
-            call cfun_fb(a(i), b(i), c(i), da(i), db(i))
+      n = size(c, kind=ip)
+      if (which == c_function_fb) then
+         !$omp parallel do default(none) shared(x, c, da, db, n) private(i) schedule(static)
+         do i = 1, n
+            call cfun_fb(x(i) - x(n + i), x(2*n + i), c(i), da(i), db(i))
          end do
          !$omp end parallel do
       else
-         !$omp parallel do default(none) shared(a, b, c, da, db) private(i) schedule(static)
-         do i = 1, size(a, kind=ip)
-            call cfun_min(a(i), b(i), c(i), da(i), db(i))
+         !$omp parallel do default(none) shared(x, c, da, db, n) private(i) schedule(static)
+         do i = 1, n
+            call cfun_min(x(i) - x(n + i), x(2*n + i), c(i), da(i), db(i))
          end do
          !$omp end parallel do
       end if
    end subroutine cfun_eval
+
+   !> The C-function named by a `newton.cfun` word ('min' or 'fb'); 0 for any other word.
+   pure integer function cfun_kind(name) result(which)
+      character(len=*), intent(in) :: name
+
+      select case (name)
+      case ('min')
+         which = c_function_min
+      case ('fb')
+         which = c_function_fb
+      case default
+         which = 0
+      end select
+   end function cfun_kind
+
+   pure function cfun_name(which) result(name)
+      integer, intent(in) :: which
+      character(len=:), allocatable :: name
+
+      name = merge('fb ', 'min', which == c_function_fb)
+      name = trim(name)
+   end function cfun_name
+
 end module twomem_newton_cfun

@@ -1,14 +1,15 @@
-!> The run's history, one row per recorded point (a Newton step now; blocks of GMRES iterations
-!> once iterative solvers record inside a step). Columns are those of `/history` in
-!> INTERFACE.md plus the residuals; estimators and errors not computed are NaN, so a missing
-!> value is never mistaken for a zero.
+!> The run's history, one row per recorded point (a Newton step, or every ν GMRES iterations
+!> inside one), and the progress line printed for each Newton row. Columns are those of
+!> `/history` in INTERFACE.md plus the residuals; estimators and errors not computed are NaN, so
+!> a missing value is never mistaken for a zero.
 module twomem_newton_history
-   use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
+   use, intrinsic :: iso_fortran_env, only: output_unit
+   use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan, ieee_is_nan
    use twomem_base_kinds, only: dp
    implicit none
    private
 
-   public :: history_row_t, history_t, not_computed
+   public :: history_row_t, history_t, not_computed, print_progress
 
    type :: history_row_t
       integer :: newton_it = 0
@@ -85,4 +86,19 @@ contains
       self%n = self%n + 1
       self%rows(self%n) = row
    end subroutine append
+   !> One line per Newton step on standard output (README, *Running a case*).
+   subroutine print_progress(row)
+      type(history_row_t), intent(in) :: row
+
+      character(len=96) :: err_text
+
+      err_text = ''
+      if (.not. ieee_is_nan(row%eta_total)) write (err_text, '("  eta ",es9.3," (disc ",es9.3,", lin ",es9.3, &
+           &", alg ",es9.3,")")') row%eta_total, row%eta_disc, row%eta_lin, row%eta_alg
+      if (.not. ieee_is_nan(row%energy_error)) write (err_text, '(a,"  error ",es9.3)') trim(err_text), row%energy_error
+      write (output_unit, '("newton ",i4,"  gmres ",i6,"  contact ",i8," (changed ",i7,")  lin-res ",es9.3, &
+           &"  alg-res ",es9.3,"  step ",f5.3,a,"  ",f9.2," s")') row%newton_it, row%gmres_it, row%active, &
+         row%active_changed, row%lin_residual, row%alg_residual, row%step, trim(err_text), row%wall_time
+      flush (output_unit)
+   end subroutine print_progress
 end module twomem_newton_history

@@ -1,7 +1,10 @@
 !> The linear solve inside a Newton step, behind one type: UMFPACK for the exact method, or
-!> restarted GMRES with a preconditioner refreshed from each Newton matrix. Everything that
-!> survives between Newton steps (the symbolic factorization, the ILU pattern data, the Krylov
-!> workspace) lives here, so the driver only says "solve A x = b, starting from x".
+!> restarted GMRES with a preconditioner refreshed from each Newton matrix: the block
+!> elimination with multigrid ('mg'), ILU(0), Jacobi or none. Everything that survives between
+!> Newton steps (the symbolic factorization, the multigrid hierarchies, the ILU pattern data,
+!> the Krylov workspace) lives here, so the driver only says "solve A x = b, starting from x".
+!> It also keeps the account of GMRES solves that ended without converging, which the driver
+!> reports when Newton itself fails.
 module twomem_newton_linear
    use twomem_base_kinds, only: dp
    use twomem_base_errors, only: error_t, make_error, exit_bad_input
@@ -11,16 +14,24 @@ module twomem_newton_linear
    use twomem_linalg_ilu0, only: ilu0_preconditioner_t
    use twomem_linalg_jacobi, only: jacobi_preconditioner_t
    use twomem_linalg_umfpack, only: umfpack_solver_t
+   use twomem_linalg_multigrid, only: multigrid_options_t, multigrid_transfer_t
    use twomem_linalg_gmres, only: gmres_solve, gmres_options_t, gmres_monitor_t, gmres_observer_t, &
       gmres_workspace_t
+   use twomem_fem_discrete, only: discrete_problem_t
+   use twomem_newton_system, only: newton_system_t, newton_operator_t
+   use twomem_newton_elimination, only: elimination_preconditioner_t
    implicit none
    private
 
-   public :: linear_step_t
+   public :: linear_step_t, precond_kind, needs_matrix
+   public :: solver_direct, solver_gmres, precond_mg, precond_ilu0, precond_jacobi, precond_none
+
+   integer, parameter :: solver_direct = 1, solver_gmres = 2
+   integer, parameter :: precond_mg = 1, precond_ilu0 = 2, precond_jacobi = 3, precond_none = 4
 
    type :: linear_step_t
-      !> 'direct' or 'gmres'
-      character(len=8) :: kind = 'direct'
+      !> solver_direct or solver_gmres
+      integer :: kind = solver_direct
       type(gmres_options_t) :: options
       type(umfpack_solver_t) :: direct
       class(preconditioner_t), allocatable :: prec
@@ -28,61 +39,131 @@ module twomem_newton_linear
       type(euclidean_product_t) :: dot
       !> the last GMRES solve
       type(gmres_monitor_t) :: monitor
+      !> GMRES solves that ended neither converged nor stopped by the observer, and the last reason
+      integer :: failures = 0
+      character(len=:), allocatable :: failure_reason
    contains
       procedure :: init => linear_init
       procedure :: solve => linear_solve
+      procedure :: failure_note
    end type linear_step_t
 
 contains
 
-   !> `precond` is 'ilu0', 'jacobi' or 'none' (GMRES only).
-   subroutine linear_init(self, kind, precond, options, err)
+   !> The preconditioner named by a `gmres.precond` word; 0 for any other word.
+   pure integer function precond_kind(name) result(which)
+      character(len=*), intent(in) :: name
+
+      select case (name)
+      case ('mg')
+         which = precond_mg
+      case ('ilu0')
+         which = precond_ilu0
+      case ('jacobi')
+         which = precond_jacobi
+      case ('none')
+         which = precond_none
+      case default
+         which = 0
+      end select
+   end function precond_kind
+
+   !> Whether a solve with this solver and preconditioner needs the assembled Newton matrix.
+   pure logical function needs_matrix(kind, precond)
+      integer, intent(in) :: kind, precond
+
+      needs_matrix = kind == solver_direct .or. precond /= precond_mg
+   end function needs_matrix
+
+   !> `precond` matters for GMRES only. precond_mg needs the problem and the transfers of the
+   !> hierarchy below the problem's mesh (none: the exact elimination); both must outlive the
+   !> solver.
+   subroutine linear_init(self, kind, precond, options, problem, transfer, err)
       class(linear_step_t), intent(inout) :: self
-      character(len=*), intent(in) :: kind, precond
+      integer, intent(in) :: kind, precond
       type(gmres_options_t), intent(in) :: options
+      type(discrete_problem_t), target, intent(in) :: problem
+      type(multigrid_transfer_t), target, intent(in) :: transfer
       type(error_t), allocatable, intent(out) :: err
+
+      type(multigrid_options_t) :: mg_options
 
       self%kind = kind
       self%options = options
+      self%failures = 0
       if (allocated(self%prec)) deallocate (self%prec)
-      if (kind /= 'gmres') return
+      if (kind /= solver_gmres) return
       select case (precond)
-      case ('ilu0')
+      case (precond_mg)
+         allocate (elimination_preconditioner_t :: self%prec)
+         select type (prec => self%prec)
+         type is (elimination_preconditioner_t)
+            call prec%init(problem, transfer, mg_options, err)
+         end select
+      case (precond_ilu0)
          allocate (ilu0_preconditioner_t :: self%prec)
-      case ('jacobi')
+      case (precond_jacobi)
          allocate (jacobi_preconditioner_t :: self%prec)
-      case ('none')
+      case (precond_none)
          allocate (identity_preconditioner_t :: self%prec)
       case default
-         call make_error(err, exit_bad_input, 'gmres.precond', 'unknown preconditioner '''//precond//'''')
+         call make_error(err, exit_bad_input, 'gmres.precond', 'unknown preconditioner')
       end select
    end subroutine linear_init
 
-   !> Solve A x = b; x holds the initial guess on entry (used by GMRES). `atol` > 0 adds an
-   !> absolute target on ‖b − A x‖ for GMRES; the observer sees GMRES iterates.
-   subroutine linear_solve(self, a, b, x, err, atol, observer)
+   !> Solve A x = b for the current linearization of `sys`; x holds the initial guess on entry
+   !> (used by GMRES). `atol` > 0 adds an absolute target on ‖b − A x‖ for GMRES; the observer
+   !> sees GMRES iterates.
+   subroutine linear_solve(self, sys, b, x, err, atol, observer)
       class(linear_step_t), intent(inout) :: self
-      type(csr_t), target, intent(in) :: a
+      type(newton_system_t), target, intent(in) :: sys
       real(dp), intent(in) :: b(:)
       real(dp), intent(inout) :: x(:)
       type(error_t), allocatable, intent(out) :: err
       real(dp), intent(in), optional :: atol
       class(gmres_observer_t), intent(inout), optional :: observer
 
-      type(csr_operator_t) :: op
+      type(csr_operator_t) :: matrix
+      type(newton_operator_t) :: matrix_free
       type(gmres_options_t) :: options
 
-      if (self%kind == 'direct') then
-         call self%direct%factor(a, err)
+      if (self%kind == solver_direct) then
+         call self%direct%factor(sys%a, err)
          if (allocated(err)) return
-         call self%direct%solve(a, b, x, err)
+         call self%direct%solve(sys%a, b, x, err)
          return
       end if
-      call self%prec%setup(a, err)
-      if (allocated(err)) return
-      op%a => a
       options = self%options
       if (present(atol)) options%atol = atol
-      call gmres_solve(op, self%prec, self%dot, b, x, options, self%monitor, err, observer, self%workspace)
+      select type (prec => self%prec)
+      type is (elimination_preconditioner_t)
+         call prec%set_linearization(sys%da, sys%db, err)
+         if (allocated(err)) return
+         matrix_free%sys => sys
+         call gmres_solve(matrix_free, prec, self%dot, b, x, options, self%monitor, err, observer, self%workspace)
+      class default
+         call prec%setup(sys%a, err)
+         if (allocated(err)) return
+         matrix%a => sys%a
+         call gmres_solve(matrix, prec, self%dot, b, x, options, self%monitor, err, observer, self%workspace)
+      end select
+      if (allocated(err)) return
+      if (.not. self%monitor%converged .and. self%monitor%reason /= 'stopped by observer') then
+         self%failures = self%failures + 1
+         self%failure_reason = self%monitor%reason
+      end if
    end subroutine linear_solve
+
+   !> ' (N GMRES solves ended by 'reason')' when some did, else ''.
+   function failure_note(self) result(note)
+      class(linear_step_t), intent(in) :: self
+      character(len=:), allocatable :: note
+
+      character(len=16) :: count_text
+
+      note = ''
+      if (self%failures == 0) return
+      write (count_text, '(i0)') self%failures
+      note = ' ('//trim(count_text)//' GMRES solves ended by '''//self%failure_reason//''')'
+   end function failure_note
 end module twomem_newton_linear

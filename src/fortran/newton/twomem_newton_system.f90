@@ -1,60 +1,99 @@
 !> The 3N×3N semismooth Newton system A X = B of DESIGN.md §1, in block order (X1, X2, X3):
 !>
-!>     [ μ1 S   0    −D ]          [ F                 ]
-!>     [ 0     μ2 S   D ]  X  =    [ F2                ]
+!>     [ μ1 K   0    −D ]          [ F1                   ]
+!>     [ 0     μ2 K   D ]  X  =    [ F2                   ]
 !>     [ J1    −J1   J3 ]          [ J_C X_old − C(X_old) ]
 !>
-!> The pattern is fixed once: every C-function row holds its three diagonal entries whichever
-!> are zero, so the symbolic factorization (and later ILU(0)) survives all Newton steps.
+!> It is applied matrix-free from the problem's stiffness K, the lumped mass D and the
+!> C-function Jacobian (J1, J3) = (∂C/∂a, ∂C/∂b): one pass over K serves both membranes, and
+!> the multigrid path never stores the 3N matrix. The assembled CSR matrix exists only for the
+!> solvers that factorize it (UMFPACK, ILU(0), Jacobi). Its pattern is fixed once: every
+!> C-function row holds its three diagonal entries whichever are zero, so the symbolic
+!> factorization (and ILU(0)'s analysis) survives all Newton steps. Both forms compute every
+!> row in the same order with the same products, so they agree bit for bit.
 module twomem_newton_system
    use twomem_base_kinds, only: dp, ip
    use twomem_linalg_csr, only: csr_t
+   use twomem_linalg_operators, only: linear_operator_t
    use twomem_fem_discrete, only: discrete_problem_t
    implicit none
    private
 
-   public :: newton_system_t
+   public :: newton_system_t, newton_operator_t
 
    type :: newton_system_t
       integer(ip) :: n = 0
+      real(dp) :: mu1 = 1, mu2 = 1
+      !> the problem's stiffness K on interior vertices (the problem outlives the system)
+      type(csr_t), pointer :: k => null()
+      real(dp), allocatable :: mass(:)
+      !> the C-function Jacobian of the current linearization, per vertex
+      real(dp), allocatable :: da(:), db(:)
+      !> [F1; F2], the linear part of the right-hand side
+      real(dp), allocatable :: f(:)
+      !> the assembled matrix, only when `init` was asked for it
+      logical :: assembled = .false.
       type(csr_t) :: a
       !> positions in a%val of the C-row entries (X1, X2, X3) of each vertex, (3, n)
       integer(ip), allocatable :: c_pos(:, :)
-      !> [F1; F2], the linear part of the right-hand side
-      real(dp), allocatable :: f(:)
    contains
       procedure :: init => system_init
       procedure :: set_jacobian
+      procedure :: apply => system_apply
       procedure :: apply_e
    end type newton_system_t
 
+   !> The system as the operator GMRES iterates with.
+   type, extends(linear_operator_t) :: newton_operator_t
+      type(newton_system_t), pointer :: sys => null()
+   contains
+      procedure :: apply => operator_apply
+   end type newton_operator_t
+
 contains
 
-   subroutine system_init(self, p)
-      class(newton_system_t), intent(inout) :: self
-      type(discrete_problem_t), intent(in) :: p
+   !> `assembled`: also build the CSR matrix (for UMFPACK, ILU(0) or Jacobi).
+   subroutine system_init(self, p, assembled)
+      class(newton_system_t), intent(out) :: self
+      type(discrete_problem_t), target, intent(in) :: p
+      logical, intent(in) :: assembled
+
+      self%n = p%n
+      self%mu1 = p%mu1
+      self%mu2 = p%mu2
+      self%k => p%stiffness
+      self%mass = p%mass
+      self%f = [p%f1, p%f2]
+      allocate (self%da(p%n), self%db(p%n))
+      self%da = 0.0_dp
+      self%db = 1.0_dp
+      self%assembled = assembled
+      if (assembled) call assemble(self)
+   end subroutine system_init
+
+   subroutine assemble(self)
+      type(newton_system_t), intent(inout) :: self
 
       integer(ip) :: n, i, m, k
       integer(ip), allocatable :: row_ptr(:), col(:)
 
-      n = p%n
-      self%n = n
-      allocate (row_ptr(3*n + 1), col(2*p%stiffness%nnz() + 5*n))
+      n = self%n
+      allocate (row_ptr(3*n + 1), col(2*self%k%nnz() + 5*n))
       k = 0
       row_ptr(1) = 1
       do i = 1, n
-         do m = p%stiffness%row_ptr(i), p%stiffness%row_ptr(i + 1) - 1
+         do m = self%k%row_ptr(i), self%k%row_ptr(i + 1) - 1
             k = k + 1
-            col(k) = p%stiffness%col(m)
+            col(k) = self%k%col(m)
          end do
          k = k + 1
          col(k) = 2*n + i
          row_ptr(i + 1) = k + 1
       end do
       do i = 1, n
-         do m = p%stiffness%row_ptr(i), p%stiffness%row_ptr(i + 1) - 1
+         do m = self%k%row_ptr(i), self%k%row_ptr(i + 1) - 1
             k = k + 1
-            col(k) = n + p%stiffness%col(m)
+            col(k) = n + self%k%col(m)
          end do
          k = k + 1
          col(k) = 2*n + i
@@ -69,28 +108,31 @@ contains
 
       ! the two linear block rows never change
       do i = 1, n
-         do m = p%stiffness%row_ptr(i), p%stiffness%row_ptr(i + 1) - 1
-            self%a%val(self%a%find(i, p%stiffness%col(m))) = p%mu1*p%stiffness%val(m)
-            self%a%val(self%a%find(n + i, n + p%stiffness%col(m))) = p%mu2*p%stiffness%val(m)
+         do m = self%k%row_ptr(i), self%k%row_ptr(i + 1) - 1
+            self%a%val(self%a%find(i, self%k%col(m))) = self%mu1*self%k%val(m)
+            self%a%val(self%a%find(n + i, n + self%k%col(m))) = self%mu2*self%k%val(m)
          end do
-         self%a%val(self%a%find(i, 2*n + i)) = -p%mass(i)
-         self%a%val(self%a%find(n + i, 2*n + i)) = p%mass(i)
+         self%a%val(self%a%find(i, 2*n + i)) = -self%mass(i)
+         self%a%val(self%a%find(n + i, 2*n + i)) = self%mass(i)
       end do
       allocate (self%c_pos(3, n))
       do i = 1, n
          self%c_pos(:, i) = [self%a%find(2*n + i, i), self%a%find(2*n + i, n + i), &
                              self%a%find(2*n + i, 2*n + i)]
       end do
-      self%f = [p%f1, p%f2]
-   end subroutine system_init
+      call set_jacobian(self, self%da, self%db)
+   end subroutine assemble
 
-   !> Put the C-function Jacobian (∂C/∂a, ∂C/∂b per vertex) into the third block row.
+   !> The C-function Jacobian (∂C/∂a, ∂C/∂b per vertex) of the third block row.
    subroutine set_jacobian(self, da, db)
       class(newton_system_t), intent(inout) :: self
       real(dp), intent(in) :: da(:), db(:)
 
       integer(ip) :: i
 
+      self%da = da
+      self%db = db
+      if (.not. self%assembled) return
       do i = 1, self%n
          self%a%val(self%c_pos(1, i)) = da(i)
          self%a%val(self%c_pos(2, i)) = -da(i)
@@ -98,23 +140,53 @@ contains
       end do
    end subroutine set_jacobian
 
-   !> E X: the two linear block rows applied to X (length 2n).
+   !> y = A x (length 3n).
+   subroutine system_apply(self, x, y)
+      class(newton_system_t), intent(in) :: self
+      real(dp), intent(in) :: x(:)
+      real(dp), intent(out) :: y(:)
+
+      integer(ip) :: n, i
+
+      n = self%n
+      call self%apply_e(x, y(1:2*n))
+      !$omp parallel do default(none) shared(self, x, y, n) private(i) schedule(static)
+      do i = 1, n
+         y(2*n + i) = self%da(i)*x(i) + (-self%da(i))*x(n + i) + self%db(i)*x(2*n + i)
+      end do
+      !$omp end parallel do
+   end subroutine system_apply
+
+   !> E X: the two membrane block rows applied to X (length 2n), in the order and with the
+   !> products of the assembled rows (columns ascending, the D column last).
    subroutine apply_e(self, x, ex)
       class(newton_system_t), intent(in) :: self
       real(dp), intent(in) :: x(:)
       real(dp), intent(out) :: ex(:)
 
-      integer(ip) :: i, k
-      real(dp) :: s
+      integer(ip) :: n, i, m
+      real(dp) :: s1, s2
 
-      !$omp parallel do default(none) shared(self, x, ex) private(i, k, s) schedule(static)
-      do i = 1, 2*self%n
-         s = 0.0_dp
-         do k = self%a%row_ptr(i), self%a%row_ptr(i + 1) - 1
-            s = s + self%a%val(k)*x(self%a%col(k))
+      n = self%n
+      !$omp parallel do default(none) shared(self, x, ex, n) private(i, m, s1, s2) schedule(static)
+      do i = 1, n
+         s1 = 0.0_dp
+         s2 = 0.0_dp
+         do m = self%k%row_ptr(i), self%k%row_ptr(i + 1) - 1
+            s1 = s1 + (self%mu1*self%k%val(m))*x(self%k%col(m))
+            s2 = s2 + (self%mu2*self%k%val(m))*x(n + self%k%col(m))
          end do
-         ex(i) = s
+         ex(i) = s1 + (-self%mass(i))*x(2*n + i)
+         ex(n + i) = s2 + self%mass(i)*x(2*n + i)
       end do
       !$omp end parallel do
    end subroutine apply_e
+
+   subroutine operator_apply(self, x, y)
+      class(newton_operator_t), intent(in) :: self
+      real(dp), intent(in) :: x(:)
+      real(dp), intent(out) :: y(:)
+
+      call self%sys%apply(x, y)
+   end subroutine operator_apply
 end module twomem_newton_system

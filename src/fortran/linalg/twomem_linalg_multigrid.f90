@@ -1,0 +1,350 @@
+!> Geometric multigrid for symmetric positive definite operators on a nested hierarchy: the
+!> V-cycle that preconditions the two SPD blocks of the Newton system (DESIGN.md §5). It knows
+!> no PDE: the caller hands it the finest operator and the prolongations between consecutive
+!> levels (`multigrid_transfer_t`, built once per hierarchy and shared by every cycle on it);
+!> the coarse operators are the Galerkin products P_lᵀ A_l P_l, smoothing is Chebyshev–Jacobi
+!> (pre and post, same degree, so the cycle is symmetric), and the coarsest level is solved by
+!> UMFPACK. Unknowns may be fixed (Dirichlet rows of the finest operator): their prolongation
+!> rows are truncated, and a coarse unknown is fixed when the fine unknown it is injected into
+!> is, so no coarse level ever moves a fixed unknown and every coarse operator stays SPD on its
+!> free unknowns. The patterns are analysed once (`init`); new values or a new fixed set only
+!> redo the numeric products, the smoothers' diagonals and the coarse factorization (`refresh`).
+module twomem_linalg_multigrid
+   use twomem_base_kinds, only: dp, ip
+   use twomem_base_errors, only: error_t, make_error, exit_io
+   use twomem_linalg_csr, only: csr_t
+   use twomem_linalg_galerkin, only: galerkin_pattern, galerkin_values, truncate_transfer
+   use twomem_linalg_chebyshev, only: chebyshev_t
+   use twomem_linalg_umfpack, only: umfpack_solver_t
+   implicit none
+   private
+
+   public :: multigrid_t, multigrid_options_t, multigrid_transfer_t
+
+   type :: multigrid_options_t
+      !> Chebyshev degree of the pre- and of the post-smoothing
+      integer :: degree = 2
+      !> the smoothers damp the eigenvalues of D⁻¹A in [λ_max/ratio, λ_max]
+      real(dp) :: ratio = 4.0_dp
+   end type multigrid_options_t
+
+   type :: index_list_t
+      integer(ip), allocatable :: i(:)
+   end type index_list_t
+
+   !> The prolongations of a hierarchy with levels 0..levels: p(l) from level l−1 to level l
+   !> (rows of level l), r(l) = p(l)ᵀ, and injection(l)%i(j), the unknown of level l that coarse
+   !> unknown j of level l−1 is (nested hierarchies keep every coarse vertex).
+   type :: multigrid_transfer_t
+      integer :: levels = 0
+      type(csr_t), allocatable :: p(:), r(:)
+      type(index_list_t), allocatable :: injection(:)
+      !> unknowns of level 0
+      integer(ip) :: n_coarsest = 0
+   contains
+      procedure :: init => transfer_init
+      procedure :: level_of
+   end type multigrid_transfer_t
+
+   type :: mg_level_t
+      !> the operator of a coarse level (the finest is the caller's)
+      type(csr_t) :: a
+      !> P and R values from the next coarser level, truncated at fixed unknowns (levels ≥ 1,
+      !> allocated once some unknown is fixed)
+      real(dp), allocatable :: pt(:), rt(:)
+      logical, allocatable :: fixed(:)
+      type(chebyshev_t) :: smoother
+      !> right-hand side, iterate and two smoother work vectors
+      real(dp), allocatable :: b(:), x(:), r1(:), r2(:)
+   end type mg_level_t
+
+   type :: multigrid_t
+      !> the finest level; levels(0) is solved directly
+      integer :: top = -1
+      !> the finest operator and the transfers, kept alive by the caller
+      type(csr_t), pointer :: finest => null()
+      type(multigrid_transfer_t), pointer :: transfer => null()
+      type(mg_level_t), allocatable :: levels(:)
+      type(multigrid_options_t) :: options
+      type(umfpack_solver_t) :: coarse
+      !> set if a coarse solve failed after its factorization had succeeded (misuse): the
+      !> cycle then returns zero, which GMRES reports as stagnation
+      logical :: failed = .false.
+   contains
+      procedure :: init
+      procedure :: refresh
+      procedure :: vcycle
+      procedure :: free
+   end type multigrid_t
+
+contains
+
+   !> From prolongations(l), l = 1..L, level l−1 to level l.
+   subroutine transfer_init(self, prolongations, err)
+      class(multigrid_transfer_t), intent(inout) :: self
+      type(csr_t), intent(in) :: prolongations(:)
+      type(error_t), allocatable, intent(out) :: err
+
+      integer :: l
+
+      self%levels = size(prolongations)
+      self%p = prolongations
+      if (allocated(self%r)) deallocate (self%r, self%injection)
+      allocate (self%r(self%levels), self%injection(self%levels))
+      do l = 1, self%levels
+         self%r(l) = self%p(l)%transposed()
+         call find_injection(self%p(l), self%injection(l)%i, err)
+         if (allocated(err)) return
+         if (l > 1) then
+            if (self%p(l)%ncol /= self%p(l - 1)%n) then
+               call make_error(err, exit_io, 'multigrid', 'consecutive prolongations do not match')
+               return
+            end if
+         end if
+      end do
+      self%n_coarsest = 0
+      if (self%levels > 0) self%n_coarsest = self%p(1)%ncol
+   end subroutine transfer_init
+
+   !> The level whose unknowns number n (-1 if none): the multigrid for an operator of that
+   !> size uses levels 0..level_of(n).
+   integer function level_of(self, n) result(l)
+      class(multigrid_transfer_t), intent(in) :: self
+      integer(ip), intent(in) :: n
+
+      do l = self%levels, 1, -1
+         if (self%p(l)%n == n) return
+      end do
+      l = merge(0, -1, self%levels == 0 .or. n == self%n_coarsest)
+   end function level_of
+
+   !> Coarse unknown j sits where fine row i of P has the single entry P(i, j) = 1. Missing one
+   !> means P is not a nested prolongation.
+   subroutine find_injection(p, injection, err)
+      type(csr_t), intent(in) :: p
+      integer(ip), allocatable, intent(out) :: injection(:)
+      type(error_t), allocatable, intent(out) :: err
+
+      integer(ip) :: i, k
+
+      allocate (injection(p%ncol))
+      injection = 0
+      do i = 1, p%n
+         k = p%row_ptr(i)
+         if (p%row_ptr(i + 1) - k == 1) then
+            if (p%val(k) == 1.0_dp) injection(p%col(k)) = i
+         end if
+      end do
+      if (any(injection == 0)) call make_error(err, exit_io, 'multigrid', &
+                                               'a coarse unknown has no fine counterpart (the hierarchy is not nested)')
+   end subroutine find_injection
+
+   !> The hierarchy for the finest operator `finest` on levels 0..top of `transfer` (top = 0: a
+   !> direct solve). The coarse patterns are copied from `pattern_of` when given (another
+   !> multigrid on the same pattern), else analysed. With `assemble`, ends with `refresh` for no
+   !> fixed unknown; otherwise the caller refreshes when it has the values. The caller keeps
+   !> `finest` and `transfer` alive and in place while the multigrid is used.
+   subroutine init(self, finest, transfer, top, options, assemble, err, pattern_of)
+      class(multigrid_t), intent(inout) :: self
+      type(csr_t), target, intent(in) :: finest
+      type(multigrid_transfer_t), target, intent(in) :: transfer
+      integer, intent(in) :: top
+      type(multigrid_options_t), intent(in) :: options
+      logical, intent(in) :: assemble
+      type(error_t), allocatable, intent(out) :: err
+      type(multigrid_t), intent(in), optional :: pattern_of
+
+      integer :: l
+      integer(ip) :: n
+
+      call self%free()
+      if (top < 0 .or. top > transfer%levels) then
+         call make_error(err, exit_io, 'multigrid', 'the operator does not match a level of the hierarchy')
+         return
+      end if
+      self%options = options
+      self%top = top
+      self%finest => finest
+      self%transfer => transfer
+      allocate (self%levels(0:top))
+      do l = top, 1, -1
+         if (present(pattern_of)) then
+            self%levels(l - 1)%a = pattern_of%levels(l - 1)%a
+         else if (l == top) then
+            call galerkin_pattern(transfer%r(l), finest, transfer%p(l), self%levels(l - 1)%a)
+         else
+            call galerkin_pattern(transfer%r(l), self%levels(l)%a, transfer%p(l), self%levels(l - 1)%a)
+         end if
+      end do
+      do l = 0, top
+         n = finest%n
+         if (l < top) n = self%levels(l)%a%n
+         associate (lev => self%levels(l))
+            allocate (lev%fixed(n), lev%b(n), lev%x(n), lev%r1(n), lev%r2(n))
+            lev%fixed = .false.
+         end associate
+      end do
+      if (assemble) call self%refresh(self%levels(top)%fixed, err)
+   end subroutine init
+
+   !> Recompute the coarse levels from the finest operator's current values and its fixed
+   !> unknowns, whose rows in the finest operator must be identity rows with zero columns.
+   subroutine refresh(self, fixed, err)
+      class(multigrid_t), intent(inout) :: self
+      logical, intent(in) :: fixed(:)
+      type(error_t), allocatable, intent(out) :: err
+
+      integer :: l
+      logical :: truncated
+
+      self%levels(self%top)%fixed = fixed
+      truncated = any(fixed)
+      do l = self%top, 1, -1
+         if (l == self%top) then
+            call coarsen(self, l, truncated, self%finest)
+         else
+            call coarsen(self, l, truncated, self%levels(l)%a)
+         end if
+      end do
+      if (self%top == 0) then
+         call self%coarse%factor(self%finest, err)
+      else
+         call self%coarse%factor(self%levels(0)%a, err)
+      end if
+      if (allocated(err)) call make_error(err, exit_io, 'multigrid', 'coarsest level: '//err%message)
+   end subroutine refresh
+
+   !> Level l−1 from level l (operator a): its fixed unknowns, the truncated transfer values,
+   !> the Galerkin product, and the smoother of level l.
+   subroutine coarsen(self, l, truncated, a)
+      type(multigrid_t), intent(inout) :: self
+      integer, intent(in) :: l
+      logical, intent(in) :: truncated
+      type(csr_t), intent(in) :: a
+
+      associate (fine => self%levels(l), coarse => self%levels(l - 1), p => self%transfer%p(l), &
+                 r => self%transfer%r(l))
+         coarse%fixed = fine%fixed(self%transfer%injection(l)%i)
+         if (truncated) then
+            if (.not. allocated(fine%pt)) allocate (fine%pt(p%nnz()), fine%rt(r%nnz()))
+            call truncate_transfer(p, r, fine%fixed, coarse%fixed, fine%pt, fine%rt)
+            call galerkin_values(r, fine%rt, a, p, fine%pt, coarse%fixed, coarse%a)
+         else
+            ! no fixed unknown (any more): the transfer's own values
+            if (allocated(fine%pt)) deallocate (fine%pt, fine%rt)
+            call galerkin_values(r, r%val, a, p, p%val, coarse%fixed, coarse%a)
+         end if
+         call fine%smoother%setup(a, self%options%degree, self%options%ratio)
+      end associate
+   end subroutine coarsen
+
+   !> x = one V-cycle applied to b, from a zero initial guess. b must vanish at the fixed
+   !> unknowns; x then does too.
+   subroutine vcycle(self, b, x)
+      class(multigrid_t), intent(inout) :: self
+      real(dp), intent(in) :: b(:)
+      real(dp), intent(out) :: x(:)
+
+      call cycle_level(self, self%top, b, x)
+   end subroutine vcycle
+
+   recursive subroutine cycle_level(self, l, b, x)
+      type(multigrid_t), intent(inout) :: self
+      integer, intent(in) :: l
+      real(dp), intent(in) :: b(:)
+      real(dp), intent(out) :: x(:)
+
+      type(error_t), allocatable :: err
+
+      if (l == 0) then
+         if (self%top == 0) then
+            call self%coarse%solve(self%finest, b, x, err)
+         else
+            call self%coarse%solve(self%levels(0)%a, b, x, err)
+         end if
+         if (allocated(err)) then
+            x = 0.0_dp
+            self%failed = .true.
+         end if
+      else if (l == self%top) then
+         call two_grid_step(self, l, self%finest, b, x)
+      else
+         call two_grid_step(self, l, self%levels(l)%a, b, x)
+      end if
+   end subroutine cycle_level
+
+   !> Pre-smoothing, the coarse correction by a cycle on level l−1, post-smoothing.
+   recursive subroutine two_grid_step(self, l, a, b, x)
+      type(multigrid_t), intent(inout) :: self
+      integer, intent(in) :: l
+      type(csr_t), intent(in) :: a
+      real(dp), intent(in) :: b(:)
+      real(dp), intent(out) :: x(:)
+
+      associate (lev => self%levels(l), below => self%levels(l - 1), p => self%transfer%p(l), &
+                 r => self%transfer%r(l))
+         call lev%smoother%smooth(a, b, x, .true., lev%r1, lev%r2)
+         call a%residual(b, x, lev%r1)
+         if (allocated(lev%rt)) then
+            call restrict(r, lev%rt, lev%r1, below%b)
+         else
+            call restrict(r, r%val, lev%r1, below%b)
+         end if
+         call cycle_level(self, l - 1, below%b, below%x)
+         if (allocated(lev%pt)) then
+            call prolong_add(p, lev%pt, below%x, x)
+         else
+            call prolong_add(p, p%val, below%x, x)
+         end if
+         call lev%smoother%smooth(a, b, x, .false., lev%r1, lev%r2)
+      end associate
+   end subroutine two_grid_step
+
+   !> bc = R r with R's pattern and the values `rv`.
+   subroutine restrict(r, rv, res, bc)
+      type(csr_t), intent(in) :: r
+      real(dp), intent(in) :: rv(:), res(:)
+      real(dp), intent(out) :: bc(:)
+
+      integer(ip) :: j, k
+      real(dp) :: s
+
+      !$omp parallel do default(none) shared(r, rv, res, bc) private(j, k, s) schedule(static) if(r%n > 4096)
+      do j = 1, r%n
+         s = 0.0_dp
+         do k = r%row_ptr(j), r%row_ptr(j + 1) - 1
+            s = s + rv(k)*res(r%col(k))
+         end do
+         bc(j) = s
+      end do
+      !$omp end parallel do
+   end subroutine restrict
+
+   !> x = x + P xc with P's pattern and the values `pv`.
+   subroutine prolong_add(p, pv, xc, x)
+      type(csr_t), intent(in) :: p
+      real(dp), intent(in) :: pv(:), xc(:)
+      real(dp), intent(inout) :: x(:)
+
+      integer(ip) :: i, k
+
+      !$omp parallel do default(none) shared(p, pv, xc, x) private(i, k) schedule(static) if(p%n > 4096)
+      do i = 1, p%n
+         do k = p%row_ptr(i), p%row_ptr(i + 1) - 1
+            x(i) = x(i) + pv(k)*xc(p%col(k))
+         end do
+      end do
+      !$omp end parallel do
+   end subroutine prolong_add
+
+   subroutine free(self)
+      class(multigrid_t), intent(inout) :: self
+
+      call self%coarse%free()
+      if (allocated(self%levels)) deallocate (self%levels)
+      self%top = -1
+      self%finest => null()
+      self%transfer => null()
+      self%failed = .false.
+   end subroutine free
+end module twomem_linalg_multigrid

@@ -1,0 +1,297 @@
+!> The multigrid preconditioner of the Newton system (DESIGN.md §5). With constant tensions the
+!> 3N×3N system of either C-function
+!>     μ1 K X1 − D X3 = r1,   μ2 K X2 + D X3 = r2,   a (X1 − X2) + b X3 = r3
+!> eliminates exactly into two SPD problems for S = μ1 X1 + μ2 X2 and w = X1 − X2
+!> (c_μ = 1/μ1 + 1/μ2):
+!>     K S = r1 + r2,
+!>     (K + c_μ D a/b) w = r1/μ1 − r2/μ2 + c_μ D r3/b   on rows with b ≠ 0 (a/b ≥ 0),
+!>     w = r3/a                                          on rows with b = 0 (fixed: contact),
+!> and then X3 = (r3 − a w)/b, or on fixed rows X3 = (K w − r1/μ1 + r2/μ2)/(c_μ D), and
+!> X1 = (S + μ2 w)/(μ1 + μ2), X2 = (S − μ1 w)/(μ1 + μ2). Applying this with one multigrid
+!> V-cycle for each SPD problem gives a preconditioner that would be the exact inverse with
+!> exact inner solves, so GMRES on the full system needs a few iterations at any mesh size,
+!> while its residual stays the full system's, which the estimators need. The S hierarchy is
+!> built once per mesh; the w operator changes with the Newton step through its diagonal and
+!> its fixed rows, and `setup` rebuilds its coarse levels (truncated at the fixed rows).
+module twomem_newton_elimination
+   use twomem_base_kinds, only: dp, ip
+   use twomem_base_errors, only: error_t, make_error, exit_io
+   use twomem_linalg_csr, only: csr_t
+   use twomem_linalg_operators, only: preconditioner_t
+   use twomem_linalg_multigrid, only: multigrid_t, multigrid_options_t, multigrid_transfer_t
+   use twomem_fem_discrete, only: discrete_problem_t
+   implicit none
+   private
+
+   public :: elimination_preconditioner_t
+
+   !> A row whose added diagonal c_μ D a/b exceeds this multiple of K's diagonal is treated as
+   !> fixed (w = r3/a): the difference is below round-off of the operator, and multigrid then
+   !> never sees a penalty-sized entry.
+   real(dp), parameter :: fixed_ratio = 1.0e12_dp
+
+   type, extends(preconditioner_t) :: elimination_preconditioner_t
+      integer(ip) :: n = 0
+      real(dp) :: mu1 = 1, mu2 = 1, c_mu = 2
+      real(dp), allocatable :: mass(:)
+      !> the problem's stiffness K (the problem outlives the preconditioner)
+      type(csr_t), pointer :: k => null()
+      !> the w-block operator K + c_μ D a/b with identity rows at fixed unknowns
+      type(csr_t) :: w_matrix
+      !> S-block (K) and w-block hierarchies
+      type(multigrid_t) :: s_mg, w_mg
+      !> the w-block's shift and fixed rows as last built: a Newton step that leaves them alone
+      !> (Newton-min once the active set is found) keeps the hierarchy
+      real(dp), allocatable :: shift(:)
+      logical :: built = .false.
+      !> the C-function rows of the current Newton matrix: a = ∂C/∂(u1 − u2), b = ∂C/∂λ
+      real(dp), allocatable :: a(:), b(:)
+      logical, allocatable :: fixed(:)
+      !> positions of the diagonals of K in its value array
+      integer(ip), allocatable :: diag(:)
+      !> work: the two right-hand sides, S, w and w's fixed values
+      real(dp), allocatable :: rhs_s(:), rhs_w(:), s(:), w(:), w_fixed(:)
+   contains
+      procedure :: init
+      procedure :: setup
+      procedure :: set_linearization
+      procedure :: apply
+      procedure :: failed
+   end type elimination_preconditioner_t
+
+contains
+
+   !> The hierarchies for problem p on the levels of `transfer` below p's mesh (none: both blocks
+   !> solved by UMFPACK, the exact elimination).
+   subroutine init(self, p, transfer, options, err)
+      class(elimination_preconditioner_t), intent(out) :: self
+      type(discrete_problem_t), target, intent(in) :: p
+      type(multigrid_transfer_t), target, intent(in) :: transfer
+      type(multigrid_options_t), intent(in) :: options
+      type(error_t), allocatable, intent(out) :: err
+
+      integer(ip) :: n, i
+      integer :: top
+
+      n = p%n
+      self%n = n
+      self%mu1 = p%mu1
+      self%mu2 = p%mu2
+      self%c_mu = 1/p%mu1 + 1/p%mu2
+      self%mass = p%mass
+      self%k => p%stiffness
+      top = transfer%level_of(n)
+      call self%s_mg%init(p%stiffness, transfer, top, options, .true., err)
+      if (allocated(err)) return
+      self%w_matrix = p%stiffness
+      call self%w_mg%init(self%w_matrix, transfer, top, options, .false., err, pattern_of=self%s_mg)
+      if (allocated(err)) return
+      allocate (self%diag(n))
+      do i = 1, n
+         self%diag(i) = p%stiffness%find(i, i)
+      end do
+      allocate (self%a(n), self%b(n), self%fixed(n), self%shift(n), self%rhs_s(n), self%rhs_w(n), self%s(n), &
+                self%w(n), self%w_fixed(n))
+      self%fixed = .false.
+      self%shift = 0.0_dp
+      self%built = .false.
+   end subroutine init
+
+   !> Read the C-function rows of an assembled Newton matrix (block order X1, X2, X3) and
+   !> rebuild the w-block operator and its coarse levels.
+   subroutine setup(self, a, err)
+      class(elimination_preconditioner_t), intent(inout) :: self
+      type(csr_t), intent(in) :: a
+      type(error_t), allocatable, intent(out) :: err
+
+      real(dp), allocatable :: da(:), db(:)
+      integer(ip) :: n, i
+
+      n = self%n
+      if (a%n /= 3*n) then
+         call make_error(err, exit_io, 'multigrid preconditioner', 'the matrix is not the Newton system it was built for')
+         return
+      end if
+      allocate (da(n), db(n))
+      do i = 1, n
+         da(i) = a%val(a%find(2*n + i, i))
+         db(i) = a%val(a%find(2*n + i, 2*n + i))
+      end do
+      call self%set_linearization(da, db, err)
+   end subroutine setup
+
+   !> The C-function Jacobian (a = ∂C/∂(u1 − u2), b = ∂C/∂λ per vertex) of the Newton step:
+   !> classify the rows (fixed where b = 0, or where the shift c_μ D a/b dwarfs K's diagonal)
+   !> and rebuild the w-block operator and its coarse levels, unless nothing changed.
+   subroutine set_linearization(self, da, db, err)
+      class(elimination_preconditioner_t), intent(inout) :: self
+      real(dp), intent(in) :: da(:), db(:)
+      type(error_t), allocatable, intent(out) :: err
+
+      integer(ip) :: i
+      logical :: fixed, changed
+
+      changed = .not. self%built
+      !$omp parallel do default(none) shared(self, da, db) private(i, fixed) reduction(.or.:changed) schedule(static)
+      do i = 1, self%n
+         self%a(i) = da(i)
+         self%b(i) = db(i)
+         if (db(i) == 0.0_dp) then
+            fixed = .true.
+         else
+            fixed = self%c_mu*self%mass(i)*da(i)/db(i) > fixed_ratio*self%k%val(self%diag(i))
+         end if
+         if (fixed) then
+            changed = changed .or. .not. self%fixed(i) .or. self%shift(i) /= 0.0_dp
+            self%shift(i) = 0.0_dp
+         else
+            changed = changed .or. self%fixed(i) .or. self%shift(i) /= self%c_mu*self%mass(i)*da(i)/db(i)
+            self%shift(i) = self%c_mu*self%mass(i)*da(i)/db(i)
+         end if
+         self%fixed(i) = fixed
+      end do
+      !$omp end parallel do
+      if (any(self%fixed .and. self%a == 0.0_dp)) then
+         call make_error(err, exit_io, 'multigrid preconditioner', 'a C-function row of the Newton matrix is zero')
+         return
+      end if
+      if (.not. changed) return
+      call fill_w_operator(self%k, self%diag, self%fixed, self%shift, self%w_matrix)
+      call self%w_mg%refresh(self%fixed, err)
+      self%built = .not. allocated(err)
+   end subroutine set_linearization
+
+   !> w_mat = K + diag(shift) with fixed rows replaced by identity rows and fixed columns cut out.
+   subroutine fill_w_operator(k_mat, diag, fixed, shift, w_mat)
+      type(csr_t), intent(in) :: k_mat
+      integer(ip), intent(in) :: diag(:)
+      logical, intent(in) :: fixed(:)
+      real(dp), intent(in) :: shift(:)
+      type(csr_t), intent(inout) :: w_mat
+
+      integer(ip) :: i, k
+
+      !$omp parallel do default(none) shared(k_mat, diag, fixed, shift, w_mat) private(i, k) schedule(static)
+      do i = 1, k_mat%n
+         do k = k_mat%row_ptr(i), k_mat%row_ptr(i + 1) - 1
+            if (fixed(i) .or. fixed(k_mat%col(k))) then
+               w_mat%val(k) = 0.0_dp
+            else
+               w_mat%val(k) = k_mat%val(k)
+            end if
+         end do
+         if (fixed(i)) then
+            w_mat%val(diag(i)) = 1.0_dp
+         else
+            w_mat%val(diag(i)) = w_mat%val(diag(i)) + shift(i)
+         end if
+      end do
+      !$omp end parallel do
+   end subroutine fill_w_operator
+
+   !> z ≈ A⁻¹ r by the block elimination with one V-cycle per SPD block.
+   subroutine apply(self, r, z)
+      class(elimination_preconditioner_t), intent(inout) :: self
+      real(dp), intent(in) :: r(:)
+      real(dp), intent(out) :: z(:)
+
+      call right_hand_sides(self%n, self%mu1, self%mu2, self%c_mu, self%mass, self%a, self%b, self%fixed, &
+                            self%k, r, self%rhs_s, self%rhs_w, self%w_fixed)
+      call self%s_mg%vcycle(self%rhs_s, self%s)
+      call self%w_mg%vcycle(self%rhs_w, self%w)
+      call add_fixed_values(self%w_fixed, self%w)
+      call back_substitute(self%n, self%mu1, self%mu2, self%c_mu, self%mass, self%a, self%b, self%fixed, &
+                           self%k, r, self%s, self%w, z)
+   end subroutine apply
+
+   !> rhs_s = r1 + r2; on free rows rhs_w = r1/μ1 − r2/μ2 + c_μ D r3/b − K_FC w_C, where w_C =
+   !> r3/a are the fixed values (zero elsewhere, and rhs_w = 0 on fixed rows).
+   subroutine right_hand_sides(n, mu1, mu2, c_mu, mass, a, b, fixed, k_mat, r, rhs_s, rhs_w, w_fixed)
+      integer(ip), intent(in) :: n
+      real(dp), intent(in) :: mu1, mu2, c_mu, mass(:), a(:), b(:)
+      logical, intent(in) :: fixed(:)
+      type(csr_t), intent(in) :: k_mat
+      real(dp), intent(in) :: r(:)
+      real(dp), intent(out) :: rhs_s(:), rhs_w(:), w_fixed(:)
+
+      integer(ip) :: i, k
+      real(dp) :: t
+
+      !$omp parallel default(none) shared(n, mu1, mu2, c_mu, mass, a, b, fixed, k_mat, r, rhs_s, rhs_w, w_fixed) &
+      !$omp private(i, k, t)
+      !$omp do schedule(static)
+      do i = 1, n
+         rhs_s(i) = r(i) + r(n + i)
+         if (fixed(i)) then
+            w_fixed(i) = r(2*n + i)/a(i)
+            rhs_w(i) = 0.0_dp
+         else
+            w_fixed(i) = 0.0_dp
+            rhs_w(i) = r(i)/mu1 - r(n + i)/mu2 + c_mu*mass(i)*r(2*n + i)/b(i)
+         end if
+      end do
+      !$omp end do
+      !$omp do schedule(static)
+      do i = 1, n
+         if (fixed(i)) cycle
+         t = 0.0_dp
+         do k = k_mat%row_ptr(i), k_mat%row_ptr(i + 1) - 1
+            t = t + k_mat%val(k)*w_fixed(k_mat%col(k))
+         end do
+         rhs_w(i) = rhs_w(i) - t
+      end do
+      !$omp end do
+      !$omp end parallel
+   end subroutine right_hand_sides
+
+   !> w = w + w_fixed (the cycle left the fixed rows at zero)
+   subroutine add_fixed_values(w_fixed, w)
+      real(dp), intent(in) :: w_fixed(:)
+      real(dp), intent(inout) :: w(:)
+
+      integer(ip) :: i
+
+      !$omp parallel do default(none) shared(w_fixed, w) private(i) schedule(static)
+      do i = 1, size(w, kind=ip)
+         w(i) = w(i) + w_fixed(i)
+      end do
+      !$omp end parallel do
+   end subroutine add_fixed_values
+
+   !> z from S and w: X3 from the C-function row (free) or from row (ii) (fixed), then X1, X2.
+   subroutine back_substitute(n, mu1, mu2, c_mu, mass, a, b, fixed, k_mat, r, s, w, z)
+      integer(ip), intent(in) :: n
+      real(dp), intent(in) :: mu1, mu2, c_mu, mass(:), a(:), b(:)
+      logical, intent(in) :: fixed(:)
+      type(csr_t), intent(in) :: k_mat
+      real(dp), intent(in) :: r(:), s(:), w(:)
+      real(dp), intent(out) :: z(:)
+
+      integer(ip) :: i, k
+      real(dp) :: kw
+
+      !$omp parallel do default(none) shared(n, mu1, mu2, c_mu, mass, a, b, fixed, k_mat, r, s, w, z) private(i, k, kw) &
+      !$omp schedule(static)
+      do i = 1, n
+         if (fixed(i)) then
+            kw = 0.0_dp
+            do k = k_mat%row_ptr(i), k_mat%row_ptr(i + 1) - 1
+               kw = kw + k_mat%val(k)*w(k_mat%col(k))
+            end do
+            z(2*n + i) = (kw - r(i)/mu1 + r(n + i)/mu2)/(c_mu*mass(i))
+         else
+            z(2*n + i) = (r(2*n + i) - a(i)*w(i))/b(i)
+         end if
+         z(i) = (s(i) + mu2*w(i))/(mu1 + mu2)
+         z(n + i) = (s(i) - mu1*w(i))/(mu1 + mu2)
+      end do
+      !$omp end parallel do
+   end subroutine back_substitute
+
+   !> A coarse solve failed after its factorization had succeeded (the cycles then return 0).
+   logical function failed(self)
+      class(elimination_preconditioner_t), intent(in) :: self
+
+      failed = self%s_mg%failed .or. self%w_mg%failed
+   end function failed
+end module twomem_newton_elimination

@@ -1,0 +1,110 @@
+!> What happens every ν GMRES iterations inside a Newton step: the current GMRES iterate gets a
+!> history row (its linearization and algebraic residuals, and whatever the run's observer
+!> computes: estimators, exact errors), and GMRES is stopped by the inexact method's test. With
+!> the paper's forcing that is ‖R_alg‖/‖B‖ ≤ ‖R_lin(x)‖/‖[F; 0]‖; in the adaptive method it is
+!> η_alg ≤ γ_alg max(η_disc, η_lin) (paper eq. (63a)) or its local form (64a). The Newton-level
+!> counterparts (63b)/(64b) live here too, so both of the paper's criteria sit in one place.
+module twomem_newton_inner
+   use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
+   use twomem_base_kinds, only: dp, ip
+   use twomem_base_timer, only: wall_time
+   use twomem_linalg_gmres, only: gmres_observer_t
+   use twomem_newton_residual, only: nonlinear_residual_t
+   use twomem_newton_history, only: history_t, history_row_t, not_computed
+   implicit none
+   private
+
+   public :: newton_observer_t, inner_observer_t, alg_criterion, lin_criterion
+
+   !> Extension point: fill the error/estimator columns of a history row for iterate x.
+   type, abstract :: newton_observer_t
+   contains
+      procedure(observe_interface), deferred :: observe
+   end type newton_observer_t
+
+   abstract interface
+      subroutine observe_interface(self, x, row)
+         import :: newton_observer_t, history_row_t, dp
+         class(newton_observer_t), intent(inout) :: self
+         real(dp), intent(in) :: x(:)
+         type(history_row_t), intent(inout) :: row
+      end subroutine observe_interface
+   end interface
+
+   !> GMRES's observer inside Newton step `newton_it`.
+   type, extends(gmres_observer_t) :: inner_observer_t
+      type(nonlinear_residual_t), pointer :: residual => null()
+      type(history_t), pointer :: history => null()
+      class(newton_observer_t), pointer :: user => null()
+      logical :: paper_forcing = .true., adaptive = .false., local_criteria = .false.
+      real(dp) :: gamma_alg = 0.3_dp
+      integer :: newton_it = 0, gmres_before = 0
+      real(dp) :: b_norm = 1.0_dp, t0 = 0.0_dp
+      !> work: C and its Jacobian at the GMRES iterate
+      real(dp), allocatable :: c(:), da(:), db(:)
+   contains
+      procedure :: observe => observe_gmres
+   end type inner_observer_t
+
+contains
+
+   !> Record the GMRES iterate x and decide whether GMRES stops here.
+   subroutine observe_gmres(self, iteration, x, residual_norm, stop)
+      class(inner_observer_t), intent(inout) :: self
+      integer, intent(in) :: iteration
+      real(dp), intent(in) :: x(:)
+      real(dp), intent(in) :: residual_norm
+      logical, intent(out) :: stop
+
+      type(history_row_t) :: row
+      integer(ip) :: n
+
+      n = size(x, kind=ip)/3
+      if (.not. allocated(self%c)) allocate (self%c(n), self%da(n), self%db(n))
+      row = not_computed()
+      call self%residual%relative(x, row%lin_residual, self%c, self%da, self%db)
+      row%alg_residual = residual_norm/self%b_norm
+      row%newton_it = self%newton_it
+      row%gmres_it = self%gmres_before + iteration
+      row%active = count(x(1:n) - x(n + 1:2*n) <= x(2*n + 1:))
+      row%inner = .true.
+      row%step = ieee_value(1.0_dp, ieee_quiet_nan)
+      row%active_changed = -1
+      if (associated(self%user)) call self%user%observe(x, row)
+      row%wall_time = wall_time() - self%t0
+      call self%history%append(row)
+      ! For Newton-min, once GMRES's iterate has the Jacobian's contact set, B − A x and R_lin(x)
+      ! are the same vector computed two ways: the slack keeps round-off from deciding the tie.
+      if (self%adaptive) then
+         stop = alg_criterion(row, self%gamma_alg, self%local_criteria)
+      else
+         stop = self%paper_forcing .and. row%alg_residual <= row%lin_residual*(1 + 1.0e-8_dp)
+      end if
+   end subroutine observe_gmres
+
+   !> The paper's GMRES stop (63a), η_alg ≤ γ_alg max(η_disc, η_lin), or its local form (64a).
+   pure logical function alg_criterion(row, gamma_alg, local) result(ok)
+      type(history_row_t), intent(in) :: row
+      real(dp), intent(in) :: gamma_alg
+      logical, intent(in) :: local
+
+      if (local) then
+         ok = row%local_alg_ok
+      else
+         ok = row%eta_alg <= gamma_alg*max(row%eta_disc, row%eta_lin)
+      end if
+   end function alg_criterion
+
+   !> The paper's Newton stop (63b), η_lin ≤ γ_lin η_disc, or its local form (64b).
+   pure logical function lin_criterion(row, gamma_lin, local) result(ok)
+      type(history_row_t), intent(in) :: row
+      real(dp), intent(in) :: gamma_lin
+      logical, intent(in) :: local
+
+      if (local) then
+         ok = row%local_lin_ok
+      else
+         ok = row%eta_lin <= gamma_lin*row%eta_disc
+      end if
+   end function lin_criterion
+end module twomem_newton_inner

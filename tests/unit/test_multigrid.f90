@@ -1,0 +1,395 @@
+!> Multigrid and the block-elimination preconditioner against independent computations: the
+!> Galerkin product against dense Pᵀ A P (truncated at fixed unknowns) and, for the Laplacian,
+!> against the stiffness matrix assembled on the coarse mesh; the V-cycle's contraction on the
+!> Poisson problem at several mesh sizes; truncation (fixed unknowns never move); the
+!> elimination without coarsening against UMFPACK on the assembled Newton matrix; and GMRES
+!> iteration counts with the preconditioner for both C-functions as the mesh is refined.
+module test_multigrid
+   use twomem_base_kinds, only: dp, ip, i8
+   use twomem_linalg_csr, only: csr_t
+   use twomem_linalg_galerkin, only: galerkin_pattern, galerkin_values, truncate_transfer
+   use twomem_linalg_multigrid, only: multigrid_t, multigrid_options_t, multigrid_transfer_t
+   use twomem_linalg_umfpack, only: umfpack_solver_t
+   use twomem_linalg_operators, only: euclidean_product_t
+   use twomem_linalg_gmres, only: gmres_solve, gmres_options_t, gmres_monitor_t
+   use twomem_mesh_hierarchy, only: mesh_hierarchy_t
+   use twomem_fem_problem, only: constant_data_t
+   use twomem_fem_discrete, only: discrete_problem_t
+   use twomem_fem_transfer, only: interior_prolongation, interior_prolongations
+   use twomem_newton_system, only: newton_system_t, newton_operator_t
+   use twomem_newton_elimination, only: elimination_preconditioner_t
+   use twomem_testing, only: unittest_t, new_unittest, check, check_close, error_t
+   use test_refinement, only: square_hierarchy
+   implicit none
+   private
+
+   public :: collect_multigrid
+
+contains
+
+   subroutine collect_multigrid(tests)
+      type(unittest_t), allocatable, intent(out) :: tests(:)
+
+      tests = [new_unittest('galerkin_matches_dense_truncated_product', test_galerkin_dense), &
+               new_unittest('galerkin_of_p1_laplacian_is_coarse_stiffness', test_galerkin_rediscretizes), &
+               new_unittest('vcycle_contraction_is_mesh_independent', test_vcycle_contraction), &
+               new_unittest('vcycle_never_moves_fixed_unknowns', test_vcycle_fixed), &
+               new_unittest('elimination_without_coarsening_is_exact', test_elimination_exact), &
+               new_unittest('gmres_with_multigrid_iterations_bounded', test_gmres_iterations)]
+   end subroutine collect_multigrid
+
+   subroutine fill_random(state, v)
+      integer(i8), intent(inout) :: state
+      real(dp), intent(out) :: v(:)
+
+      integer :: i
+
+      do i = 1, size(v)
+         state = mod(16807_i8*state, 2147483647_i8)
+         v(i) = 2.0_dp*real(state, dp)/2147483647.0_dp - 1.0_dp
+      end do
+   end subroutine fill_random
+
+   function dense(a) result(d)
+      type(csr_t), intent(in) :: a
+      real(dp), allocatable :: d(:, :)
+
+      integer(ip) :: i, k
+
+      allocate (d(a%n, a%ncol))
+      d = 0.0_dp
+      do i = 1, a%n
+         do k = a%row_ptr(i), a%row_ptr(i + 1) - 1
+            d(i, a%col(k)) = d(i, a%col(k)) + a%val(k)
+         end do
+      end do
+   end function dense
+
+   !> The Laplacian on the square refined `levels` times, with a vertex-dependent positive shift
+   !> on the diagonal, and the prolongation from the level below.
+   subroutine shifted_problem(levels, h, p, prolongation, err)
+      integer, intent(in) :: levels
+      type(mesh_hierarchy_t), intent(out) :: h
+      type(discrete_problem_t), intent(out) :: p
+      type(csr_t), intent(out) :: prolongation
+      type(error_t), allocatable, intent(out) :: err
+
+      type(constant_data_t) :: data
+
+      call square_hierarchy(levels, h, err)
+      if (allocated(err)) return
+      call p%init(h%meshes(levels), data, err)
+      if (allocated(err)) return
+      prolongation = interior_prolongation(h, levels)
+   end subroutine shifted_problem
+
+   !> a with rows and columns of `fixed` replaced by identity rows and zero columns.
+   subroutine dirichlet_rows(a, fixed)
+      type(csr_t), intent(inout) :: a
+      logical, intent(in) :: fixed(:)
+
+      integer(ip) :: i, k
+
+      do i = 1, a%n
+         do k = a%row_ptr(i), a%row_ptr(i + 1) - 1
+            if (fixed(i) .or. fixed(a%col(k))) a%val(k) = merge(1.0_dp, 0.0_dp, fixed(i) .and. a%col(k) == i)
+         end do
+      end do
+   end subroutine dirichlet_rows
+
+   subroutine test_galerkin_dense(err)
+      type(error_t), allocatable, intent(out) :: err
+      type(mesh_hierarchy_t) :: h
+      type(discrete_problem_t) :: p
+      type(csr_t) :: pr, r, a, c
+      real(dp), allocatable :: pd(:, :), ad(:, :), cd(:, :), pt(:), rt(:)
+      logical, allocatable :: fine_fixed(:), coarse_fixed(:)
+      integer(ip), allocatable :: injection(:)
+      integer(ip) :: i, j
+
+      call shifted_problem(3, h, p, pr, err)
+      if (allocated(err)) return
+      r = pr%transposed()
+      a = p%stiffness
+      do i = 1, a%n
+         a%val(a%find(i, i)) = a%val(a%find(i, i)) + 0.1_dp*mod(i, 5)
+      end do
+      ! fixed: the left half of the square and every seventh unknown
+      allocate (fine_fixed(a%n), coarse_fixed(pr%ncol), injection(pr%ncol))
+      do i = 1, a%n
+         fine_fixed(i) = h%meshes(3)%vertices(1, p%interior(i)) < -0.3_dp .or. mod(i, 7) == 0
+      end do
+      do i = 1, pr%n
+         if (pr%row_ptr(i + 1) - pr%row_ptr(i) == 1 .and. pr%val(pr%row_ptr(i)) == 1.0_dp) &
+            injection(pr%col(pr%row_ptr(i))) = i
+      end do
+      coarse_fixed = fine_fixed(injection)
+      call dirichlet_rows(a, fine_fixed)
+      call galerkin_pattern(r, a, pr, c)
+      allocate (pt(pr%nnz()), rt(r%nnz()))
+      call truncate_transfer(pr, r, fine_fixed, coarse_fixed, pt, rt)
+      call galerkin_values(r, rt, a, pr, pt, coarse_fixed, c)
+
+      ! the same product with dense matrices
+      pd = dense(pr)
+      do i = 1, pr%n
+         do j = 1, pr%ncol
+            if (fine_fixed(i) .or. coarse_fixed(j)) pd(i, j) = 0.0_dp
+         end do
+      end do
+      ad = dense(a)
+      cd = matmul(transpose(pd), matmul(ad, pd))
+      do i = 1, pr%ncol
+         if (coarse_fixed(i) .or. .not. cd(i, i) > 0.0_dp) then
+            cd(i, :) = 0.0_dp
+            cd(i, i) = 1.0_dp
+         end if
+      end do
+      call check(err, count(coarse_fixed) > 0 .and. count(.not. coarse_fixed) > 0, 'both kinds of coarse unknown')
+      call check(err, maxval(abs(dense(c) - cd)) <= 1.0e-14_dp*maxval(abs(cd)), 'sparse and dense products agree')
+      call check(err, maxval(abs(dense(c) - transpose(dense(c)))) <= 1.0e-14_dp*maxval(abs(cd)), 'symmetric')
+   end subroutine test_galerkin_dense
+
+   !> Nested P1 spaces: the coarse stiffness is the fine one restricted to coarse functions.
+   subroutine test_galerkin_rediscretizes(err)
+      type(error_t), allocatable, intent(out) :: err
+      type(mesh_hierarchy_t) :: h
+      type(discrete_problem_t) :: p, pc
+      type(constant_data_t) :: data
+      type(csr_t) :: pr, r, c
+      logical, allocatable :: none(:)
+
+      call shifted_problem(4, h, p, pr, err)
+      if (allocated(err)) return
+      call pc%init(h%meshes(3), data, err)
+      if (allocated(err)) return
+      r = pr%transposed()
+      call galerkin_pattern(r, p%stiffness, pr, c)
+      allocate (none(pr%ncol))
+      none = .false.
+      call galerkin_values(r, r%val, p%stiffness, pr, pr%val, none, c)
+      call check(err, maxval(abs(dense(c) - dense(pc%stiffness))) <= 1.0e-13_dp, &
+                 'Pᵀ K_fine P equals K assembled on the coarse mesh')
+   end subroutine test_galerkin_rediscretizes
+
+   !> Richardson with one V-cycle per step on K u = b: the mean contraction over 8 steps.
+   real(dp) function contraction(mg, a) result(rate)
+      type(multigrid_t), intent(inout) :: mg
+      type(csr_t), intent(in) :: a
+
+      real(dp), allocatable :: x_true(:), b(:), x(:), r(:), z(:)
+      real(dp) :: e0
+      integer(i8) :: state
+      integer :: it
+
+      allocate (x_true(a%n), b(a%n), x(a%n), r(a%n), z(a%n))
+      state = 42_i8
+      call fill_random(state, x_true)
+      call a%matvec(x_true, b)
+      x = 0.0_dp
+      e0 = norm2(x_true)
+      do it = 1, 8
+         call a%residual(b, x, r)
+         call mg%vcycle(r, z)
+         x = x + z
+      end do
+      rate = (norm2(x - x_true)/e0)**(1.0_dp/8)
+   end function contraction
+
+   subroutine test_vcycle_contraction(err)
+      type(error_t), allocatable, intent(out) :: err
+      type(mesh_hierarchy_t) :: h
+      type(discrete_problem_t), target :: p
+      type(constant_data_t) :: data
+      type(multigrid_transfer_t), target :: transfer
+      type(multigrid_t) :: mg
+      type(multigrid_options_t) :: options
+      real(dp) :: rates(3)
+      integer :: k, levels
+      character(len=64) :: msg
+
+      do k = 1, 3
+         levels = 2*k + 1
+         call square_hierarchy(levels, h, err)
+         if (allocated(err)) return
+         call p%init(h%meshes(levels), data, err)
+         if (allocated(err)) return
+         call transfer%init(interior_prolongations(h, levels), err)
+         if (allocated(err)) return
+         call mg%init(p%stiffness, transfer, levels, options, .true., err)
+         if (allocated(err)) return
+         rates(k) = contraction(mg, p%stiffness)
+      end do
+      write (msg, '("rates ",3f7.4)') rates
+      call check(err, all(rates < 0.2_dp), 'a V-cycle reduces the error at least fivefold: '//trim(msg))
+      ! coarse meshes lack the smoothest modes; from level 5 on the rate has settled
+      call check(err, rates(3) < 1.15_dp*rates(2), 'the rate does not grow with the mesh: '//trim(msg))
+   end subroutine test_vcycle_contraction
+
+   subroutine test_vcycle_fixed(err)
+      type(error_t), allocatable, intent(out) :: err
+      type(mesh_hierarchy_t) :: h
+      type(discrete_problem_t), target :: p
+      type(constant_data_t) :: data
+      type(multigrid_transfer_t), target :: transfer
+      type(multigrid_t) :: mg
+      type(multigrid_options_t) :: options
+      type(csr_t), target :: a
+      logical, allocatable :: fixed(:)
+      real(dp), allocatable :: b(:), z(:)
+      integer(i8) :: state
+      integer(ip) :: i
+      real(dp) :: rate
+      character(len=32) :: msg
+
+      call square_hierarchy(5, h, err)
+      if (allocated(err)) return
+      call p%init(h%meshes(5), data, err)
+      if (allocated(err)) return
+      call transfer%init(interior_prolongations(h, 5), err)
+      if (allocated(err)) return
+      a = p%stiffness
+      allocate (fixed(a%n))
+      do i = 1, a%n
+         fixed(i) = h%meshes(5)%vertices(1, p%interior(i)) < -0.2_dp .or. mod(i, 11) == 0
+         a%val(a%find(i, i)) = a%val(a%find(i, i)) + 0.5_dp*mod(i, 3)
+      end do
+      call dirichlet_rows(a, fixed)
+      call mg%init(a, transfer, 5, options, .false., err)
+      if (allocated(err)) return
+      call mg%refresh(fixed, err)
+      if (allocated(err)) return
+      allocate (b(a%n), z(a%n))
+      state = 7_i8
+      call fill_random(state, b)
+      b = merge(0.0_dp, b, fixed)
+      call mg%vcycle(b, z)
+      call check(err, all(merge(z, 0.0_dp, fixed) == 0.0_dp), 'fixed unknowns stay exactly zero')
+      rate = contraction(mg, a)
+      write (msg, '("rate ",f7.4)') rate
+      call check(err, rate < 0.3_dp, 'the truncated hierarchy still converges fast: '//trim(msg))
+   end subroutine test_vcycle_fixed
+
+   !> Newton matrix of the square problem for a Newton-min (fb = .false.) or Fischer–Burmeister
+   !> linearization with a contact region in the left half.
+   subroutine newton_matrix(levels, fb, h, p, sys, err)
+      integer, intent(in) :: levels
+      logical, intent(in) :: fb
+      type(mesh_hierarchy_t), intent(out) :: h
+      type(discrete_problem_t), target, intent(out) :: p
+      type(newton_system_t), intent(inout) :: sys
+      type(error_t), allocatable, intent(out) :: err
+
+      type(constant_data_t) :: data
+      real(dp), allocatable :: da(:), db(:)
+      logical, allocatable :: active(:)
+      integer(ip) :: i
+
+      call square_hierarchy(levels, h, err)
+      if (allocated(err)) return
+      data%mu1 = 1.0_dp
+      data%mu2 = 4.0_dp
+      call p%init(h%meshes(levels), data, err)
+      if (allocated(err)) return
+      call sys%init(p, .true.)
+      allocate (active(p%n), da(p%n), db(p%n))
+      do i = 1, p%n
+         active(i) = h%meshes(levels)%vertices(1, p%interior(i)) < 0.0_dp .or. mod(i, 13) == 0
+      end do
+      if (fb) then
+         ! a spread of Fischer–Burmeister rows, from nearly active to nearly inactive
+         do i = 1, p%n
+            da(i) = merge(-0.9_dp, -0.05_dp, active(i)) - 0.01_dp*mod(i, 3)
+            db(i) = merge(-0.02_dp, -0.8_dp, active(i))
+         end do
+         da(1) = -1.0_dp
+         db(1) = 0.0_dp
+      else
+         da = merge(1.0_dp, 0.0_dp, active)
+         db = merge(0.0_dp, 1.0_dp, active)
+      end if
+      call sys%set_jacobian(da, db)
+   end subroutine newton_matrix
+
+   subroutine test_elimination_exact(err)
+      type(error_t), allocatable, intent(out) :: err
+      type(mesh_hierarchy_t) :: h
+      type(discrete_problem_t), target :: p
+      type(newton_system_t) :: sys
+      type(multigrid_transfer_t), target :: none
+      type(elimination_preconditioner_t) :: prec
+      type(multigrid_options_t) :: options
+      real(dp), allocatable :: r(:), z(:), az(:)
+      integer(i8) :: state
+      integer :: k
+      character(len=48) :: msg
+
+      call none%init([csr_t ::], err)
+      if (allocated(err)) return
+      do k = 1, 2
+         call newton_matrix(3, k == 2, h, p, sys, err)
+         if (allocated(err)) return
+         call prec%init(p, none, options, err)
+         if (allocated(err)) return
+         ! through the assembled matrix's C-rows, the path of setup(a)
+         call prec%setup(sys%a, err)
+         if (allocated(err)) return
+         allocate (r(3*p%n), z(3*p%n), az(3*p%n))
+         state = 99_i8
+         call fill_random(state, r)
+         call prec%apply(r, z)
+         call sys%a%matvec(z, az)
+         write (msg, '("relative residual ",es9.2)') norm2(az - r)/norm2(r)
+         call check(err, norm2(az - r) <= 1.0e-11_dp*norm2(r), &
+                    trim(merge('Fischer-Burmeister', 'Newton-min        ', k == 2))//': exact inverse, '//trim(msg))
+         deallocate (r, z, az)
+      end do
+   end subroutine test_elimination_exact
+
+   subroutine test_gmres_iterations(err)
+      type(error_t), allocatable, intent(out) :: err
+      type(mesh_hierarchy_t) :: h
+      type(discrete_problem_t), target :: p
+      type(newton_system_t), target :: sys
+      type(newton_operator_t) :: op
+      type(multigrid_transfer_t), target :: transfer
+      type(elimination_preconditioner_t) :: prec
+      type(multigrid_options_t) :: mg_options
+      type(gmres_options_t) :: options
+      type(gmres_monitor_t) :: monitor
+      type(euclidean_product_t) :: dot
+      real(dp), allocatable :: b(:), x(:), ax(:)
+      integer(i8) :: state
+      integer :: k, levels, its(2, 2)
+      character(len=64) :: msg
+
+      options%rtol = 1.0e-10_dp
+      do k = 1, 2
+         do levels = 3, 5, 2
+            call newton_matrix(levels, k == 2, h, p, sys, err)
+            if (allocated(err)) return
+            call transfer%init(interior_prolongations(h, levels), err)
+            if (allocated(err)) return
+            call prec%init(p, transfer, mg_options, err)
+            if (allocated(err)) return
+            call prec%set_linearization(sys%da, sys%db, err)
+            if (allocated(err)) return
+            op%sys => sys
+            allocate (b(3*p%n), x(3*p%n), ax(3*p%n))
+            state = 5_i8
+            call fill_random(state, b)
+            x = 0.0_dp
+            call gmres_solve(op, prec, dot, b, x, options, monitor, err)
+            if (allocated(err)) return
+            call sys%a%matvec(x, ax)
+            call check(err, norm2(ax - b) <= 1.0e-9_dp*norm2(b), 'GMRES reaches the tolerance (true residual)')
+            its(k, (levels - 1)/2) = monitor%iterations
+            deallocate (b, x, ax)
+         end do
+      end do
+      write (msg, '("iterations (min: ",i0,", ",i0,"; fb: ",i0,", ",i0,")")') its(1, :), its(2, :)
+      call check(err, all(its <= 12), 'at most 12 iterations to 1e-10: '//trim(msg))
+      call check(err, its(1, 2) <= its(1, 1) + 2 .and. its(2, 2) <= its(2, 1) + 2, &
+                 'the count does not grow with the mesh: '//trim(msg))
+   end subroutine test_gmres_iterations
+end module test_multigrid
