@@ -3,6 +3,7 @@
 !> Laplacian, and the behaviour the Newton solvers rely on: observer iterates, stopping
 !> reasons, breakdown, preconditioning, absolute tolerances.
 module test_gmres
+   use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
    use twomem_base_kinds, only: dp, ip
    use twomem_linalg_csr, only: csr_t
    use twomem_linalg_operators, only: linear_operator_t, preconditioner_t, inner_product_t, &
@@ -80,6 +81,7 @@ contains
                new_unittest('estimate_ahead_of_true_residual', test_inexact), &
                new_unittest('reorthogonalization_option', test_reorth), &
                new_unittest('zero_rhs', test_zero_rhs), &
+               new_unittest('nan_rhs_is_a_breakdown', test_nan_rhs), &
                new_unittest('workspace_reuse', test_workspace), &
                new_unittest('misuse_is_error', test_misuse)]
    end subroutine collect_gmres
@@ -654,6 +656,28 @@ contains
       call check(err, all(x == 0) .and. mon%converged .and. mon%iterations == 0, 'x = 0, converged')
       call check(err, size(mon%residual_history) == 1, 'history holds the initial residual')
    end subroutine test_zero_rhs
+
+   !> A NaN in b must never end as 'converged' (its norm must not be taken for zero).
+   subroutine test_nan_rhs(err)
+      type(error_t), allocatable, intent(out) :: err
+      type(csr_t), target :: a
+      type(csr_operator_t) :: op
+      type(identity_preconditioner_t) :: id
+      type(euclidean_product_t) :: dot
+      real(dp) :: x(100), b(100)
+      type(gmres_options_t) :: opt
+      type(gmres_monitor_t) :: mon
+
+      call laplacian(10_ip, a)
+      op%a => a
+      x = 1.0_dp
+      b = 1.0_dp
+      b(37) = ieee_value(1.0_dp, ieee_quiet_nan)
+      call gmres_solve(op, id, dot, b, x, opt, mon, err)
+      if (allocated(err)) return
+      call check(err, .not. mon%converged .and. mon%reason == 'breakdown', 'NaN right-hand side: breakdown, got '//mon%reason)
+      call check(err, all(x == 1.0_dp), 'x left as it was')
+   end subroutine test_nan_rhs
 
    !> One workspace across solves (and a change of m) gives the same answers as none.
    subroutine test_workspace(err)

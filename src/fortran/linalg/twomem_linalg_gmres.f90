@@ -223,7 +223,14 @@ contains
       integer :: it, outcome, cycles, stalled
       logical :: stop
 
-      if (dot%norm(b) == 0) then
+      if (.not. ieee_is_finite(dot%norm(b))) then
+         ! a NaN or infinite right-hand side: nothing to solve, and nothing may be called converged
+         mon%residual_history = [dot%norm(b)]
+         mon%initial_residual = dot%norm(b)
+         mon%final_residual = dot%norm(b)
+         call finish(mon, 'breakdown')
+         return
+      else if (dot%norm(b) == 0) then
          ! x = 0 is exact whatever the guess; no operator application is needed
          x = 0.0_dp
          mon%residual_history = [0.0_dp]

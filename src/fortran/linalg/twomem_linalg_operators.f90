@@ -4,6 +4,7 @@
 !> product and a halo-exchanging operator), and new preconditioners (multigrid) plug in
 !> without touching it.
 module twomem_linalg_operators
+   use, intrinsic :: ieee_arithmetic, only: ieee_is_nan
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t
    use twomem_linalg_csr, only: csr_t
@@ -84,11 +85,19 @@ module twomem_linalg_operators
 
 contains
 
+   !> sqrt(x·x); NaN stays NaN (max(0, NaN) may well be 0, which would call a NaN vector zero)
    real(dp) function norm(self, x)
       class(inner_product_t), intent(in) :: self
       real(dp), intent(in) :: x(:)
 
-      norm = sqrt(max(0.0_dp, self%dot(x, x)))
+      real(dp) :: d
+
+      d = self%dot(x, x)
+      if (ieee_is_nan(d)) then
+         norm = d
+      else
+         norm = sqrt(max(0.0_dp, d))
+      end if
    end function norm
 
    subroutine csr_apply(self, x, y)

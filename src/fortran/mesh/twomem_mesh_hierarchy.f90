@@ -7,7 +7,7 @@
 module twomem_mesh_hierarchy
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t
-   use twomem_mesh_triangulation, only: mesh_t
+   use twomem_mesh_triangulation, only: mesh_t, signed_area
    implicit none
    private
 
@@ -80,39 +80,179 @@ contains
       end associate
    end subroutine prolong
 
+   !> The red refinement of `coarse`, with everything `mesh_t%init` would derive built directly
+   !> from the parent in parallel loops: children of a valid mesh are valid (counter-clockwise,
+   !> conforming, none degenerate), so there is nothing to check and nothing to search. New
+   !> vertex nv_c + e is the midpoint of coarse edge e; coarse edge e = (a, b) splits into edges
+   !> 2e − 1 = (a, m) and 2e = (b, m); the three edges inside coarse triangle t follow, the one
+   !> opposite its corner i numbered 2 ne_c + 3(t − 1) + i. Patches list triangles in ascending
+   !> order, as `mesh_t%init` does, so assembly sums in the same order on every mesh.
    subroutine refine_red(coarse, fine, map, err)
       type(mesh_t), intent(in) :: coarse
       type(mesh_t), intent(inout) :: fine
       type(refinement_map_t), intent(out) :: map
       type(error_t), allocatable, intent(out) :: err
 
-      real(dp), allocatable :: vertices(:, :)
-      integer(ip), allocatable :: triangles(:, :)
-      integer(ip) :: nv, a, e, t, m(3), v(3)
+      integer(ip) :: nvc, nec, ntc, a, e, t, i, k, m(3), v(3), child
+      integer(ip) :: half(3, 3)
 
-      nv = coarse%nv + coarse%ne
-      allocate (vertices(2, nv), triangles(3, 4*coarse%nt))
-      allocate (map%vertex_parents(2, nv), map%triangle_parent(4*coarse%nt))
-      do a = 1, coarse%nv
-         vertices(:, a) = coarse%vertices(:, a)
+      call fine%free()
+      nvc = coarse%nv
+      nec = coarse%ne
+      ntc = coarse%nt
+      fine%nv = nvc + nec
+      fine%nt = 4*ntc
+      fine%ne = 2*nec + 3*ntc
+      fine%diameter = coarse%diameter
+      fine%n_flipped = 0
+      allocate (fine%vertices(2, fine%nv), fine%triangles(3, fine%nt), fine%edges(2, fine%ne), &
+                fine%triangle_edges(3, fine%nt), fine%edge_triangles(2, fine%ne), fine%boundary_vertex(fine%nv), &
+                fine%boundary_edge(fine%ne), fine%area(fine%nt), fine%h(fine%nt))
+      allocate (map%vertex_parents(2, fine%nv), map%triangle_parent(fine%nt))
+
+      !$omp parallel default(none) shared(coarse, fine, map, nvc, nec, ntc) private(a, e, t, i, k, m, v, child, half)
+      !$omp do schedule(static)
+      do a = 1, nvc
+         fine%vertices(:, a) = coarse%vertices(:, a)
+         fine%boundary_vertex(a) = coarse%boundary_vertex(a)
          map%vertex_parents(:, a) = a
       end do
-      do e = 1, coarse%ne
+      !$omp end do nowait
+      !$omp do schedule(static)
+      do e = 1, nec
          associate (ends => coarse%edges(:, e))
-            vertices(:, coarse%nv + e) = 0.5_dp*(coarse%vertices(:, ends(1)) + coarse%vertices(:, ends(2)))
-            map%vertex_parents(:, coarse%nv + e) = ends
+            fine%vertices(:, nvc + e) = 0.5_dp*(coarse%vertices(:, ends(1)) + coarse%vertices(:, ends(2)))
+            fine%boundary_vertex(nvc + e) = coarse%boundary_edge(e)
+            map%vertex_parents(:, nvc + e) = ends
+            fine%edges(:, 2*e - 1) = [ends(1), nvc + e]
+            fine%edges(:, 2*e) = [ends(2), nvc + e]
+            fine%boundary_edge(2*e - 1:2*e) = coarse%boundary_edge(e)
+            ! the children at each end of the edge, on either side of it
+            do k = 1, 2
+               t = coarse%edge_triangles(k, e)
+               if (t == 0) then
+                  fine%edge_triangles(k, 2*e - 1:2*e) = 0
+               else
+                  fine%edge_triangles(k, 2*e - 1) = 4*(t - 1) + findloc(coarse%triangles(:, t), ends(1), dim=1)
+                  fine%edge_triangles(k, 2*e) = 4*(t - 1) + findloc(coarse%triangles(:, t), ends(2), dim=1)
+               end if
+            end do
          end associate
       end do
-      do t = 1, coarse%nt
+      ! a barrier: the triangle loop measures children, so it needs every vertex set
+      !$omp end do
+      !$omp do schedule(static)
+      do t = 1, ntc
          v = coarse%triangles(:, t)
          ! m(i) is the midpoint of the edge opposite vertex i
-         m = coarse%nv + coarse%triangle_edges(:, t)
-         triangles(:, 4*t - 3) = [v(1), m(3), m(2)]
-         triangles(:, 4*t - 2) = [m(3), v(2), m(1)]
-         triangles(:, 4*t - 1) = [m(2), m(1), v(3)]
-         triangles(:, 4*t) = [m(1), m(2), m(3)]
+         m = nvc + coarse%triangle_edges(:, t)
+         fine%triangles(:, 4*t - 3) = [v(1), m(3), m(2)]
+         fine%triangles(:, 4*t - 2) = [m(3), v(2), m(1)]
+         fine%triangles(:, 4*t - 1) = [m(2), m(1), v(3)]
+         fine%triangles(:, 4*t) = [m(1), m(2), m(3)]
          map%triangle_parent(4*t - 3:4*t) = t
+         ! half(j, i): the fine half of the coarse edge opposite corner j that touches corner i
+         do i = 1, 3
+            do k = 1, 3
+               if (k == i) cycle
+               e = coarse%triangle_edges(k, t)
+               half(k, i) = merge(2*e - 1, 2*e, coarse%edges(1, e) == v(i))
+            end do
+         end do
+         ! inner edge opposite corner i: between the other two midpoints; child i and the middle one
+         do i = 1, 3
+            e = 2*nec + 3*(t - 1) + i
+            associate (p => m(modulo(i, 3) + 1), q => m(modulo(i + 1, 3) + 1))
+               fine%edges(:, e) = [min(p, q), max(p, q)]
+            end associate
+            fine%boundary_edge(e) = .false.
+            fine%edge_triangles(:, e) = [4*(t - 1) + i, 4*t]
+         end do
+         child = 4*t - 3
+         fine%triangle_edges(:, child) = [2*nec + 3*(t - 1) + 1, half(2, 1), half(3, 1)]
+         child = 4*t - 2
+         fine%triangle_edges(:, child) = [half(1, 2), 2*nec + 3*(t - 1) + 2, half(3, 2)]
+         child = 4*t - 1
+         fine%triangle_edges(:, child) = [half(1, 3), half(2, 3), 2*nec + 3*(t - 1) + 3]
+         fine%triangle_edges(:, 4*t) = 2*nec + 3*(t - 1) + [1, 2, 3]
+         do k = 4*t - 3, 4*t
+            call measure(fine, k)
+         end do
       end do
-      call fine%init(vertices, triangles, 'red refinement', err, diameter=coarse%diameter)
+      !$omp end do
+      !$omp end parallel
+      call refined_patches(coarse, fine)
    end subroutine refine_red
+
+   !> Area and diameter of triangle t, computed as `mesh_t%init` computes them.
+   subroutine measure(mesh, t)
+      type(mesh_t), intent(inout) :: mesh
+      integer(ip), intent(in) :: t
+
+      associate (v => mesh%triangles(:, t))
+         mesh%h(t) = max(norm2(mesh%vertices(:, v(2)) - mesh%vertices(:, v(1))), &
+                         norm2(mesh%vertices(:, v(3)) - mesh%vertices(:, v(2))), &
+                         norm2(mesh%vertices(:, v(1)) - mesh%vertices(:, v(3))))
+         mesh%area(t) = abs(signed_area(mesh%vertices(:, v(1)), mesh%vertices(:, v(2)), mesh%vertices(:, v(3))))
+      end associate
+   end subroutine measure
+
+   !> The fine patches: a coarse vertex keeps its coarse patch's corner children; an edge
+   !> midpoint gets the three children of each coarse triangle beside the edge that touch it.
+   subroutine refined_patches(coarse, fine)
+      type(mesh_t), intent(in) :: coarse
+      type(mesh_t), intent(inout) :: fine
+
+      integer(ip) :: a, e, k, t, j, n, fill, list(6), key
+      integer :: q, p
+
+      allocate (fine%patch_ptr(fine%nv + 1))
+      fine%patch_ptr(1) = 1
+      do a = 1, coarse%nv
+         fine%patch_ptr(a + 1) = coarse%patch_ptr(a + 1) - coarse%patch_ptr(a)
+      end do
+      do e = 1, coarse%ne
+         fine%patch_ptr(coarse%nv + e + 1) = merge(3, 6, coarse%boundary_edge(e))
+      end do
+      do a = 1, fine%nv
+         fine%patch_ptr(a + 1) = fine%patch_ptr(a + 1) + fine%patch_ptr(a)
+      end do
+      allocate (fine%patch_triangles(fine%patch_ptr(fine%nv + 1) - 1))
+      !$omp parallel default(none) shared(coarse, fine) private(a, e, k, t, j, n, fill, list, key, q, p)
+      !$omp do schedule(static)
+      do a = 1, coarse%nv
+         fill = fine%patch_ptr(a)
+         do k = coarse%patch_ptr(a), coarse%patch_ptr(a + 1) - 1
+            t = coarse%patch_triangles(k)
+            fine%patch_triangles(fill) = 4*(t - 1) + findloc(coarse%triangles(:, t), a, dim=1)
+            fill = fill + 1
+         end do
+      end do
+      !$omp end do nowait
+      !$omp do schedule(static)
+      do e = 1, coarse%ne
+         n = 0
+         do k = 1, 2
+            t = coarse%edge_triangles(k, e)
+            if (t == 0) cycle
+            ! the edge is opposite corner j of t: the other two corner children and the middle one
+            j = findloc(coarse%triangle_edges(:, t), e, dim=1)
+            list(n + 1:n + 3) = [4*(t - 1) + modulo(j, 3) + 1, 4*(t - 1) + modulo(j + 1, 3) + 1, 4*t]
+            n = n + 3
+         end do
+         do q = 2, n
+            key = list(q)
+            p = q - 1
+            do while (p >= 1)
+               if (list(p) <= key) exit
+               list(p + 1) = list(p)
+               p = p - 1
+            end do
+            list(p + 1) = key
+         end do
+         fine%patch_triangles(fine%patch_ptr(coarse%nv + e):fine%patch_ptr(coarse%nv + e + 1) - 1) = list(1:n)
+      end do
+      !$omp end do
+      !$omp end parallel
+   end subroutine refined_patches
 end module twomem_mesh_hierarchy
