@@ -66,8 +66,10 @@ module twomem_input_config
    type :: estimate_config_t
       real(dp) :: gamma_alg = 0.3_dp
       logical :: enabled = .true.
-      !> ν: estimators and history rows every ν GMRES iterations
-      integer :: every = 10
+      !> ν: estimators and history rows every ν GMRES iterations; 0 = automatic (1 with the
+      !> multigrid preconditioner, which needs a handful of iterations per Newton step, and
+      !> the paper's 10 otherwise)
+      integer :: every = 0
       !> flux reconstruction space: 'rt1' (the paper) or 'rt0'
       character(len=config_len) :: flux = 'rt1'
       !> how many of the finest meshes the multilevel algebraic flux uses (the paper: 3)
@@ -441,7 +443,7 @@ contains
       end associate
 
       call check_real(err, origin, k_gamma_alg, cfg%estimate%gamma_alg, gt=0.0_dp, le=1.0_dp)
-      call check_int(err, origin, k_every, cfg%estimate%every, 1, 100000)
+      call check_int(err, origin, k_every, cfg%estimate%every, 0, 100000)
       call check_word(err, origin, k_flux, cfg%estimate%flux, [character(len=8) :: 'rt1', 'rt0'])
       call check_int(err, origin, k_alg_levels, cfg%estimate%alg_levels, 1, 13)
       call check_word(err, origin, k_criteria, cfg%estimate%criteria, [character(len=8) :: 'global', 'local'])

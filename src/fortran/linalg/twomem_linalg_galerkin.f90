@@ -123,39 +123,54 @@ contains
       logical, intent(in) :: coarse_fixed(:)
       type(csr_t), intent(inout) :: c
 
+      call product_rows(c%n, r%row_ptr, r%col, rv, a%row_ptr, a%col, a%val, p%row_ptr, p%col, pv, coarse_fixed, &
+                        c%row_ptr, c%col, c%val)
+   end subroutine galerkin_values
+
+   !> The numeric product on plain arrays (contiguous dummies let the compiler keep every base
+   !> address in a register in the innermost loop).
+   subroutine product_rows(nc, r_ptr, r_col, rv, a_ptr, a_col, a_val, p_ptr, p_col, pv, coarse_fixed, c_ptr, c_col, c_val)
+      integer(ip), intent(in) :: nc
+      integer(ip), intent(in) :: r_ptr(:), r_col(:), a_ptr(:), a_col(:), p_ptr(:), p_col(:), c_ptr(:), c_col(:)
+      real(dp), intent(in) :: rv(:), a_val(:), pv(:)
+      logical, intent(in) :: coarse_fixed(:)
+      real(dp), intent(inout) :: c_val(:)
+
       integer(ip), allocatable :: position(:)
-      integer(ip) :: i, k, m, q, kk, d
+      integer(ip) :: i, k, m, q, kk, j, d
       real(dp) :: rik, rikakj
 
-      !$omp parallel default(none) shared(r, rv, a, p, pv, coarse_fixed, c) &
-      !$omp private(position, i, k, m, q, kk, d, rik, rikakj)
-      allocate (position(c%n))
+      !$omp parallel default(none) shared(nc, r_ptr, r_col, rv, a_ptr, a_col, a_val, p_ptr, p_col, pv, coarse_fixed) &
+      !$omp shared(c_ptr, c_col, c_val) private(position, i, k, m, q, kk, j, d, rik, rikakj) if(nc > 1024)
+      allocate (position(nc))
       !$omp do schedule(static)
-      do i = 1, c%n
-         do m = c%row_ptr(i), c%row_ptr(i + 1) - 1
-            c%val(m) = 0.0_dp
-            position(c%col(m)) = m
+      do i = 1, nc
+         d = 0
+         do m = c_ptr(i), c_ptr(i + 1) - 1
+            c_val(m) = 0.0_dp
+            position(c_col(m)) = m
+            if (c_col(m) == i) d = m
          end do
-         do k = r%row_ptr(i), r%row_ptr(i + 1) - 1
+         do k = r_ptr(i), r_ptr(i + 1) - 1
             rik = rv(k)
             if (rik == 0.0_dp) cycle
-            kk = r%col(k)
-            do m = a%row_ptr(kk), a%row_ptr(kk + 1) - 1
-               rikakj = rik*a%val(m)
-               do q = p%row_ptr(a%col(m)), p%row_ptr(a%col(m) + 1) - 1
-                  c%val(position(p%col(q))) = c%val(position(p%col(q))) + rikakj*pv(q)
+            kk = r_col(k)
+            do m = a_ptr(kk), a_ptr(kk + 1) - 1
+               rikakj = rik*a_val(m)
+               j = a_col(m)
+               do q = p_ptr(j), p_ptr(j + 1) - 1
+                  c_val(position(p_col(q))) = c_val(position(p_col(q))) + rikakj*pv(q)
                end do
             end do
          end do
-         d = c%row_ptr(i) + findloc(c%col(c%row_ptr(i):c%row_ptr(i + 1) - 1), i, dim=1) - 1
-         if (coarse_fixed(i) .or. .not. c%val(d) > 0.0_dp) then
+         if (coarse_fixed(i) .or. .not. c_val(d) > 0.0_dp) then
             ! a fixed or cut-off unknown: an identity row, decoupled from the others
-            c%val(c%row_ptr(i):c%row_ptr(i + 1) - 1) = 0.0_dp
-            c%val(d) = 1.0_dp
+            c_val(c_ptr(i):c_ptr(i + 1) - 1) = 0.0_dp
+            c_val(d) = 1.0_dp
          end if
       end do
       !$omp end do
       deallocate (position)
       !$omp end parallel
-   end subroutine galerkin_values
+   end subroutine product_rows
 end module twomem_linalg_galerkin

@@ -489,7 +489,7 @@ contains
       integer(ip) :: i
 
       call op%apply(x, r)
-      !$omp parallel do default(none) shared(b, r) private(i) schedule(static)
+      !$omp parallel do default(none) shared(b, r) private(i) schedule(static) if(size(r) > 4096)
       do i = 1, size(r, kind=ip)
          r(i) = b(i) - r(i)
       end do
@@ -503,7 +503,7 @@ contains
 
       integer(ip) :: i
 
-      !$omp parallel do default(none) shared(a, x, y) private(i) schedule(static)
+      !$omp parallel do default(none) shared(a, x, y) private(i) schedule(static) if(size(y) > 4096)
       do i = 1, size(y, kind=ip)
          y(i) = y(i) + a*x(i)
       end do
@@ -516,7 +516,7 @@ contains
 
       integer(ip) :: i
 
-      !$omp parallel do default(none) shared(x, y) private(i) schedule(static)
+      !$omp parallel do default(none) shared(x, y) private(i) schedule(static) if(size(y) > 4096)
       do i = 1, size(y, kind=ip)
          y(i) = x(i)
       end do
@@ -530,7 +530,7 @@ contains
 
       integer(ip) :: i
 
-      !$omp parallel do default(none) shared(a, x) private(i) schedule(static)
+      !$omp parallel do default(none) shared(a, x) private(i) schedule(static) if(size(x) > 4096)
       do i = 1, size(x, kind=ip)
          x(i) = x(i)/a
       end do

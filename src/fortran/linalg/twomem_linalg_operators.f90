@@ -136,7 +136,7 @@ contains
       n = size(x, kind=ip)
       nb = (n + block - 1)/block
       allocate (partial(nb))
-      !$omp parallel do default(none) shared(x, y, partial, n, nb) private(b, i) schedule(static)
+      !$omp parallel do default(none) shared(x, y, partial, n, nb) private(b, i) schedule(static) if(nb > 1)
       do b = 1, nb
          partial(b) = 0.0_dp
          do i = (b - 1)*block + 1, min(b*block, n)

@@ -72,13 +72,13 @@ contains
 
       n = size(c, kind=ip)
       if (which == c_function_fb) then
-         !$omp parallel do default(none) shared(x, c, da, db, n) private(i) schedule(static)
+         !$omp parallel do default(none) shared(x, c, da, db, n) private(i) schedule(static) if(n > 4096)
          do i = 1, n
             call cfun_fb(x(i) - x(n + i), x(2*n + i), c(i), da(i), db(i))
          end do
          !$omp end parallel do
       else
-         !$omp parallel do default(none) shared(x, c, da, db, n) private(i) schedule(static)
+         !$omp parallel do default(none) shared(x, c, da, db, n) private(i) schedule(static) if(n > 4096)
          do i = 1, n
             call cfun_min(x(i) - x(n + i), x(2*n + i), c(i), da(i), db(i))
          end do

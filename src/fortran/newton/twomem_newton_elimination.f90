@@ -7,7 +7,11 @@
 !>     (K + c_μ D a/b) w = r1/μ1 − r2/μ2 + c_μ D r3/b   on rows with b ≠ 0 (a/b ≥ 0),
 !>     w = r3/a                                          on rows with b = 0 (fixed: contact),
 !> and then X3 = (r3 − a w)/b, or on fixed rows X3 = (K w − r1/μ1 + r2/μ2)/(c_μ D), and
-!> X1 = (S + μ2 w)/(μ1 + μ2), X2 = (S − μ1 w)/(μ1 + μ2). Applying this with one multigrid
+!> X1 = (S + μ2 w)/(μ1 + μ2), X2 = (S − μ1 w)/(μ1 + μ2). Both formulas for X3 are exact with
+!> the exact w; with the approximate w of a V-cycle, (r3 − a w)/b multiplies w's error by a/b
+!> and the balance (ii) by K_ii/(c_μ D), so each row takes the smaller: rows whose shift
+!> c_μ D a/b exceeds K_ii (Fischer–Burmeister near contact, b → 0) use the balance. (Taking
+!> (r3 − a w)/b there left GMRES with no progress at all on such Newton steps.) Applying this with one multigrid
 !> V-cycle for each SPD problem gives a preconditioner that would be the exact inverse with
 !> exact inner solves, so GMRES on the full system needs a few iterations at any mesh size,
 !> while its residual stays the full system's, which the estimators need. The S hierarchy is
@@ -47,6 +51,8 @@ module twomem_newton_elimination
       !> the C-function rows of the current Newton matrix: a = ∂C/∂(u1 − u2), b = ∂C/∂λ
       real(dp), allocatable :: a(:), b(:)
       logical, allocatable :: fixed(:)
+      !> rows whose X3 comes from the membrane balance (ii): fixed rows and large shifts
+      logical, allocatable :: by_balance(:)
       !> positions of the diagonals of K in its value array
       integer(ip), allocatable :: diag(:)
       !> work: the two right-hand sides, S, w and w's fixed values
@@ -90,8 +96,8 @@ contains
       do i = 1, n
          self%diag(i) = p%stiffness%find(i, i)
       end do
-      allocate (self%a(n), self%b(n), self%fixed(n), self%shift(n), self%rhs_s(n), self%rhs_w(n), self%s(n), &
-                self%w(n), self%w_fixed(n))
+      allocate (self%a(n), self%b(n), self%fixed(n), self%by_balance(n), self%shift(n), self%rhs_s(n), self%rhs_w(n), &
+                self%s(n), self%w(n), self%w_fixed(n))
       self%fixed = .false.
       self%shift = 0.0_dp
       self%built = .false.
@@ -132,7 +138,8 @@ contains
       logical :: fixed, changed
 
       changed = .not. self%built
-      !$omp parallel do default(none) shared(self, da, db) private(i, fixed) reduction(.or.:changed) schedule(static)
+      !$omp parallel do default(none) shared(self, da, db) private(i, fixed) reduction(.or.:changed) schedule(static) &
+      !$omp if(self%n > 4096)
       do i = 1, self%n
          self%a(i) = da(i)
          self%b(i) = db(i)
@@ -149,6 +156,7 @@ contains
             self%shift(i) = self%c_mu*self%mass(i)*da(i)/db(i)
          end if
          self%fixed(i) = fixed
+         self%by_balance(i) = fixed .or. self%shift(i) > self%k%val(self%diag(i))
       end do
       !$omp end parallel do
       if (any(self%fixed .and. self%a == 0.0_dp)) then
@@ -171,7 +179,8 @@ contains
 
       integer(ip) :: i, k
 
-      !$omp parallel do default(none) shared(k_mat, diag, fixed, shift, w_mat) private(i, k) schedule(static)
+      !$omp parallel do default(none) shared(k_mat, diag, fixed, shift, w_mat) private(i, k) schedule(static) &
+      !$omp if(k_mat%n > 4096)
       do i = 1, k_mat%n
          do k = k_mat%row_ptr(i), k_mat%row_ptr(i + 1) - 1
             if (fixed(i) .or. fixed(k_mat%col(k))) then
@@ -200,7 +209,7 @@ contains
       call self%s_mg%vcycle(self%rhs_s, self%s)
       call self%w_mg%vcycle(self%rhs_w, self%w)
       call add_fixed_values(self%w_fixed, self%w)
-      call back_substitute(self%n, self%mu1, self%mu2, self%c_mu, self%mass, self%a, self%b, self%fixed, &
+      call back_substitute(self%n, self%mu1, self%mu2, self%c_mu, self%mass, self%a, self%b, self%by_balance, &
                            self%k, r, self%s, self%w, z)
    end subroutine apply
 
@@ -218,7 +227,7 @@ contains
       real(dp) :: t
 
       !$omp parallel default(none) shared(n, mu1, mu2, c_mu, mass, a, b, fixed, k_mat, r, rhs_s, rhs_w, w_fixed) &
-      !$omp private(i, k, t)
+      !$omp private(i, k, t) if(n > 4096)
       !$omp do schedule(static)
       do i = 1, n
          rhs_s(i) = r(i) + r(n + i)
@@ -251,18 +260,18 @@ contains
 
       integer(ip) :: i
 
-      !$omp parallel do default(none) shared(w_fixed, w) private(i) schedule(static)
+      !$omp parallel do default(none) shared(w_fixed, w) private(i) schedule(static) if(size(w) > 4096)
       do i = 1, size(w, kind=ip)
          w(i) = w(i) + w_fixed(i)
       end do
       !$omp end parallel do
    end subroutine add_fixed_values
 
-   !> z from S and w: X3 from the C-function row (free) or from row (ii) (fixed), then X1, X2.
-   subroutine back_substitute(n, mu1, mu2, c_mu, mass, a, b, fixed, k_mat, r, s, w, z)
+   !> z from S and w: X3 from the C-function row or from the balance (ii), then X1, X2.
+   subroutine back_substitute(n, mu1, mu2, c_mu, mass, a, b, by_balance, k_mat, r, s, w, z)
       integer(ip), intent(in) :: n
       real(dp), intent(in) :: mu1, mu2, c_mu, mass(:), a(:), b(:)
-      logical, intent(in) :: fixed(:)
+      logical, intent(in) :: by_balance(:)
       type(csr_t), intent(in) :: k_mat
       real(dp), intent(in) :: r(:), s(:), w(:)
       real(dp), intent(out) :: z(:)
@@ -270,10 +279,10 @@ contains
       integer(ip) :: i, k
       real(dp) :: kw
 
-      !$omp parallel do default(none) shared(n, mu1, mu2, c_mu, mass, a, b, fixed, k_mat, r, s, w, z) private(i, k, kw) &
-      !$omp schedule(static)
+      !$omp parallel do default(none) shared(n, mu1, mu2, c_mu, mass, a, b, by_balance, k_mat, r, s, w, z) &
+      !$omp private(i, k, kw) schedule(static) if(n > 4096)
       do i = 1, n
-         if (fixed(i)) then
+         if (by_balance(i)) then
             kw = 0.0_dp
             do k = k_mat%row_ptr(i), k_mat%row_ptr(i + 1) - 1
                kw = kw + k_mat%val(k)*w(k_mat%col(k))

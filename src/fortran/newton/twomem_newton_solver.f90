@@ -141,7 +141,7 @@ contains
          ! B = [F; J_C X − C(X)] with the Jacobian of the previous iterate
          call sys%set_jacobian(da, db)
          b(1:2*n) = sys%f
-         !$omp parallel do default(none) shared(b, x, da, db, c, n) private(i) schedule(static)
+         !$omp parallel do default(none) shared(b, x, da, db, c, n) private(i) schedule(static) if(n > 4096)
          do i = 1, n
             b(2*n + i) = da(i)*(x(i) - x(n + i)) + db(i)*x(2*n + i) - c(i)
          end do

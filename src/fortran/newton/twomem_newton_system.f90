@@ -150,7 +150,7 @@ contains
 
       n = self%n
       call self%apply_e(x, y(1:2*n))
-      !$omp parallel do default(none) shared(self, x, y, n) private(i) schedule(static)
+      !$omp parallel do default(none) shared(self, x, y, n) private(i) schedule(static) if(n > 4096)
       do i = 1, n
          y(2*n + i) = self%da(i)*x(i) + (-self%da(i))*x(n + i) + self%db(i)*x(2*n + i)
       end do
@@ -168,7 +168,8 @@ contains
       real(dp) :: s1, s2
 
       n = self%n
-      !$omp parallel do default(none) shared(self, x, ex, n) private(i, m, s1, s2) schedule(static)
+      !$omp parallel do default(none) shared(self, x, ex, n) private(i, m, s1, s2) schedule(static) &
+      !$omp if(n > 4096)
       do i = 1, n
          s1 = 0.0_dp
          s2 = 0.0_dp
