@@ -14,8 +14,8 @@ nonconformities of the size of newton.tol (η_lin ≈ 3e-9 against η ≈ 1e-2) 
 round-off: the debug and release builds differ there by up to 3e-10 (dot products are summed
 in a fixed order, so thread counts do not matter). The multigrid references (`*_mg`, the
 default preconditioner) were checked before they were stored: the GMRES solution agrees with
-the direct one to 7e-13 (u) and 5e-11 (λ), and the adaptive run's estimate bounds its error
-(effectivity 1.149). Regenerate (after checking why a result changed) with:
+the direct one to 3e-12 (u) and 2e-10 (λ), and the adaptive run's estimate bounds its error
+(effectivity 1.15). Regenerate (after checking why a result changed) with:
     twomem run input/default.nml mesh.levels=1 METHOD_OVERRIDES \
         output.file=tests/regression/reference/radial_small_METHOD.h5
 using the overrides of METHODS below.

@@ -277,7 +277,7 @@ contains
       options%gmres%max_it = cfg%gmres%max_it
       options%gmres%rtol = cfg%gmres%rtol
       options%gmres%observe_every = cfg%estimate%every
-      if (options%gmres%observe_every == 0) options%gmres%observe_every = merge(1, 10, options%precond == precond_mg)
+      if (options%gmres%observe_every == 0) options%gmres%observe_every = merge(3, 10, options%precond == precond_mg)
       options%gamma_lin = cfg%newton%gamma_lin
       options%gamma_alg = cfg%estimate%gamma_alg
       options%local_criteria = trim(cfg%estimate%criteria) == 'local'

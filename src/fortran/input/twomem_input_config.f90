@@ -66,7 +66,7 @@ module twomem_input_config
    type :: estimate_config_t
       real(dp) :: gamma_alg = 0.3_dp
       logical :: enabled = .true.
-      !> ν: estimators and history rows every ν GMRES iterations; 0 = automatic (1 with the
+      !> ν: estimators and history rows every ν GMRES iterations; 0 = automatic (3 with the
       !> multigrid preconditioner, which needs a handful of iterations per Newton step, and
       !> the paper's 10 otherwise)
       integer :: every = 0
