@@ -7,7 +7,7 @@
 !> written once; a first pass over the same loop counts the rows' lengths.
 module twomem_fem_assembly
    use twomem_base_kinds, only: dp, ip
-   use twomem_mesh_triangulation, only: mesh_t
+   use twomem_mesh_triangulation, only: mesh_t, corner_of, position_of
    use twomem_linalg_csr, only: csr_t
    use twomem_fem_problem, only: problem_data_t
    use twomem_fem_quadrature, only: quadrature_t, triangle_rule
@@ -24,15 +24,18 @@ contains
       integer(ip), intent(in) :: t
       real(dp) :: grad(2, 3)
 
-      real(dp) :: p(2, 3)
+      real(dp) :: p(2, 3), twice_area
       integer :: i, j, k
 
       p = mesh%vertices(:, mesh%triangles(:, t))
+      twice_area = 2*mesh%area(t)
       do i = 1, 3
          j = modulo(i, 3) + 1
          k = modulo(i + 1, 3) + 1
-         ! the opposite edge rotated by -90°, over twice the area
-         grad(:, i) = [p(2, j) - p(2, k), p(1, k) - p(1, j)]/(2*mesh%area(t))
+         ! the opposite edge rotated by -90°, over twice the area (no array constructor: this
+         ! runs millions of times, and a constructor may cost a heap temporary)
+         grad(1, i) = (p(2, j) - p(2, k))/twice_area
+         grad(2, i) = (p(1, k) - p(1, j))/twice_area
       end do
    end function p1_gradients
 
@@ -56,8 +59,8 @@ contains
       type(csr_t), intent(inout) :: k
       real(dp), allocatable, intent(out) :: coupling(:)
 
-      integer(ip), allocatable :: rows(:), row_ptr(:), col(:)
-      real(dp), allocatable :: val(:)
+      integer(ip), allocatable :: rows(:), row_ptr(:), col(:), cols(:)
+      real(dp), allocatable :: val(:), vals(:)
       integer(ip) :: n, i, a, width
 
       n = maxval(unknown)
@@ -68,22 +71,31 @@ contains
       ! a row has at most one column per patch triangle plus the diagonal
       width = maxval(mesh%patch_ptr(2:) - mesh%patch_ptr(:mesh%nv)) + 2
       row_ptr(1) = 1
-      !$omp parallel do default(none) shared(mesh, unknown, rows, row_ptr, n, width) private(i) schedule(static)
+      ! per-thread scratch for one row (automatic arrays would cost a heap allocation per row)
+      !$omp parallel default(none) shared(mesh, unknown, rows, row_ptr, n, width) private(i, cols, vals)
+      allocate (cols(width))
+      !$omp do schedule(static)
       do i = 1, n
-         row_ptr(i + 1) = row_length(mesh, unknown, rows(i), width)
+         call count_row(mesh, unknown, rows(i), cols, row_ptr(i + 1))
       end do
-      !$omp end parallel do
+      !$omp end do
+      deallocate (cols)
+      !$omp end parallel
       do i = 1, n
          row_ptr(i + 1) = row_ptr(i + 1) + row_ptr(i)
       end do
       allocate (col(row_ptr(n + 1) - 1), val(row_ptr(n + 1) - 1))
-      !$omp parallel do default(none) shared(mesh, unknown, rows, row_ptr, col, val, coupling, n, width) private(i) &
-      !$omp schedule(static)
+      !$omp parallel default(none) shared(mesh, unknown, rows, row_ptr, col, val, coupling, n, width) &
+      !$omp private(i, cols, vals)
+      allocate (cols(width), vals(width))
+      !$omp do schedule(static)
       do i = 1, n
-         call gather_row(mesh, unknown, rows(i), width, col(row_ptr(i):row_ptr(i + 1) - 1), &
+         call gather_row(mesh, unknown, rows(i), cols, vals, col(row_ptr(i):row_ptr(i + 1) - 1), &
                          val(row_ptr(i):row_ptr(i + 1) - 1), coupling(i))
       end do
-      !$omp end parallel do
+      !$omp end do
+      deallocate (cols, vals)
+      !$omp end parallel
       k%n = n
       k%ncol = n
       call move_alloc(row_ptr, k%row_ptr)
@@ -91,12 +103,14 @@ contains
       call move_alloc(val, k%val)
    end subroutine stiffness_rows
 
-   !> Number of distinct unknowns among vertex a's neighbours (itself included).
-   pure integer(ip) function row_length(mesh, unknown, a, width) result(count)
+   !> Number of distinct unknowns among vertex a's neighbours (itself included); `cols` is scratch.
+   subroutine count_row(mesh, unknown, a, cols, count)
       type(mesh_t), intent(in) :: mesh
-      integer(ip), intent(in) :: unknown(:), a, width
+      integer(ip), intent(in) :: unknown(:), a
+      integer(ip), intent(inout) :: cols(:)
+      integer(ip), intent(out) :: count
 
-      integer(ip) :: cols(width), m, c
+      integer(ip) :: m, c
       integer :: j
 
       count = 0
@@ -104,39 +118,48 @@ contains
          do j = 1, 3
             c = unknown(mesh%triangles(j, mesh%patch_triangles(m)))
             if (c == 0) cycle
-            if (any(cols(1:count) == c)) cycle
+            if (position_of(cols(1:count), c) > 0) cycle
             count = count + 1
             cols(count) = c
          end do
       end do
-   end function row_length
+   end subroutine count_row
 
-   !> Row of vertex a: columns sorted, values summed over the patch in patch order.
-   pure subroutine gather_row(mesh, unknown, a, width, col, val, coupling)
+   !> Row of vertex a: columns sorted, values summed over the patch in patch order. In triangle
+   !> t with a at corner i, K_ij = |t| ∇ψ_i·∇ψ_j = (e_i·e_j)/(4|t|), e_j the edge opposite corner j.
+   !> cols and vals are scratch for the row being built.
+   pure subroutine gather_row(mesh, unknown, a, cols, vals, col, val, coupling)
       type(mesh_t), intent(in) :: mesh
-      integer(ip), intent(in) :: unknown(:), a, width
+      integer(ip), intent(in) :: unknown(:), a
+      integer(ip), intent(inout) :: cols(:)
+      real(dp), intent(inout) :: vals(:)
       integer(ip), intent(out) :: col(:)
       real(dp), intent(out) :: val(:)
       real(dp), intent(out) :: coupling
 
-      integer(ip) :: cols(width), m, t, c, key
-      real(dp) :: vals(width), grad(2, 3), entry, v
+      integer(ip) :: m, t, c, key
+      real(dp) :: e(2, 3), entry, v, scale
       integer :: i, j, count, q, p
 
       count = 0
       coupling = 0.0_dp
       do m = mesh%patch_ptr(a), mesh%patch_ptr(a + 1) - 1
          t = mesh%patch_triangles(m)
-         grad = p1_gradients(mesh, t)
-         i = findloc(mesh%triangles(:, t), a, dim=1)
+         associate (corner => mesh%triangles(:, t))
+            do j = 1, 3
+               e(:, j) = mesh%vertices(:, corner(modulo(j + 1, 3) + 1)) - mesh%vertices(:, corner(modulo(j, 3) + 1))
+            end do
+         end associate
+         scale = 1/(4*mesh%area(t))
+         i = corner_of(mesh, t, a)
          do j = 1, 3
-            entry = mesh%area(t)*(grad(1, i)*grad(1, j) + grad(2, i)*grad(2, j))
+            entry = (e(1, i)*e(1, j) + e(2, i)*e(2, j))*scale
             c = unknown(mesh%triangles(j, t))
             if (c == 0) then
                coupling = coupling + entry
                cycle
             end if
-            q = findloc(cols(1:count), c, dim=1)
+            q = position_of(cols(1:count), c)
             if (q == 0) then
                count = count + 1
                cols(count) = c
@@ -169,11 +192,15 @@ contains
       type(mesh_t), intent(in) :: mesh
       real(dp) :: d(mesh%nv)
 
-      integer(ip) :: a
+      integer(ip) :: a, m
 
-      !$omp parallel do default(none) shared(mesh, d) private(a) schedule(static)
+      !$omp parallel do default(none) shared(mesh, d) private(a, m) schedule(static)
       do a = 1, mesh%nv
-         d(a) = sum(mesh%area(mesh%patch_triangles(mesh%patch_ptr(a):mesh%patch_ptr(a + 1) - 1)))/3
+         d(a) = 0.0_dp
+         do m = mesh%patch_ptr(a), mesh%patch_ptr(a + 1) - 1
+            d(a) = d(a) + mesh%area(mesh%patch_triangles(m))
+         end do
+         d(a) = d(a)/3
       end do
       !$omp end parallel do
    end function lumped_mass
@@ -186,34 +213,51 @@ contains
       real(dp) :: f(mesh%nv, 2)
 
       type(quadrature_t) :: rule
-      real(dp), allocatable :: local(:, :, :)
-      real(dp) :: x(2), wf(2), p(2, 3)
+      real(dp), allocatable :: local(:, :, :), x(:, :), f_at(:, :), bary(:, :), weights(:)
+      real(dp) :: p(2, 3), s1, s2
       integer(ip) :: t, a, m
-      integer :: q, i, alpha
+      integer :: q, i, alpha, nq
 
       rule = triangle_rule(5)
+      ! the rule in plain arrays: the innermost loop should not chase descriptors
+      nq = rule%n
+      allocate (bary(3, nq), weights(nq))
+      bary = rule%bary
+      weights = rule%weights
       allocate (local(3, 2, mesh%nt))
-      !$omp parallel do default(none) shared(mesh, data, rule, local) private(t, q, i, x, wf, p) schedule(static)
+      !$omp parallel default(none) shared(mesh, data, bary, weights, nq, local) private(t, q, i, x, f_at, p, s1, s2)
+      allocate (x(2, nq), f_at(2, nq))
+      !$omp do schedule(static)
       do t = 1, mesh%nt
-         p = mesh%vertices(:, mesh%triangles(:, t))
-         local(:, :, t) = 0.0_dp
-         do q = 1, rule%n
-            x = rule%bary(1, q)*p(:, 1) + rule%bary(2, q)*p(:, 2) + rule%bary(3, q)*p(:, 3)
-            wf = rule%weights(q)*[data%load(1, x), data%load(2, x)]
-            do i = 1, 3
-               local(i, :, t) = local(i, :, t) + wf*rule%bary(i, q)
-            end do
+         do i = 1, 3
+            p(:, i) = mesh%vertices(:, mesh%triangles(i, t))
          end do
-         local(:, :, t) = mesh%area(t)*local(:, :, t)
+         do q = 1, nq
+            x(1, q) = bary(1, q)*p(1, 1) + bary(2, q)*p(1, 2) + bary(3, q)*p(1, 3)
+            x(2, q) = bary(1, q)*p(2, 1) + bary(2, q)*p(2, 2) + bary(3, q)*p(2, 3)
+         end do
+         call data%loads_at(x, f_at)
+         do i = 1, 3
+            s1 = 0.0_dp
+            s2 = 0.0_dp
+            do q = 1, nq
+               s1 = s1 + weights(q)*f_at(1, q)*bary(i, q)
+               s2 = s2 + weights(q)*f_at(2, q)*bary(i, q)
+            end do
+            local(i, 1, t) = mesh%area(t)*s1
+            local(i, 2, t) = mesh%area(t)*s2
+         end do
       end do
-      !$omp end parallel do
+      !$omp end do
+      deallocate (x, f_at)
+      !$omp end parallel
       !$omp parallel do default(none) shared(mesh, local, f) private(a, m, t, alpha) schedule(static)
       do a = 1, mesh%nv
          f(a, :) = 0.0_dp
          do m = mesh%patch_ptr(a), mesh%patch_ptr(a + 1) - 1
             t = mesh%patch_triangles(m)
             do alpha = 1, 2
-               f(a, alpha) = f(a, alpha) + local(findloc(mesh%triangles(:, t), a, dim=1), alpha, t)
+               f(a, alpha) = f(a, alpha) + local(corner_of(mesh, t, a), alpha, t)
             end do
          end do
       end do

@@ -14,6 +14,7 @@ module twomem_fem_problem
       character(len=16) :: name = ''
    contains
       procedure(load_interface), deferred :: load
+      procedure :: loads_at
       procedure :: has_exact
       procedure :: exact
    end type problem_data_t
@@ -33,9 +34,34 @@ module twomem_fem_problem
       real(dp) :: f1 = -0.25_dp, f2 = 0.25_dp
    contains
       procedure :: load => constant_load
+      procedure :: loads_at => constant_loads_at
    end type constant_data_t
 
 contains
+
+   !> f(α, k) = f_α(x(:, k)) for a batch of points: one dynamic dispatch per batch instead of
+   !> two per point (assembly evaluates 14 values per triangle).
+   pure subroutine loads_at(self, x, f)
+      class(problem_data_t), intent(in) :: self
+      real(dp), intent(in) :: x(:, :)
+      real(dp), intent(out) :: f(:, :)
+
+      integer :: k
+
+      do k = 1, size(x, 2)
+         f(1, k) = self%load(1, x(:, k))
+         f(2, k) = self%load(2, x(:, k))
+      end do
+   end subroutine loads_at
+
+   pure subroutine constant_loads_at(self, x, f)
+      class(constant_data_t), intent(in) :: self
+      real(dp), intent(in) :: x(:, :)
+      real(dp), intent(out) :: f(:, :)
+
+      f(1, :) = self%f1
+      f(2, :) = self%f2
+   end subroutine constant_loads_at
 
    pure logical function has_exact(self)
       class(problem_data_t), intent(in) :: self

@@ -7,7 +7,7 @@
 module twomem_mesh_hierarchy
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t
-   use twomem_mesh_triangulation, only: mesh_t, signed_area
+   use twomem_mesh_triangulation, only: mesh_t, signed_area, corner_of, position_of
    implicit none
    private
 
@@ -133,8 +133,8 @@ contains
                if (t == 0) then
                   fine%edge_triangles(k, 2*e - 1:2*e) = 0
                else
-                  fine%edge_triangles(k, 2*e - 1) = 4*(t - 1) + findloc(coarse%triangles(:, t), ends(1), dim=1)
-                  fine%edge_triangles(k, 2*e) = 4*(t - 1) + findloc(coarse%triangles(:, t), ends(2), dim=1)
+                  fine%edge_triangles(k, 2*e - 1) = 4*(t - 1) + corner_of(coarse, t, ends(1))
+                  fine%edge_triangles(k, 2*e) = 4*(t - 1) + corner_of(coarse, t, ends(2))
                end if
             end do
          end associate
@@ -224,7 +224,7 @@ contains
          fill = fine%patch_ptr(a)
          do k = coarse%patch_ptr(a), coarse%patch_ptr(a + 1) - 1
             t = coarse%patch_triangles(k)
-            fine%patch_triangles(fill) = 4*(t - 1) + findloc(coarse%triangles(:, t), a, dim=1)
+            fine%patch_triangles(fill) = 4*(t - 1) + corner_of(coarse, t, a)
             fill = fill + 1
          end do
       end do
@@ -236,7 +236,7 @@ contains
             t = coarse%edge_triangles(k, e)
             if (t == 0) cycle
             ! the edge is opposite corner j of t: the other two corner children and the middle one
-            j = findloc(coarse%triangle_edges(:, t), e, dim=1)
+            j = position_of(coarse%triangle_edges(:, t), e)
             list(n + 1:n + 3) = [4*(t - 1) + modulo(j, 3) + 1, 4*(t - 1) + modulo(j + 1, 3) + 1, 4*t]
             n = n + 3
          end do

@@ -11,7 +11,7 @@ module twomem_mesh_triangulation
    implicit none
    private
 
-   public :: mesh_t, signed_area
+   public :: mesh_t, signed_area, corner_of, position_of
 
    type :: mesh_t
       integer(ip) :: nv = 0, nt = 0, ne = 0
@@ -43,6 +43,28 @@ module twomem_mesh_triangulation
    end type mesh_t
 
 contains
+
+   !> The local index (1..3) of vertex a in triangle t, 0 if a is not one of its corners.
+   !> (A loop, not findloc with DIM: that allocates its result, millions of times in assembly.)
+   pure integer function corner_of(mesh, t, a) result(i)
+      type(mesh_t), intent(in) :: mesh
+      integer(ip), intent(in) :: t, a
+
+      do i = 1, 3
+         if (mesh%triangles(i, t) == a) return
+      end do
+      i = 0
+   end function corner_of
+
+   !> The position of `value` in `list`, 0 if absent (for the short lists of patches and rows).
+   pure integer function position_of(list, value) result(i)
+      integer(ip), intent(in) :: list(:), value
+
+      do i = 1, size(list)
+         if (list(i) == value) return
+      end do
+      i = 0
+   end function position_of
 
    pure function signed_area(p1, p2, p3) result(a)
       real(dp), intent(in) :: p1(2), p2(2), p3(2)
