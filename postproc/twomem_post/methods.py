@@ -8,8 +8,9 @@ with the published ones (paper.py):
 ``adaptive``  the estimator-based stopping of both GMRES and Newton (the paper's method).
 ``direct``    Newton-min with UMFPACK: no algebraic error, a reference for the others.
 
-GMRES methods use ILU(0): Jacobi and no preconditioner stagnate on the full Newton matrix beyond
-small meshes (README).
+The paper's three use ILU(0), its preconditioner (Jacobi and no preconditioner stagnate on the
+full Newton matrix beyond small meshes). ``exact_mg``, ``inexact_mg`` and ``adaptive_mg`` are
+the same methods with twomem's default multigrid block-elimination preconditioner.
 """
 from __future__ import annotations
 
@@ -19,6 +20,9 @@ METHODS: dict[str, tuple[str, ...]] = {
     "inexact": ("newton.linear=gmres", "gmres.forcing=paper", "gmres.precond=ilu0"),
     "adaptive": ("newton.linear=adaptive", "gmres.precond=ilu0"),
     "direct": ("newton.linear=direct",),
+    "exact_mg": ("newton.linear=gmres", "gmres.forcing=fixed", "gmres.rtol=2e-12", "gmres.precond=mg"),
+    "inexact_mg": ("newton.linear=gmres", "gmres.forcing=paper", "gmres.precond=mg"),
+    "adaptive_mg": ("newton.linear=adaptive", "gmres.precond=mg"),
 }
 
 #: the paper's three methods, in its order
@@ -30,6 +34,9 @@ STYLE = {
     "inexact": ("tab:orange", "s"),
     "adaptive": ("tab:green", "D"),
     "direct": ("tab:gray", "^"),
+    "exact_mg": ("tab:purple", "v"),
+    "inexact_mg": ("tab:brown", "P"),
+    "adaptive_mg": ("tab:olive", "X"),
 }
 
 
