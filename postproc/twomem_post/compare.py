@@ -12,7 +12,7 @@ import numpy as np
 
 #: values that measure the machine, not the computation
 SKIPPED = {"/history/wall_time", "/summary@wall_time", "/summary@peak_memory_kib", "/summary@estimator_time",
-           "/summary@omp_threads"}
+           "/summary@omp_threads", "/summary@mpi_ranks"}
 #: groups that measure the machine: every item below them is skipped
 SKIPPED_GROUPS = ("/performance",)
 

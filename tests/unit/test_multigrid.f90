@@ -9,7 +9,8 @@ module test_multigrid
    use twomem_linalg_csr, only: csr_t
    use twomem_linalg_galerkin, only: galerkin_pattern, galerkin_values, truncate_transfer
    use twomem_linalg_multigrid, only: multigrid_t, multigrid_options_t, multigrid_transfer_t
-   use twomem_linalg_umfpack, only: umfpack_solver_t
+   use twomem_linalg_halo, only: halo_t
+   use twomem_base_comm, only: comm_t
    use twomem_linalg_operators, only: euclidean_product_t
    use twomem_linalg_gmres, only: gmres_solve, gmres_options_t, gmres_monitor_t
    use twomem_mesh_hierarchy, only: mesh_hierarchy_t
@@ -106,6 +107,8 @@ contains
       logical, allocatable :: fine_fixed(:), coarse_fixed(:)
       integer(ip), allocatable :: injection(:)
       integer(ip) :: i, j
+      type(halo_t) :: coarse_halo
+      type(comm_t) :: one_rank
 
       call shifted_problem(3, h, p, pr, err)
       if (allocated(err)) return
@@ -128,7 +131,8 @@ contains
       call galerkin_pattern(r, a, pr, c)
       allocate (pt(pr%nnz()), rt(r%nnz()))
       call truncate_transfer(pr, r, fine_fixed, coarse_fixed, pt, rt)
-      call galerkin_values(r, rt, a, pr, pt, coarse_fixed, c)
+      call coarse_halo%init_whole(one_rank, pr%ncol)
+      call galerkin_values(r, rt, a, pr, pt, coarse_fixed, coarse_halo, c)
 
       ! the same product with dense matrices
       pd = dense(pr)
@@ -158,6 +162,8 @@ contains
       type(constant_data_t) :: data
       type(csr_t) :: pr, r, c
       logical, allocatable :: none(:)
+      type(halo_t) :: coarse_halo
+      type(comm_t) :: one_rank
 
       call shifted_problem(4, h, p, pr, err)
       if (allocated(err)) return
@@ -167,7 +173,8 @@ contains
       call galerkin_pattern(r, p%stiffness, pr, c)
       allocate (none(pr%ncol))
       none = .false.
-      call galerkin_values(r, r%val, p%stiffness, pr, pr%val, none, c)
+      call coarse_halo%init_whole(one_rank, pr%ncol)
+      call galerkin_values(r, r%val, p%stiffness, pr, pr%val, none, coarse_halo, c)
       call check(err, maxval(abs(dense(c) - dense(pc%stiffness))) <= 1.0e-13_dp, &
                  'Pᵀ K_fine P equals K assembled on the coarse mesh')
    end subroutine test_galerkin_rediscretizes
@@ -324,12 +331,12 @@ contains
       integer :: k
       character(len=48) :: msg
 
-      call none%init([csr_t ::], err)
-      if (allocated(err)) return
       do k = 1, 2
          call newton_matrix(3, k == 2, h, p, sys, err)
          if (allocated(err)) return
-         call prec%init(p, none, options, err)
+         call none%init([csr_t ::], err, halos=[p%halo], coarse_keys=p%global)
+         if (allocated(err)) return
+         call prec%init(p, none, 0, options, err)
          if (allocated(err)) return
          ! through the assembled matrix's C-rows, the path of setup(a)
          call prec%setup(sys%a, err)
@@ -370,7 +377,7 @@ contains
             if (allocated(err)) return
             call transfer%init(interior_prolongations(h, levels), err)
             if (allocated(err)) return
-            call prec%init(p, transfer, mg_options, err)
+            call prec%init(p, transfer, levels, mg_options, err)
             if (allocated(err)) return
             call prec%set_linearization(sys%da, sys%db, err)
             if (allocated(err)) return

@@ -49,6 +49,7 @@ contains
       type(estimates_t) :: est
       integer(ip) :: n
       real(dp) :: t0
+      real(dp), allocatable :: energy(:)
 
       if (self%with_estimates .and. .not. allocated(self%err)) then
          call self%estimate(x, est)
@@ -64,9 +65,12 @@ contains
       if (self%with_error) then
          t0 = wall_time()
          n = self%p%n
-         row%energy_error = norm2(energy_error_per_element(self%hierarchy%meshes(self%hierarchy%levels), self%data, &
-                                                           self%p%to_nodal(x(1:n), self%data%g), &
-                                                           self%p%to_nodal(x(n + 1:2*n), 0.0_dp)))
+         associate (mesh => self%hierarchy%meshes(self%hierarchy%levels))
+            energy = energy_error_per_element(mesh, self%data, self%p%to_nodal(x(1:n), self%data%g), &
+                                              self%p%to_nodal(x(n + 1:2*n), 0.0_dp))
+            ! this rank's own triangles, summed over the ranks
+            row%energy_error = sqrt(self%p%halo%comm%sum(sum(energy(1:mesh%nt_owned)**2)))
+         end associate
          self%error_time = self%error_time + (wall_time() - t0)
       end if
    end subroutine observe

@@ -1,66 +1,64 @@
 !> One case from a validated configuration to a result file: build the mesh hierarchy, the
 !> problem data and the discrete problem on the finest level, run Newton, measure the exact
 !> error when the solution is known, and write the result. `check` stops after the mesh. This
-!> is the only place that knows the configuration and the numerical modules at once.
+!> is the only place that knows the configuration and the numerical modules at once. Every
+!> rank of a distributed run goes through it with its piece of the problem; rank 0 prints and
+!> writes, and the ranks agree on every error before acting on it.
 module twomem_app_run
    use, intrinsic :: iso_fortran_env, only: output_unit
    use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
-   use twomem_base_kinds, only: dp, ip
+   use twomem_base_kinds, only: dp, ip, i8
    use twomem_base_errors, only: error_t, make_error, exit_ok, exit_not_converged, exit_bad_input, exit_io
    use twomem_base_system, only: make_directories, parent_directory, peak_memory_kib, process_id, remove_file, &
       is_directory
    use twomem_base_phases, only: phase_clock_t, phase_mesh, phase_assembly, phase_solve, phase_estimators, &
       phase_error, phase_output
+   use twomem_base_comm, only: comm_t
    use omp_lib, only: omp_get_max_threads
-   use twomem_base_timer, only: wall_time
    use twomem_base_version, only: twomem_version
+   use twomem_base_text, only: fixed
    use twomem_input_config, only: config_t, config_echo
-   use twomem_mesh_triangulation, only: mesh_t
    use twomem_mesh_hierarchy, only: mesh_hierarchy_t
-   use twomem_mesh_generators, only: make_disk, make_square, disk_boundary_spacing
-   use twomem_mesh_gmsh, only: read_gmsh
    use twomem_fem_problem, only: problem_data_t
    use twomem_fem_cases, only: make_problem
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_fem_error, only: energy_error_per_element
-   use twomem_fem_transfer, only: interior_prolongations
-   use twomem_linalg_csr, only: csr_t
-   use twomem_linalg_multigrid, only: multigrid_transfer_t
-   use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_observer_t, newton_solve, &
-      method_direct, method_gmres, method_adaptive, forcing_paper, forcing_fixed
+   use twomem_newton_solver, only: newton_options_t, newton_result_t, method_direct, method_gmres, method_adaptive, &
+      forcing_paper, forcing_fixed
    use twomem_newton_cfun, only: cfun_kind, c_function_fb
    use twomem_newton_linear, only: precond_kind, precond_mg
    use twomem_estimate_estimators, only: estimator_t, estimates_t, poincare_constant
    use twomem_app_observer, only: run_observer_t
+   use twomem_app_mesh, only: build_hierarchy
+   use twomem_app_levels, only: solve_levels, coarse_work_t
    use twomem_io_result, only: result_record_t, output_choice_t, write_result, xdmf_path_for
+   use twomem_io_gather, only: gather_plan_t
    implicit none
    private
 
    public :: run_case, check_case
 
-   !> Work spent on the coarser levels of nested iteration.
-   type :: coarse_work_t
-      integer :: newton_iterations = 0, gmres_iterations = 0
-   end type coarse_work_t
-
 contains
 
-   !> Validate input and mesh and print the resolved case; solve nothing.
-   subroutine check_case(cfg, err)
+   !> Validate input and mesh and print the resolved case; solve nothing. Collective.
+   subroutine check_case(cfg, comm, err)
       type(config_t), intent(inout) :: cfg
+      type(comm_t), intent(in) :: comm
       type(error_t), allocatable, intent(out) :: err
 
       type(mesh_hierarchy_t) :: hierarchy
 
-      call prepare(cfg, err)
+      call prepare(cfg, comm, err)
       if (allocated(err)) return
-      call build_hierarchy(cfg, hierarchy, err)
+      call build_hierarchy(cfg, comm, hierarchy, err)
       if (allocated(err)) return
-      write (output_unit, '(a)') 'check: input and mesh are valid; nothing solved'
+      if (comm%is_root()) write (output_unit, '(a)') 'check: input and mesh are valid; nothing solved'
    end subroutine check_case
 
-   subroutine run_case(cfg, exit_code, err)
+   !> Collective; every rank returns the same exit code and error.
+   subroutine run_case(cfg, comm, exit_code, err)
       type(config_t), intent(inout) :: cfg
+      type(comm_t), intent(in) :: comm
       integer, intent(out) :: exit_code
       type(error_t), allocatable, intent(out) :: err
 
@@ -75,17 +73,18 @@ contains
       type(result_record_t) :: rec
       type(output_choice_t) :: choice
       type(phase_clock_t) :: clock
-      integer :: finest
+      integer :: finest, n_whole
       logical :: need_estimates
 
       exit_code = exit_bad_input
       call clock%start(phase_mesh)
-      call prepare(cfg, err)
+      call prepare(cfg, comm, err)
       if (allocated(err)) return
       ! the mesh first: bad input must not leave even an output directory behind
-      call build_hierarchy(cfg, hierarchy, err)
+      call build_hierarchy(cfg, comm, hierarchy, err)
       if (allocated(err)) return
-      call check_output_writable(trim(cfg%output%file), err)
+      if (comm%is_root()) call check_output_writable(trim(cfg%output%file), err)
+      call comm%agree(err)
       if (allocated(err)) return
       finest = hierarchy%levels
 
@@ -93,12 +92,17 @@ contains
       call make_problem(trim(cfg%problem%exact), cfg%problem%mu1, cfg%problem%mu2, cfg%problem%f1, &
                         cfg%problem%f2, cfg%problem%g, data, err)
       if (allocated(err)) return
-      call p%init(hierarchy%meshes(finest), data, err)
+      call p%init(hierarchy%meshes(finest), data, err, comm)
+      call comm%agree(err)
       if (allocated(err)) return
-      write (output_unit, '("problem: ",a,", ",i0," interior vertices, Newton system ",i0," x ",i0)') &
-         trim(data%name), p%n, 3*p%n, 3*p%n
+      n_whole = comm%sum(count(p%halo%owned))
+      if (comm%is_root()) write (output_unit, '("problem: ",a,", ",i0," interior vertices, Newton system ",i0," x ",i0, &
+           &", ",i0," MPI ranks x ",i0," OpenMP threads")') trim(data%name), n_whole, 3*n_whole, 3*n_whole, comm%size, &
+         omp_get_max_threads()
 
-      call newton_options_from(cfg, options)
+      call newton_options_from(cfg, comm, options)
+      call check_distributed(cfg, comm, options, err)
+      if (allocated(err)) return
       ! estimator work only when the method or the output asks for it
       need_estimates = options%linear == method_adaptive .or. cfg%estimate%enabled
       if (need_estimates) then
@@ -121,20 +125,22 @@ contains
 
       call clock%switch(phase_solve)
       if (observer%with_error .or. observer%with_estimates) then
-         call solve_levels(cfg, hierarchy, data, p, options, clock, newton, coarse, err, observer)
+         call solve_levels(cfg, comm, hierarchy, data, p, options, clock, newton, coarse, err, observer)
       else
-         call solve_levels(cfg, hierarchy, data, p, options, clock, newton, coarse, err)
+         call solve_levels(cfg, comm, hierarchy, data, p, options, clock, newton, coarse, err)
       end if
       ! what the observer measured inside the Newton loop is not solver time
       call clock%charge(phase_estimators, observer%estimator_time)
       call clock%charge(phase_error, observer%error_time)
       if (.not. allocated(err) .and. allocated(observer%err)) call move_alloc(observer%err, err)
+      call comm%agree(err)
       if (allocated(err)) then
          exit_code = err%code
          return
       end if
 
-      call fill_record(cfg, hierarchy, data, p, newton, coarse, need_estimates, observer, clock, rec, err)
+      call fill_record(cfg, comm, hierarchy, data, p, newton, coarse, need_estimates, observer, clock, rec, err)
+      call comm%agree(err)
       if (allocated(err)) then
          exit_code = err%code
          return
@@ -144,20 +150,40 @@ contains
       choice%history = cfg%output%history
       choice%xdmf = cfg%output%xdmf
       call clock%switch(phase_output)
-      call write_result(trim(cfg%output%file), hierarchy%meshes(finest), rec, choice, err, clock)
+      if (comm%is_root()) call write_result(trim(cfg%output%file), rec, choice, err, clock)
+      call comm%agree(err)
       if (allocated(err)) then
          exit_code = exit_io
          return
       end if
       call clock%switch(0)
-      call print_summary(cfg, hierarchy%meshes(finest), data%has_exact(), need_estimates, choice, rec, clock)
+      if (comm%is_root()) call print_summary(cfg, data%has_exact(), need_estimates, choice, rec, clock)
       exit_code = merge(exit_ok, exit_not_converged, newton%converged)
    end subroutine run_case
 
-   !> Everything the result file holds, from the run's objects: fields, the final estimators
-   !> (reusing the last evaluation when it saw the final iterate) and the exact error.
-   subroutine fill_record(cfg, hierarchy, data, p, newton, coarse, need_estimates, observer, clock, rec, err)
+   !> What a distributed run cannot do (yet): refuse it before any work.
+   subroutine check_distributed(cfg, comm, options, err)
       type(config_t), intent(in) :: cfg
+      type(comm_t), intent(in) :: comm
+      type(newton_options_t), intent(in) :: options
+      type(error_t), allocatable, intent(out) :: err
+
+      if (comm%size == 1) return
+      if (options%linear == method_adaptive .or. cfg%estimate%enabled) then
+         call make_error(err, exit_bad_input, 'estimate', 'the estimators do not run on several MPI ranks yet: '// &
+                         'set estimate.enabled=.false. and newton.linear=''gmres'' or ''direct''')
+      else if (options%precond /= precond_mg .and. options%linear /= method_direct) then
+         call make_error(err, exit_bad_input, 'gmres.precond', '''ilu0'', ''jacobi'' and ''none'' act on one '// &
+                         'rank''s matrix: on several MPI ranks use ''mg''')
+      end if
+   end subroutine check_distributed
+
+   !> Everything the result file holds, from the run's objects (gathered on rank 0): mesh,
+   !> fields, the final estimators (reusing the last evaluation when it saw the final iterate)
+   !> and the exact error. Collective.
+   subroutine fill_record(cfg, comm, hierarchy, data, p, newton, coarse, need_estimates, observer, clock, rec, err)
+      type(config_t), intent(in) :: cfg
+      type(comm_t), intent(in) :: comm
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       class(problem_data_t), intent(in) :: data
       type(discrete_problem_t), intent(in) :: p
@@ -170,16 +196,31 @@ contains
       type(error_t), allocatable, intent(out) :: err
 
       type(estimates_t) :: final
+      type(gather_plan_t) :: plan
+      real(dp), allocatable :: u1(:), u2(:), energy(:)
       real(dp) :: nan
 
       nan = ieee_value(1.0_dp, ieee_quiet_nan)
+      associate (mesh => hierarchy%meshes(hierarchy%levels))
+         call plan%init(comm, mesh)
+         call plan%mesh_arrays(mesh, rec%vertices, rec%triangles)
+         u1 = p%to_nodal(newton%x(1:p%n), data%g)
+         u2 = p%to_nodal(newton%x(p%n + 1:2*p%n), 0.0_dp)
+         rec%u1 = plan%nodal(u1)
+         rec%u2 = plan%nodal(u2)
+         rec%lambda = plan%nodal(p%to_nodal(newton%x(2*p%n + 1:), 0.0_dp))
+         rec%energy_error_total = nan
+         if (data%has_exact()) then
+            call clock%switch(phase_error)
+            energy = energy_error_per_element(mesh, data, u1, u2)
+            rec%energy_error = plan%cells(energy)
+            rec%energy_error_total = sqrt(comm%sum(sum(energy(1:mesh%nt_owned)**2)))
+         end if
+      end associate
       rec%version = twomem_version
       rec%input_text = config_echo(cfg)
       rec%status = newton%status
       rec%levels = hierarchy%levels
-      rec%u1 = p%to_nodal(newton%x(1:p%n), data%g)
-      rec%u2 = p%to_nodal(newton%x(p%n + 1:2*p%n), 0.0_dp)
-      rec%lambda = p%to_nodal(newton%x(2*p%n + 1:), 0.0_dp)
       rec%history = newton%history
       rec%newton_iterations = newton%iterations
       rec%gmres_iterations = newton%linear_iterations
@@ -190,12 +231,6 @@ contains
       rec%eta_lin = nan
       rec%eta_alg = nan
       rec%effectivity = nan
-      rec%energy_error_total = nan
-      if (data%has_exact()) then
-         call clock%switch(phase_error)
-         rec%energy_error = energy_error_per_element(hierarchy%meshes(hierarchy%levels), data, rec%u1, rec%u2)
-         rec%energy_error_total = norm2(rec%energy_error)
-      end if
       if (need_estimates) then
          call clock%switch(phase_estimators)
          call observer%estimate(newton%x, final)
@@ -212,15 +247,15 @@ contains
       end if
       rec%estimator_evaluations = observer%evaluations
       rec%estimator_time = observer%estimator_time
-      rec%peak_memory_kib = peak_memory_kib()
+      rec%peak_memory_kib = int(comm%max(real(peak_memory_kib(), dp)), i8)
       rec%omp_threads = omp_get_max_threads()
+      rec%mpi_ranks = comm%size
       rec%wall_time = clock%total()
    end subroutine fill_record
 
    !> The closing lines of a run: status, sizes, errors and estimators, where the time went.
-   subroutine print_summary(cfg, mesh, has_exact, need_estimates, choice, rec, clock)
+   subroutine print_summary(cfg, has_exact, need_estimates, choice, rec, clock)
       type(config_t), intent(in) :: cfg
-      type(mesh_t), intent(in) :: mesh
       logical, intent(in) :: has_exact, need_estimates
       type(output_choice_t), intent(in) :: choice
       type(result_record_t), intent(in) :: rec
@@ -230,8 +265,9 @@ contains
       integer :: i
 
       write (output_unit, '("status: ",a)') rec%status
-      write (output_unit, '("summary: ",i0," Newton steps, ",i0," vertices, ",i0," triangles, ",i0," threads")') &
-         rec%newton_iterations, mesh%nv, mesh%nt, rec%omp_threads
+      write (output_unit, '("summary: ",i0," Newton steps, ",i0," vertices, ",i0," triangles, ",i0," MPI ranks x ",i0, &
+           &" threads")') rec%newton_iterations, size(rec%vertices, 2), size(rec%triangles, 2), rec%mpi_ranks, &
+         rec%omp_threads
       if (has_exact) write (output_unit, '("energy error: ",es12.5)') rec%energy_error_total
       if (need_estimates) write (output_unit, '("estimators: eta ",es12.5," (disc ",es10.3,", lin ",es10.3,", alg ",es10.3, &
            &"), ",i0," evaluations in ",a," s")') rec%eta_total, rec%eta_disc, rec%eta_lin, rec%eta_alg, &
@@ -241,15 +277,21 @@ contains
       do i = 1, size(lines)
          write (output_unit, '("time: ",a)') trim(lines(i))
       end do
-      write (output_unit, '("wall time: ",a," s, peak memory: ",a," MiB")') fixed(clock%total(), 2), &
-         fixed(real(peak_memory_kib(), dp)/1024, 1)
+      if (rec%mpi_ranks > 1) then
+         write (output_unit, '("wall time: ",a," s, peak memory: ",a," MiB (largest rank)")') fixed(clock%total(), 2), &
+            fixed(real(rec%peak_memory_kib, dp)/1024, 1)
+      else
+         write (output_unit, '("wall time: ",a," s, peak memory: ",a," MiB")') fixed(clock%total(), 2), &
+            fixed(real(rec%peak_memory_kib, dp)/1024, 1)
+      end if
       write (output_unit, '("result: ",a)') trim(cfg%output%file)
       if (choice%xdmf .and. (choice%fields .or. has_exact)) &
          write (output_unit, '("paraview: ",a)') xdmf_path_for(trim(cfg%output%file))
    end subroutine print_summary
 
-   subroutine newton_options_from(cfg, options)
+   subroutine newton_options_from(cfg, comm, options)
       type(config_t), intent(in) :: cfg
+      type(comm_t), intent(in) :: comm
       type(newton_options_t), intent(out) :: options
 
       options%cfun = cfun_kind(trim(cfg%newton%cfun))
@@ -281,20 +323,8 @@ contains
       options%gamma_lin = cfg%newton%gamma_lin
       options%gamma_alg = cfg%estimate%gamma_alg
       options%local_criteria = trim(cfg%estimate%criteria) == 'local'
+      options%verbose = comm%is_root()
    end subroutine newton_options_from
-
-   !> x with `digits` decimals and a leading zero (f0.d drops it: '.43').
-   pure function fixed(x, digits) result(text)
-      real(dp), intent(in) :: x
-      integer, intent(in) :: digits
-      character(len=:), allocatable :: text
-
-      character(len=32) :: buffer, format
-
-      write (format, '("(f32.",i0,")")') digits
-      write (buffer, format) x
-      text = trim(adjustl(buffer))
-   end function fixed
 
    !> The `/estimators` fields of docs/output.md from one evaluation.
    subroutine estimator_fields(est, rec)
@@ -316,96 +346,10 @@ contains
       end do
    end subroutine estimator_fields
 
-   !> Newton on the finest level, from the paper's initial guess (g, 0, 0) or, with
-   !> newton.initial = 'nested', from the solution of the next coarser level, interpolated:
-   !> solving level by level from T_0 keeps the number of Newton steps on the finest level
-   !> nearly independent of the mesh (the contact front starts one layer from its place).
-   subroutine solve_levels(cfg, hierarchy, data, p, options, clock, newton, coarse, err, observer)
-      type(config_t), intent(in) :: cfg
-      type(mesh_hierarchy_t), intent(in) :: hierarchy
-      class(problem_data_t), intent(in) :: data
-      type(discrete_problem_t), intent(in) :: p
-      type(newton_options_t), intent(in) :: options
-      type(phase_clock_t), intent(inout) :: clock
-      type(newton_result_t), intent(out) :: newton
-      type(coarse_work_t), intent(out) :: coarse
-      type(error_t), allocatable, intent(out) :: err
-      class(newton_observer_t), intent(inout), optional :: observer
-
-      type(discrete_problem_t) :: pl
-      type(newton_options_t) :: quiet
-      type(newton_result_t) :: step
-      type(multigrid_transfer_t), target :: transfer
-      real(dp), allocatable :: u(:, :), fine(:, :)
-      real(dp) :: t_level
-      integer :: l, k, finest
-
-      finest = hierarchy%levels
-      ! the multigrid preconditioner of every level uses the levels below it
-      if (options%precond == precond_mg .and. options%linear /= method_direct) then
-         call transfer%init(interior_prolongations(hierarchy, finest), err)
-      else
-         call transfer%init([csr_t ::], err)
-      end if
-      if (allocated(err)) return
-      if (trim(cfg%newton%initial) /= 'nested' .or. finest == 0) then
-         call newton_solve(p, options, [spread(data%g, 1, p%n), spread(0.0_dp, 1, 2*p%n)], newton, err, observer, &
-                           transfer)
-         return
-      end if
-      quiet = options
-      quiet%verbose = .false.
-      ! the estimators live on the finest hierarchy: coarser levels of an adaptive run use the
-      ! paper's inexact GMRES instead
-      if (quiet%linear == method_adaptive) then
-         quiet%linear = method_gmres
-         quiet%forcing = forcing_paper
-      end if
-      do l = 0, finest - 1
-         t_level = wall_time()
-         call clock%switch(phase_assembly)
-         call pl%init(hierarchy%meshes(l), data, err)
-         call clock%switch(phase_solve)
-         if (allocated(err)) return
-         if (l == 0) then
-            call newton_solve(pl, quiet, [spread(data%g, 1, pl%n), spread(0.0_dp, 1, 2*pl%n)], step, err, &
-                              transfer=transfer)
-         else
-            call newton_solve(pl, quiet, interior_values(pl, fine), step, err, transfer=transfer)
-         end if
-         if (allocated(err)) return
-         coarse%newton_iterations = coarse%newton_iterations + step%iterations
-         coarse%gmres_iterations = coarse%gmres_iterations + step%linear_iterations
-         write (output_unit, '("nested: level ",i2,": ",i4," Newton steps, ",i6," GMRES iterations (",a,"), ",a," s")') &
-            l, step%iterations, step%linear_iterations, step%status, fixed(wall_time() - t_level, 2)
-         if (.not. step%converged) write (output_unit, '(a,i0,a)') 'warning: level ', l, &
-            ' did not converge; its iterate still serves as the initial guess of the next level'
-         ! nodal fields on level l, interpolated to level l+1
-         if (allocated(fine)) deallocate (fine)
-         allocate (u(hierarchy%meshes(l)%nv, 3), fine(hierarchy%meshes(l + 1)%nv, 3))
-         u(:, 1) = pl%to_nodal(step%x(1:pl%n), data%g)
-         u(:, 2) = pl%to_nodal(step%x(pl%n + 1:2*pl%n), 0.0_dp)
-         u(:, 3) = pl%to_nodal(step%x(2*pl%n + 1:), 0.0_dp)
-         do k = 1, 3
-            call hierarchy%prolong(l + 1, u(:, k), fine(:, k))
-         end do
-         deallocate (u)
-      end do
-      call newton_solve(p, options, interior_values(p, fine), newton, err, observer, transfer)
-   end subroutine solve_levels
-
-   !> [X1; X2; X3] at the interior vertices of `p` from nodal fields (nv, 3).
-   function interior_values(p, nodal) result(x)
-      type(discrete_problem_t), intent(in) :: p
-      real(dp), intent(in) :: nodal(:, :)
-      real(dp), allocatable :: x(:)
-
-      x = [nodal(p%interior, 1), nodal(p%interior, 2), nodal(p%interior, 3)]
-   end function interior_values
-
    !> Print the resolved input; refuse what this version cannot do yet.
-   subroutine prepare(cfg, err)
+   subroutine prepare(cfg, comm, err)
       type(config_t), intent(inout) :: cfg
+      type(comm_t), intent(in) :: comm
       type(error_t), allocatable, intent(out) :: err
 
       if (trim(cfg%problem%exact) == 'bbbv') then
@@ -414,6 +358,7 @@ contains
          cfg%problem%mu2 = 1.0_dp
          cfg%problem%g = 0.05_dp
       end if
+      if (.not. comm%is_root()) return
       write (output_unit, '(a)') 'twomem '//twomem_version//': case '''//trim(cfg%case_name)// &
          ''' from '//trim(cfg%source)
       write (output_unit, '(a)') config_echo(cfg)
@@ -452,40 +397,4 @@ contains
       call remove_file(path//'.probe-'//trim(pid), ignored)
    end subroutine check_output_writable
 
-   subroutine build_hierarchy(cfg, hierarchy, err)
-      type(config_t), intent(in) :: cfg
-      type(mesh_hierarchy_t), intent(inout) :: hierarchy
-      type(error_t), allocatable, intent(out) :: err
-
-      type(mesh_t) :: coarse
-      real(dp) :: boundary_h
-      integer :: l
-
-      select case (trim(cfg%mesh%domain))
-      case ('disk')
-         boundary_h = cfg%mesh%boundary_h
-         if (boundary_h <= 0.0_dp) boundary_h = disk_boundary_spacing(cfg%mesh%coarse_h, cfg%mesh%levels)
-         write (output_unit, '("mesh: unit disk, coarse_h ",g0.4,", boundary spacing ",g0.4,", ",i0," levels")') &
-            cfg%mesh%coarse_h, boundary_h, cfg%mesh%levels
-         call make_disk(cfg%mesh%coarse_h, boundary_h, coarse, err)
-      case ('square')
-         write (output_unit, '("mesh: square (-1,1)^2, coarse_h ",g0.4,", ",i0," levels")') &
-            cfg%mesh%coarse_h, cfg%mesh%levels
-         call make_square(cfg%mesh%coarse_h, coarse, err)
-      case ('gmsh')
-         write (output_unit, '("mesh: ",a,", ",i0," levels")') trim(cfg%mesh%file), cfg%mesh%levels
-         call read_gmsh(trim(cfg%mesh%file), coarse, err)
-         if (.not. allocated(err) .and. coarse%n_flipped > 0) write (output_unit, &
-            '("  note: ",i0," clockwise triangles reoriented")') coarse%n_flipped
-      end select
-      if (allocated(err)) return
-      call hierarchy%init(coarse, cfg%mesh%levels, err)
-      if (allocated(err)) return
-      do l = 0, hierarchy%levels
-         associate (m => hierarchy%meshes(l))
-            write (output_unit, '("  level ",i2,": ",i9," vertices ",i10," triangles  h ",es9.3," .. ",es9.3)') &
-               l, m%nv, m%nt, minval(m%h), maxval(m%h)
-         end associate
-      end do
-   end subroutine build_hierarchy
 end module twomem_app_run

@@ -1,5 +1,8 @@
 !> The `twomem` executable: reads the command line, loads the case, runs or checks it, and is
-!> the only place that prints errors and chooses the exit code (INTERFACE.md).
+!> the only place that prints errors and chooses the exit code (INTERFACE.md). It starts MPI
+!> and makes the one communicator everything distributed is passed (a run without `mpirun` is
+!> one rank); every rank parses the same input and agrees on every error, rank 0 prints, and
+!> all ranks end together with the same exit code.
 program twomem_main
    use, intrinsic :: iso_fortran_env, only: output_unit, error_unit
    use twomem_base_errors, only: error_t, make_error, exit_ok, exit_bad_input
@@ -7,14 +10,17 @@ program twomem_main
    use twomem_base_version, only: twomem_version
    use twomem_input_config, only: config_t, string_t, load_config
    use twomem_app_run, only: run_case, check_case
+   use twomem_base_comm, only: comm_t, comm_start, comm_stop
    implicit none
 
+   type(comm_t) :: comm
    type(config_t) :: cfg
    type(error_t), allocatable :: err
    type(string_t), allocatable :: overrides(:)
    character(len=:), allocatable :: command, case_file
    integer :: n_args, i, exit_code
 
+   call comm_start(comm)
    n_args = command_argument_count()
    if (n_args == 0) then
       call make_error(err, exit_bad_input, 'twomem', 'missing command (see twomem --help)')
@@ -23,11 +29,11 @@ program twomem_main
    command = argument(1)
    select case (command)
    case ('--help', '-h', 'help')
-      call usage(output_unit)
-      call exit_program(exit_ok)
+      if (comm%is_root()) call usage(output_unit)
+      call finish(exit_ok)
    case ('--version', '-V')
-      write (output_unit, '(a)') 'twomem '//twomem_version
-      call exit_program(exit_ok)
+      if (comm%is_root()) write (output_unit, '(a)') 'twomem '//twomem_version
+      call finish(exit_ok)
    case ('run', 'check')
       if (n_args < 2) then
          call make_error(err, exit_bad_input, 'twomem '//command, 'missing CASE.nml (see twomem --help)')
@@ -41,13 +47,15 @@ program twomem_main
       call load_config(case_file, overrides, cfg, err)
       if (allocated(err)) call fail(err)
       if (command == 'check') then
-         call check_case(cfg, err)
+         call check_case(cfg, comm, err)
+         call comm%agree(err)
          if (allocated(err)) call fail(err)
-         call exit_program(exit_ok)
+         call finish(exit_ok)
       end if
-      call run_case(cfg, exit_code, err)
+      call run_case(cfg, comm, exit_code, err)
+      call comm%agree(err)
       if (allocated(err)) call fail(err)
-      call exit_program(exit_code)
+      call finish(exit_code)
    case default
       call make_error(err, exit_bad_input, 'twomem', 'unknown command '''//command// &
                       ''' (expected run, check, --help or --version)')
@@ -67,13 +75,22 @@ contains
       if (length > 0) call get_command_argument(i, arg)
    end function argument
 
+   !> The one error line (rank 0 prints it), then the error's exit code on every rank.
    subroutine fail(err)
       type(error_t), intent(in) :: err
 
       flush (output_unit)
-      write (error_unit, '(a)') 'twomem: error: '//err%message
-      call exit_program(err%code)
+      if (comm%is_root()) write (error_unit, '(a)') 'twomem: error: '//err%message
+      call finish(err%code)
    end subroutine fail
+
+   !> End MPI, then the process with `code` (the same on every rank).
+   subroutine finish(code)
+      integer, intent(in) :: code
+
+      call comm_stop(comm)
+      call exit_program(code)
+   end subroutine finish
 
    subroutine usage(unit)
       integer, intent(in) :: unit

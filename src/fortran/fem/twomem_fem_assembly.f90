@@ -4,7 +4,9 @@
 !> vertices: each thread writes only its own rows, so there are no atomics, no colouring and no
 !> searches in a global pattern, and the result is the same for any thread count. A matrix
 !> row is built in a small local list (a vertex has a handful of neighbours), sorted, and
-!> written once; a first pass over the same loop counts the rows' lengths.
+!> written once; a first pass over the same loop counts the rows' lengths. On a rank's piece of
+!> a distributed mesh only its own triangles are assembled: rows and vectors at vertices it
+!> shares with other ranks hold its part only, which the caller sums across ranks.
 module twomem_fem_assembly
    use twomem_base_kinds, only: dp, ip
    use twomem_mesh_triangulation, only: mesh_t, corner_of, position_of
@@ -115,6 +117,7 @@ contains
 
       count = 0
       do m = mesh%patch_ptr(a), mesh%patch_ptr(a + 1) - 1
+         if (mesh%patch_triangles(m) > mesh%nt_owned) cycle
          do j = 1, 3
             c = unknown(mesh%triangles(j, mesh%patch_triangles(m)))
             if (c == 0) cycle
@@ -145,6 +148,7 @@ contains
       coupling = 0.0_dp
       do m = mesh%patch_ptr(a), mesh%patch_ptr(a + 1) - 1
          t = mesh%patch_triangles(m)
+         if (t > mesh%nt_owned) cycle
          associate (corner => mesh%triangles(:, t))
             do j = 1, 3
                e(:, j) = mesh%vertices(:, corner(modulo(j + 1, 3) + 1)) - mesh%vertices(:, corner(modulo(j, 3) + 1))
@@ -198,7 +202,7 @@ contains
       do a = 1, mesh%nv
          d(a) = 0.0_dp
          do m = mesh%patch_ptr(a), mesh%patch_ptr(a + 1) - 1
-            d(a) = d(a) + mesh%area(mesh%patch_triangles(m))
+            if (mesh%patch_triangles(m) <= mesh%nt_owned) d(a) = d(a) + mesh%area(mesh%patch_triangles(m))
          end do
          d(a) = d(a)/3
       end do
@@ -228,7 +232,7 @@ contains
       !$omp parallel default(none) shared(mesh, data, bary, weights, nq, local) private(t, q, i, x, f_at, p, s1, s2)
       allocate (x(2, nq), f_at(2, nq))
       !$omp do schedule(static)
-      do t = 1, mesh%nt
+      do t = 1, mesh%nt_owned
          do i = 1, 3
             p(:, i) = mesh%vertices(:, mesh%triangles(i, t))
          end do
@@ -256,6 +260,7 @@ contains
          f(a, :) = 0.0_dp
          do m = mesh%patch_ptr(a), mesh%patch_ptr(a + 1) - 1
             t = mesh%patch_triangles(m)
+            if (t > mesh%nt_owned) cycle
             do alpha = 1, 2
                f(a, alpha) = f(a, alpha) + local(corner_of(mesh, t, a), alpha, t)
             end do

@@ -1,15 +1,20 @@
 !> The algebraic two-membrane problem on one mesh (DESIGN.md §1): unknowns at interior vertices
 !> only, S the P1 stiffness restricted to them, D = diag(|ω_a|/3), and the right-hand sides
 !> F1 = (f1, ψ_a) − μ1 S_IB g (the lifting of u1 = g) and F2 = (f2, ψ_a). It also maps between
-!> interior vectors and nodal fields on the whole mesh, boundary values included.
+!> interior vectors and nodal fields on the whole mesh, boundary values included. On a rank's
+!> piece of a distributed mesh the unknowns are the interior vertices of its own triangles; the
+!> stiffness holds its own triangles' part (products are summed across ranks by `halo`), while
+!> D, F1 and F2 are summed once here and hold full values.
 module twomem_fem_discrete
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_bad_input
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_linalg_csr, only: csr_t
+   use twomem_linalg_halo, only: halo_t
+   use twomem_base_comm, only: comm_t
    use twomem_fem_problem, only: problem_data_t
    use twomem_fem_assembly, only: stiffness_rows, lumped_mass, assemble_loads
-   use twomem_fem_transfer, only: interior_numbering
+   use twomem_fem_transfer, only: interior_numbering, interior_halo
    implicit none
    private
 
@@ -27,6 +32,10 @@ module twomem_fem_discrete
       !> right-hand sides with the Dirichlet lifting
       real(dp), allocatable :: f1(:), f2(:)
       real(dp) :: mu1 = 1.0_dp, mu2 = 1.0_dp, g = 0.0_dp
+      !> the unknowns shared with other ranks, and the ones this rank owns
+      type(halo_t) :: halo
+      !> whole-mesh vertex number of every unknown
+      integer(ip), allocatable :: global(:)
    contains
       procedure :: init => discrete_init
       procedure :: to_nodal
@@ -34,14 +43,17 @@ module twomem_fem_discrete
 
 contains
 
-   subroutine discrete_init(self, mesh, data, err)
+   !> The problem on `mesh`, a whole mesh or, with `comm`, this rank's piece of a distributed one.
+   subroutine discrete_init(self, mesh, data, err, comm)
       class(discrete_problem_t), intent(inout) :: self
       type(mesh_t), intent(in) :: mesh
       class(problem_data_t), intent(in) :: data
       type(error_t), allocatable, intent(out) :: err
+      type(comm_t), intent(in), optional :: comm
 
       real(dp), allocatable :: d_full(:), f_full(:, :), coupling(:)
       integer(ip) :: a
+      type(comm_t) :: one_rank
 
       self%mu1 = data%mu1
       self%mu2 = data%mu2
@@ -52,7 +64,13 @@ contains
          call make_error(err, exit_bad_input, 'mesh', 'the mesh has no interior vertex: refine it')
          return
       end if
-      self%interior = pack([(a, a=1, mesh%nv)], .not. mesh%boundary_vertex)
+      self%interior = pack([(a, a=1, mesh%nv)], self%unknown > 0)
+      self%global = mesh%global_vertex(self%interior)
+      if (present(comm)) then
+         call interior_halo(mesh, self%interior, comm, self%halo)
+      else
+         call self%halo%init_whole(one_rank, self%n)
+      end if
 
       ! K on the interior vertices; its boundary columns carry the lifting of u1 = g into F1
       ! (u2 = 0 there, so F2 needs none)
@@ -62,6 +80,9 @@ contains
       self%mass = d_full(self%interior)
       self%f1 = f_full(self%interior, 1) - self%mu1*self%g*coupling
       self%f2 = f_full(self%interior, 2)
+      call self%halo%add(self%mass)
+      call self%halo%add(self%f1)
+      call self%halo%add(self%f2)
    end subroutine discrete_init
 
    !> Nodal field on the whole mesh from interior values and a boundary value.

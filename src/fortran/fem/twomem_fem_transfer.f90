@@ -2,31 +2,37 @@
 !> the discrete problem (interior vertices, numbered in vertex order). The prolongation P_l maps
 !> a P1 function of level l−1 that vanishes on ∂Ω to level l exactly: an inherited vertex
 !> copies its value, a new vertex (an edge midpoint) takes the mean of the edge's ends, and
-!> boundary ends contribute zero. These matrices are all the multigrid preconditioner knows of
-!> the geometry.
+!> boundary ends contribute zero. These matrices, with the interface of each level's unknowns
+!> in a distributed run, are all the multigrid preconditioner knows of the geometry.
 module twomem_fem_transfer
    use twomem_base_kinds, only: dp, ip
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_mesh_hierarchy, only: mesh_hierarchy_t
    use twomem_linalg_csr, only: csr_t
+   use twomem_linalg_halo, only: halo_t
+   use twomem_base_comm, only: comm_t
+   use twomem_base_sort, only: sorting_permutation
    implicit none
    private
 
-   public :: interior_numbering, interior_prolongation, interior_prolongations
+   public :: interior_numbering, interior_prolongation, interior_prolongations, interior_halo
 
 contains
 
-   !> unknown(a): the number of vertex a among the interior vertices (in vertex order), 0 on ∂Ω.
-   pure function interior_numbering(mesh) result(unknown)
+   !> unknown(a): the number of vertex a among the interior vertices (in vertex order), 0 on ∂Ω
+   !> and, on a rank's piece of a distributed mesh, at vertices of its ghost layer only.
+   function interior_numbering(mesh) result(unknown)
       type(mesh_t), intent(in) :: mesh
       integer(ip), allocatable :: unknown(:)
 
       integer(ip) :: a, n
+      logical, allocatable :: inside(:)
 
       allocate (unknown(mesh%nv))
+      inside = mesh%in_subdomain()
       n = 0
       do a = 1, mesh%nv
-         if (mesh%boundary_vertex(a)) then
+         if (mesh%boundary_vertex(a) .or. .not. inside(a)) then
             unknown(a) = 0
          else
             n = n + 1
@@ -91,4 +97,51 @@ contains
          p(l) = interior_prolongation(hierarchy, l)
       end do
    end function interior_prolongations
+   !> The interface of the unknowns at vertices `interior` of a rank's piece of a distributed
+   !> mesh: which neighbours share each one (the owners of the triangles at its vertex, whose whole
+   !> patch is local), lists ordered by whole-mesh vertex number, and who owns it.
+   subroutine interior_halo(mesh, interior, comm, halo)
+      type(mesh_t), intent(in) :: mesh
+      integer(ip), intent(in) :: interior(:)
+      type(comm_t), intent(in) :: comm
+      type(halo_t), intent(out) :: halo
+
+      logical, allocatable :: shares(:, :)
+      integer, allocatable :: neighbours(:), ptr(:), owner(:)
+      integer(ip), allocatable :: idx(:), order(:)
+      integer(ip) :: i, m, a
+      integer :: q, k, fill
+
+      allocate (shares(size(interior), 0:comm%size - 1))
+      shares = .false.
+      do i = 1, size(interior)
+         a = interior(i)
+         do m = mesh%patch_ptr(a), mesh%patch_ptr(a + 1) - 1
+            q = mesh%triangle_owner(mesh%patch_triangles(m))
+            if (q /= comm%rank) shares(i, q) = .true.
+         end do
+      end do
+      neighbours = pack([(q, q=0, comm%size - 1)], any(shares, dim=1))
+      allocate (ptr(size(neighbours) + 1))
+      ptr(1) = 1
+      do k = 1, size(neighbours)
+         ptr(k + 1) = ptr(k) + count(shares(:, neighbours(k)))
+      end do
+      ! unknowns in whole-mesh order: both sides of an interface list it alike
+      order = sorting_permutation(mesh%global_vertex(interior))
+      allocate (idx(ptr(size(neighbours) + 1) - 1))
+      do k = 1, size(neighbours)
+         fill = ptr(k)
+         do m = 1, size(order)
+            if (shares(order(m), neighbours(k))) then
+               idx(fill) = order(m)
+               fill = fill + 1
+            end if
+         end do
+      end do
+      owner = mesh%vertex_owner(interior)
+      call halo%init(comm, owner, neighbours, ptr, idx)
+   end subroutine interior_halo
+
+
 end module twomem_fem_transfer

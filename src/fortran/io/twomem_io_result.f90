@@ -6,7 +6,6 @@ module twomem_io_result
    use twomem_base_kinds, only: dp, ip, i8
    use twomem_base_errors, only: error_t
    use twomem_base_system, only: rename_file, remove_file, process_id, base_name
-   use twomem_mesh_triangulation, only: mesh_t
    use twomem_newton_history, only: history_t
    use twomem_io_hdf5, only: h5_file_t
    use twomem_io_xdmf, only: write_xdmf
@@ -19,6 +18,9 @@ module twomem_io_result
    !> What the run produced, independent of how it is stored.
    type :: result_record_t
       character(len=:), allocatable :: version, input_text, status
+      !> the finest mesh, whole: vertices (2, nv), triangles (3, nt)
+      real(dp), allocatable :: vertices(:, :)
+      integer(ip), allocatable :: triangles(:, :)
       real(dp), allocatable :: u1(:), u2(:), lambda(:)
       !> per-element energy error, allocated only when the exact solution is known
       real(dp), allocatable :: energy_error(:)
@@ -38,7 +40,7 @@ module twomem_io_result
       real(dp) :: estimator_time = 0.0_dp
       real(dp) :: wall_time = 0.0_dp
       integer(i8) :: peak_memory_kib = 0
-      integer :: omp_threads = 1
+      integer :: omp_threads = 1, mpi_ranks = 1
    end type result_record_t
 
    !> The output.* switches.
@@ -67,9 +69,8 @@ contains
 
    !> Write the result atomically. With `clock` (the run's phase clock, in its output phase) the
    !> file ends with the `/performance` group: each phase's time and peak memory up to then.
-   subroutine write_result(path, mesh, rec, choice, err, clock)
+   subroutine write_result(path, rec, choice, err, clock)
       character(len=*), intent(in) :: path
-      type(mesh_t), intent(in) :: mesh
       type(result_record_t), intent(in) :: rec
       type(output_choice_t), intent(in) :: choice
       type(error_t), allocatable, intent(out) :: err
@@ -88,7 +89,7 @@ contains
       call h5%create(tmp, err)
       if (allocated(err)) return
       with_mesh = choice%fields .or. allocated(rec%energy_error) .or. allocated(rec%estimators)
-      call write_contents(h5, mesh, rec, choice, with_mesh, err)
+      call write_contents(h5, rec, choice, with_mesh, err)
       if (.not. allocated(err) .and. present(clock)) call write_performance(h5, clock, err)
       if (allocated(err)) then
          call h5%close(cleanup_err)
@@ -107,19 +108,18 @@ contains
          if (allocated(rec%estimators)) cells = [character(len=64) :: cells, &
                                                  ('/estimators/'//rec%estimator_names(i), i=1, size(rec%estimator_names))]
          if (choice%fields) then
-            call write_xdmf(xdmf_path_for(path), base_name(path), mesh%nv, mesh%nt, &
+            call write_xdmf(xdmf_path_for(path), base_name(path), size(rec%vertices, 2, ip), size(rec%triangles, 2, ip), &
                             [character(len=64) :: '/solution/u1', '/solution/u2', '/solution/lambda'], &
                             cells, err)
          else
-            call write_xdmf(xdmf_path_for(path), base_name(path), mesh%nv, mesh%nt, &
+            call write_xdmf(xdmf_path_for(path), base_name(path), size(rec%vertices, 2, ip), size(rec%triangles, 2, ip), &
                             [character(len=64) ::], cells, err)
          end if
       end if
    end subroutine write_result
 
-   subroutine write_contents(h5, mesh, rec, choice, with_mesh, err)
+   subroutine write_contents(h5, rec, choice, with_mesh, err)
       type(h5_file_t), intent(inout) :: h5
-      type(mesh_t), intent(in) :: mesh
       type(result_record_t), intent(in) :: rec
       type(output_choice_t), intent(in) :: choice
       logical, intent(in) :: with_mesh
@@ -130,8 +130,8 @@ contains
       if (.not. allocated(err)) call h5%write_attr('/', 'status', rec%status, err)
       if (allocated(err)) return
       if (with_mesh) then
-         call h5%write_real('/mesh/vertices', mesh%vertices, err)
-         if (.not. allocated(err)) call h5%write_int('/mesh/triangles', mesh%triangles - 1_ip, err)
+         call h5%write_real('/mesh/vertices', rec%vertices, err)
+         if (.not. allocated(err)) call h5%write_int('/mesh/triangles', rec%triangles - 1_ip, err)
          if (allocated(err)) return
       end if
       if (choice%fields) then
@@ -153,7 +153,7 @@ contains
          call write_history(h5, rec%history, err)
          if (allocated(err)) return
       end if
-      call write_summary(h5, mesh, rec, err)
+      call write_summary(h5, rec, err)
    end subroutine write_contents
 
    subroutine write_estimators(h5, rec, err)
@@ -199,9 +199,8 @@ contains
       end associate
    end subroutine write_history
 
-   subroutine write_summary(h5, mesh, rec, err)
+   subroutine write_summary(h5, rec, err)
       type(h5_file_t), intent(inout) :: h5
-      type(mesh_t), intent(in) :: mesh
       type(result_record_t), intent(in) :: rec
       type(error_t), allocatable, intent(out) :: err
 
@@ -220,11 +219,12 @@ contains
       if (.not. allocated(err)) call h5%write_attr('/summary', 'energy_error', rec%energy_error_total, err)
       if (.not. allocated(err)) call h5%write_attr('/summary', 'effectivity', rec%effectivity, err)
       if (.not. allocated(err)) call h5%write_attr('/summary', 'wall_time', rec%wall_time, err)
-      if (.not. allocated(err)) call h5%write_attr('/summary', 'nv', int(mesh%nv), err)
-      if (.not. allocated(err)) call h5%write_attr('/summary', 'nt', int(mesh%nt), err)
+      if (.not. allocated(err)) call h5%write_attr('/summary', 'nv', size(rec%vertices, 2), err)
+      if (.not. allocated(err)) call h5%write_attr('/summary', 'nt', size(rec%triangles, 2), err)
       if (.not. allocated(err)) call h5%write_attr('/summary', 'levels', rec%levels, err)
       if (.not. allocated(err)) call h5%write_attr('/summary', 'peak_memory_kib', int(rec%peak_memory_kib), err)
       if (.not. allocated(err)) call h5%write_attr('/summary', 'omp_threads', rec%omp_threads, err)
+      if (.not. allocated(err)) call h5%write_attr('/summary', 'mpi_ranks', rec%mpi_ranks, err)
    end subroutine write_summary
 
    !> `/performance`: attributes `<phase>_seconds` and `<phase>_peak_mib` for every phase.

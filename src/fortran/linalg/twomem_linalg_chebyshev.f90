@@ -2,18 +2,22 @@
 !> Hu & Tuminaro, J. Comput. Phys. 188, 2003). It damps the error components whose eigenvalues
 !> of D⁻¹A lie in [λ_max/ratio, λ_max], the part of the spectrum a coarser grid cannot
 !> represent. Unlike Gauss–Seidel it is built from matrix–vector products and vector updates
-!> only, so it threads perfectly and gives the same bits for any thread count; and it is a fixed
-!> polynomial in A, so the V-cycle stays a fixed linear operator, as a GMRES preconditioner
-!> must be. λ_max comes from Gershgorin's theorem for D⁻¹A (max_i Σ_j |a_ij|/a_ii): a guaranteed
-!> upper bound, tight for Laplacians (it is 2 for an M-matrix with zero row sums), and free of
-!> the random start vectors of a power iteration.
+!> only, so it threads perfectly, distributes with one interface sum per product, and gives the
+!> same bits for any thread count; and it is a fixed polynomial in A, so the V-cycle stays a
+!> fixed linear operator, as a GMRES preconditioner must be. λ_max comes from Gershgorin's
+!> theorem for D⁻¹A (max_i Σ_j |a_ij|/a_ii): a guaranteed upper bound, tight for Laplacians (it
+!> is 2 for an M-matrix with zero row sums), and free of the random start vectors of a power
+!> iteration. The matrix of a distributed run holds each rank's part of the shared rows
+!> (`twomem_linalg_halo`): the diagonal and the row sums are summed across ranks, the sums of
+!> absolute values of the parts bounding those of the whole rows.
 module twomem_linalg_chebyshev
    use twomem_base_kinds, only: dp, ip
    use twomem_linalg_csr, only: csr_t
+   use twomem_linalg_halo, only: halo_t
    implicit none
    private
 
-   public :: chebyshev_t
+   public :: chebyshev_t, level_product
 
    type :: chebyshev_t
       integer :: degree = 2
@@ -28,53 +32,74 @@ module twomem_linalg_chebyshev
 
 contains
 
+   !> y = A x with the parts of shared rows summed: the product of a distributed operator.
+   subroutine level_product(a, halo, x, y)
+      type(csr_t), intent(in) :: a
+      type(halo_t), intent(inout) :: halo
+      real(dp), intent(in) :: x(:)
+      real(dp), intent(out) :: y(:)
+
+      call a%matvec(x, y)
+      call halo%add(y)
+   end subroutine level_product
+
    !> Diagonal and spectral bound of `a` (rows with a non-positive diagonal are left unscaled:
    !> they do not occur in the SPD operators multigrid smooths, but must not divide by zero).
-   subroutine setup(self, a, degree, ratio)
+   subroutine setup(self, a, halo, degree, ratio)
       class(chebyshev_t), intent(inout) :: self
       type(csr_t), intent(in) :: a
+      type(halo_t), intent(inout) :: halo
       integer, intent(in) :: degree
       real(dp), intent(in) :: ratio
 
+      real(dp), allocatable :: diag(:), row_sum(:)
       integer(ip) :: i, k
-      real(dp) :: diag, row_sum, bound
+      real(dp) :: bound
 
       self%degree = degree
       self%ratio = ratio
+      allocate (diag(a%n), row_sum(a%n))
+      !$omp parallel do default(none) shared(a, diag, row_sum) private(i, k) schedule(static) if(a%n > 4096)
+      do i = 1, a%n
+         diag(i) = 0.0_dp
+         row_sum(i) = 0.0_dp
+         do k = a%row_ptr(i), a%row_ptr(i + 1) - 1
+            if (a%col(k) == i) diag(i) = a%val(k)
+            row_sum(i) = row_sum(i) + abs(a%val(k))
+         end do
+      end do
+      !$omp end parallel do
+      call halo%add(diag)
+      call halo%add(row_sum)
       if (allocated(self%inv_diag)) then
          if (size(self%inv_diag) /= a%n) deallocate (self%inv_diag)
       end if
       if (.not. allocated(self%inv_diag)) allocate (self%inv_diag(a%n))
       bound = 0.0_dp
-      !$omp parallel do default(none) shared(a, self) private(i, k, diag, row_sum) reduction(max:bound) &
+      !$omp parallel do default(none) shared(a, self, diag, row_sum) private(i) reduction(max:bound) &
       !$omp schedule(static) if(a%n > 4096)
       do i = 1, a%n
-         diag = 0.0_dp
-         row_sum = 0.0_dp
-         do k = a%row_ptr(i), a%row_ptr(i + 1) - 1
-            if (a%col(k) == i) diag = a%val(k)
-            row_sum = row_sum + abs(a%val(k))
-         end do
-         if (diag > 0.0_dp) then
-            self%inv_diag(i) = 1/diag
-            bound = max(bound, row_sum/diag)
+         if (diag(i) > 0.0_dp) then
+            self%inv_diag(i) = 1/diag(i)
+            bound = max(bound, row_sum(i)/diag(i))
          else
             self%inv_diag(i) = 1.0_dp
          end if
       end do
       !$omp end parallel do
-      self%upper = max(bound, 1.0_dp)
+      self%upper = max(halo%comm%max(bound), 1.0_dp)
    end subroutine setup
 
    !> `degree` Chebyshev steps on A x = b from x (from zero when `from_zero`, saving a product).
-   !> r and d are work vectors of the size of b.
-   subroutine smooth(self, a, b, x, from_zero, r, d)
+   !> r, d and y are work vectors of the size of b.
+   subroutine smooth(self, a, halo, b, x, from_zero, r, d, y)
       class(chebyshev_t), intent(in) :: self
       type(csr_t), intent(in) :: a
+      type(halo_t), intent(inout) :: halo
       real(dp), intent(in) :: b(:)
       real(dp), intent(inout) :: x(:)
       logical, intent(in) :: from_zero
-      real(dp), intent(inout) :: r(:), d(:)
+      real(dp), intent(inout) :: r(:), d(:), y(:)
 
       real(dp) :: theta, delta, sigma, rho, rho_old
       integer(ip) :: i, n
@@ -94,9 +119,10 @@ contains
          end do
          !$omp end parallel do
       else
-         call a%residual(b, x, r)
-         !$omp parallel do default(none) shared(n, x, d, r, self, theta) private(i) schedule(static) if(n > 4096)
+         call level_product(a, halo, x, y)
+         !$omp parallel do default(none) shared(n, b, x, d, r, y, self, theta) private(i) schedule(static) if(n > 4096)
          do i = 1, n
+            r(i) = b(i) - y(i)
             d(i) = self%inv_diag(i)*r(i)/theta
             x(i) = x(i) + d(i)
          end do
@@ -104,11 +130,12 @@ contains
       end if
       do k = 2, self%degree
          ! r ← r − A d, then the three-term recurrence for the next correction
-         call a%subtract_product(d, r)
+         call level_product(a, halo, d, y)
          rho = 1/(2*sigma - rho_old)
-         !$omp parallel do default(none) shared(n, x, d, r, self, rho, rho_old, delta) private(i) &
+         !$omp parallel do default(none) shared(n, x, d, r, y, self, rho, rho_old, delta) private(i) &
          !$omp schedule(static) if(n > 4096)
          do i = 1, n
+            r(i) = r(i) - y(i)
             d(i) = rho*rho_old*d(i) + 2*rho/delta*self%inv_diag(i)*r(i)
             x(i) = x(i) + d(i)
          end do

@@ -5,12 +5,15 @@
 !> into a symbolic phase (the pattern of A_c, once per pattern of A and P) and a numeric phase
 !> (the values, whenever A or the fixed set change: every Newton step for the contact block).
 !> Truncation is applied to the transfer values once (`truncate_transfer`), so the products
-!> themselves run without branches. Both phases run row-parallel over the coarse rows, each row
+!> themselves run without branches. In a distributed run each rank multiplies its own parts
+!> (Σ_p P_pᵀ A_p P_p = Pᵀ A P), so no matrix rows travel; only the diagonal is summed across
+!> ranks to find the rows that truncation emptied. Both phases run row-parallel over the coarse rows, each row
 !> gathered from Pᵀ (held as its own CSR, `r`), so no two threads write the same entry and the
 !> result does not depend on the thread count.
 module twomem_linalg_galerkin
    use twomem_base_kinds, only: dp, ip
    use twomem_linalg_csr, only: csr_t
+   use twomem_linalg_halo, only: halo_t
    implicit none
    private
 
@@ -115,41 +118,61 @@ contains
 
    !> c%val = values of Rv A Pv on the pattern of `galerkin_pattern`, where rv and pv are the
    !> (possibly truncated) values of R and P on their patterns. Rows of fixed coarse unknowns,
-   !> and rows that truncation left empty, become identity rows. `a` must have identity rows
-   !> (and zero columns) at its fixed unknowns, which truncated values never reach.
-   subroutine galerkin_values(r, rv, a, p, pv, coarse_fixed, c)
+   !> and rows that truncation left empty, become identity rows (the owner of a shared row
+   !> holds the 1, so the ranks' parts add up to it). `a` must have identity rows (and zero
+   !> columns) at its fixed unknowns, which truncated values never reach. `halo` is the coarse
+   !> level's.
+   subroutine galerkin_values(r, rv, a, p, pv, coarse_fixed, halo, c)
       type(csr_t), intent(in) :: r, a, p
       real(dp), intent(in) :: rv(:), pv(:)
       logical, intent(in) :: coarse_fixed(:)
+      type(halo_t), intent(inout) :: halo
       type(csr_t), intent(inout) :: c
 
-      call product_rows(c%n, r%row_ptr, r%col, rv, a%row_ptr, a%col, a%val, p%row_ptr, p%col, pv, coarse_fixed, &
+      real(dp), allocatable :: diag(:)
+      integer(ip), allocatable :: d(:)
+      integer(ip) :: i
+
+      call product_rows(c%n, r%row_ptr, r%col, rv, a%row_ptr, a%col, a%val, p%row_ptr, p%col, pv, &
                         c%row_ptr, c%col, c%val)
+      allocate (diag(c%n), d(c%n))
+      do i = 1, c%n
+         d(i) = c%find(i, i)
+         diag(i) = c%val(d(i))
+      end do
+      call halo%add(diag)
+      !$omp parallel do default(none) shared(c, coarse_fixed, diag, d, halo) private(i) schedule(static) &
+      !$omp if(c%n > 4096)
+      do i = 1, c%n
+         if (coarse_fixed(i) .or. .not. diag(i) > 0.0_dp) then
+            ! a fixed or cut-off unknown: an identity row, decoupled from the others
+            c%val(c%row_ptr(i):c%row_ptr(i + 1) - 1) = 0.0_dp
+            c%val(d(i)) = merge(1.0_dp, 0.0_dp, halo%owned(i))
+         end if
+      end do
+      !$omp end parallel do
    end subroutine galerkin_values
 
    !> The numeric product on plain arrays (contiguous dummies let the compiler keep every base
    !> address in a register in the innermost loop).
-   subroutine product_rows(nc, r_ptr, r_col, rv, a_ptr, a_col, a_val, p_ptr, p_col, pv, coarse_fixed, c_ptr, c_col, c_val)
+   subroutine product_rows(nc, r_ptr, r_col, rv, a_ptr, a_col, a_val, p_ptr, p_col, pv, c_ptr, c_col, c_val)
       integer(ip), intent(in) :: nc
       integer(ip), intent(in) :: r_ptr(:), r_col(:), a_ptr(:), a_col(:), p_ptr(:), p_col(:), c_ptr(:), c_col(:)
       real(dp), intent(in) :: rv(:), a_val(:), pv(:)
-      logical, intent(in) :: coarse_fixed(:)
       real(dp), intent(inout) :: c_val(:)
 
       integer(ip), allocatable :: position(:)
-      integer(ip) :: i, k, m, q, kk, j, d
+      integer(ip) :: i, k, m, q, kk, j
       real(dp) :: rik, rikakj
 
-      !$omp parallel default(none) shared(nc, r_ptr, r_col, rv, a_ptr, a_col, a_val, p_ptr, p_col, pv, coarse_fixed) &
-      !$omp shared(c_ptr, c_col, c_val) private(position, i, k, m, q, kk, j, d, rik, rikakj) if(nc > 1024)
+      !$omp parallel default(none) shared(nc, r_ptr, r_col, rv, a_ptr, a_col, a_val, p_ptr, p_col, pv) &
+      !$omp shared(c_ptr, c_col, c_val) private(position, i, k, m, q, kk, j, rik, rikakj) if(nc > 1024)
       allocate (position(nc))
       !$omp do schedule(static)
       do i = 1, nc
-         d = 0
          do m = c_ptr(i), c_ptr(i + 1) - 1
             c_val(m) = 0.0_dp
             position(c_col(m)) = m
-            if (c_col(m) == i) d = m
          end do
          do k = r_ptr(i), r_ptr(i + 1) - 1
             rik = rv(k)
@@ -163,11 +186,6 @@ contains
                end do
             end do
          end do
-         if (coarse_fixed(i) .or. .not. c_val(d) > 0.0_dp) then
-            ! a fixed or cut-off unknown: an identity row, decoupled from the others
-            c_val(c_ptr(i):c_ptr(i + 1) - 1) = 0.0_dp
-            c_val(d) = 1.0_dp
-         end if
       end do
       !$omp end do
       deallocate (position)

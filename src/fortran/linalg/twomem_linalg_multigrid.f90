@@ -4,7 +4,11 @@
 !> levels (`multigrid_transfer_t`, built once per hierarchy and shared by every cycle on it);
 !> the coarse operators are the Galerkin products P_lᵀ A_l P_l, smoothing is Chebyshev–Jacobi
 !> (pre and post, same degree, so the cycle is symmetric), and the coarsest level is solved by
-!> UMFPACK. Unknowns may be fixed (Dirichlet rows of the finest operator): their prolongation
+!> UMFPACK (on rank 0 of a distributed run, the level gathered there: it is small). In a
+!> distributed run every level holds each rank's part of the operator and the interface of its
+!> unknowns (`halos`): products sum the parts across ranks, a residual is restricted from the
+!> entries each rank owns and summed on the coarse interface, and prolongation is local, since
+!> a rank's fine unknowns have their coarse parents on the same rank. Unknowns may be fixed (Dirichlet rows of the finest operator): their prolongation
 !> rows are truncated, and a coarse unknown is fixed when the fine unknown it is injected into
 !> is, so no coarse level ever moves a fixed unknown and every coarse operator stays SPD on its
 !> free unknowns. The patterns are analysed once (`init`); new values or a new fixed set only
@@ -14,8 +18,10 @@ module twomem_linalg_multigrid
    use twomem_base_errors, only: error_t, make_error, exit_io
    use twomem_linalg_csr, only: csr_t
    use twomem_linalg_galerkin, only: galerkin_pattern, galerkin_values, truncate_transfer
-   use twomem_linalg_chebyshev, only: chebyshev_t
-   use twomem_linalg_umfpack, only: umfpack_solver_t
+   use twomem_linalg_chebyshev, only: chebyshev_t, level_product
+   use twomem_linalg_halo, only: halo_t
+   use twomem_linalg_gathered_solve, only: gathered_solver_t
+   use twomem_base_comm, only: comm_t
    implicit none
    private
 
@@ -34,16 +40,16 @@ module twomem_linalg_multigrid
 
    !> The prolongations of a hierarchy with levels 0..levels: p(l) from level l−1 to level l
    !> (rows of level l), r(l) = p(l)ᵀ, and injection(l)%i(j), the unknown of level l that coarse
-   !> unknown j of level l−1 is (nested hierarchies keep every coarse vertex).
+   !> unknown j of level l−1 is (nested hierarchies keep every coarse vertex); the interface of
+   !> every level's unknowns, and a global key of every unknown of level 0 for its gathered solve.
    type :: multigrid_transfer_t
       integer :: levels = 0
       type(csr_t), allocatable :: p(:), r(:)
       type(index_list_t), allocatable :: injection(:)
-      !> unknowns of level 0
-      integer(ip) :: n_coarsest = 0
+      type(halo_t), allocatable :: halos(:)
+      integer(ip), allocatable :: coarse_keys(:)
    contains
       procedure :: init => transfer_init
-      procedure :: level_of
    end type multigrid_transfer_t
 
    type :: mg_level_t
@@ -54,8 +60,8 @@ module twomem_linalg_multigrid
       real(dp), allocatable :: pt(:), rt(:)
       logical, allocatable :: fixed(:)
       type(chebyshev_t) :: smoother
-      !> right-hand side, iterate and two smoother work vectors
-      real(dp), allocatable :: b(:), x(:), r1(:), r2(:)
+      !> right-hand side and iterate (coarse levels), three work vectors
+      real(dp), allocatable :: b(:), x(:), r1(:), r2(:), r3(:)
    end type mg_level_t
 
    type :: multigrid_t
@@ -66,7 +72,7 @@ module twomem_linalg_multigrid
       type(multigrid_transfer_t), pointer :: transfer => null()
       type(mg_level_t), allocatable :: levels(:)
       type(multigrid_options_t) :: options
-      type(umfpack_solver_t) :: coarse
+      type(gathered_solver_t) :: coarse
       !> set if a coarse solve failed after its factorization had succeeded (misuse): the
       !> cycle then returns zero, which GMRES reports as stagnation
       logical :: failed = .false.
@@ -79,17 +85,25 @@ module twomem_linalg_multigrid
 
 contains
 
-   !> From prolongations(l), l = 1..L, level l−1 to level l.
-   subroutine transfer_init(self, prolongations, err)
+   !> From prolongations(l), l = 1..L, level l−1 to level l. `halos` (levels 0..L) and
+   !> `coarse_keys` describe a distributed hierarchy; without them the levels are whole (one
+   !> rank, unknowns numbered 1..n). A hierarchy of one level needs `n_coarsest`.
+   subroutine transfer_init(self, prolongations, err, halos, coarse_keys, n_coarsest)
       class(multigrid_transfer_t), intent(inout) :: self
       type(csr_t), intent(in) :: prolongations(:)
       type(error_t), allocatable, intent(out) :: err
+      type(halo_t), intent(in), optional :: halos(0:)
+      integer(ip), intent(in), optional :: coarse_keys(:)
+      integer(ip), intent(in), optional :: n_coarsest
 
+      type(comm_t) :: one_rank
       integer :: l
+      integer(ip) :: i, n0
 
       self%levels = size(prolongations)
       self%p = prolongations
       if (allocated(self%r)) deallocate (self%r, self%injection)
+      if (allocated(self%halos)) deallocate (self%halos)
       allocate (self%r(self%levels), self%injection(self%levels))
       do l = 1, self%levels
          self%r(l) = self%p(l)%transposed()
@@ -102,21 +116,21 @@ contains
             end if
          end if
       end do
-      self%n_coarsest = 0
-      if (self%levels > 0) self%n_coarsest = self%p(1)%ncol
+      if (present(halos)) then
+         allocate (self%halos(0:self%levels), source=halos)
+         self%coarse_keys = coarse_keys
+      else
+         n0 = 0
+         if (present(n_coarsest)) n0 = n_coarsest
+         if (self%levels > 0) n0 = self%p(1)%ncol
+         allocate (self%halos(0:self%levels))
+         call self%halos(0)%init_whole(one_rank, n0)
+         do l = 1, self%levels
+            call self%halos(l)%init_whole(one_rank, self%p(l)%n)
+         end do
+         self%coarse_keys = [(i, i=1, n0)]
+      end if
    end subroutine transfer_init
-
-   !> The level whose unknowns number n (-1 if none): the multigrid for an operator of that
-   !> size uses levels 0..level_of(n).
-   integer function level_of(self, n) result(l)
-      class(multigrid_transfer_t), intent(in) :: self
-      integer(ip), intent(in) :: n
-
-      do l = self%levels, 1, -1
-         if (self%p(l)%n == n) return
-      end do
-      l = merge(0, -1, self%levels == 0 .or. n == self%n_coarsest)
-   end function level_of
 
    !> Coarse unknown j sits where fine row i of P has the single entry P(i, j) = 1. Missing one
    !> means P is not a nested prolongation.
@@ -143,11 +157,11 @@ contains
    !> direct solve). The coarse patterns are copied from `pattern_of` when given (another
    !> multigrid on the same pattern), else analysed. With `assemble`, ends with `refresh` for no
    !> fixed unknown; otherwise the caller refreshes when it has the values. The caller keeps
-   !> `finest` and `transfer` alive and in place while the multigrid is used.
+   !> `finest` and `transfer` alive and in place while the multigrid is used. Collective.
    subroutine init(self, finest, transfer, top, options, assemble, err, pattern_of)
       class(multigrid_t), intent(inout) :: self
       type(csr_t), target, intent(in) :: finest
-      type(multigrid_transfer_t), target, intent(in) :: transfer
+      type(multigrid_transfer_t), target, intent(inout) :: transfer
       integer, intent(in) :: top
       type(multigrid_options_t), intent(in) :: options
       logical, intent(in) :: assemble
@@ -158,7 +172,7 @@ contains
       integer(ip) :: n
 
       call self%free()
-      if (top < 0 .or. top > transfer%levels) then
+      if (top < 0 .or. top > transfer%levels .or. .not. allocated(transfer%halos)) then
          call make_error(err, exit_io, 'multigrid', 'the operator does not match a level of the hierarchy')
          return
       end if
@@ -180,10 +194,13 @@ contains
          n = finest%n
          if (l < top) n = self%levels(l)%a%n
          associate (lev => self%levels(l))
-            allocate (lev%fixed(n), lev%b(n), lev%x(n), lev%r1(n), lev%r2(n))
+            allocate (lev%fixed(n), lev%r1(n), lev%r2(n), lev%r3(n))
+            ! the finest level's right-hand side and iterate are the caller's
+            if (l < top) allocate (lev%b(n), lev%x(n))
             lev%fixed = .false.
          end associate
       end do
+      call self%coarse%init(transfer%halos(0)%comm, transfer%coarse_keys, transfer%halos(0)%owned)
       if (assemble) call self%refresh(self%levels(top)%fixed, err)
    end subroutine init
 
@@ -228,18 +245,18 @@ contains
          if (truncated) then
             if (.not. allocated(fine%pt)) allocate (fine%pt(p%nnz()), fine%rt(r%nnz()))
             call truncate_transfer(p, r, fine%fixed, coarse%fixed, fine%pt, fine%rt)
-            call galerkin_values(r, fine%rt, a, p, fine%pt, coarse%fixed, coarse%a)
+            call galerkin_values(r, fine%rt, a, p, fine%pt, coarse%fixed, self%transfer%halos(l - 1), coarse%a)
          else
             ! no fixed unknown (any more): the transfer's own values
             if (allocated(fine%pt)) deallocate (fine%pt, fine%rt)
-            call galerkin_values(r, r%val, a, p, p%val, coarse%fixed, coarse%a)
+            call galerkin_values(r, r%val, a, p, p%val, coarse%fixed, self%transfer%halos(l - 1), coarse%a)
          end if
-         call fine%smoother%setup(a, self%options%degree, self%options%ratio)
+         call fine%smoother%setup(a, self%transfer%halos(l), self%options%degree, self%options%ratio)
       end associate
    end subroutine coarsen
 
-   !> x = one V-cycle applied to b, from a zero initial guess. b must vanish at the fixed
-   !> unknowns; x then does too.
+   !> x = one V-cycle applied to b, from a zero initial guess. b (full values at shared unknowns)
+   !> must vanish at the fixed unknowns; x then does too. Collective.
    subroutine vcycle(self, b, x)
       class(multigrid_t), intent(inout) :: self
       real(dp), intent(in) :: b(:)
@@ -257,11 +274,7 @@ contains
       type(error_t), allocatable :: err
 
       if (l == 0) then
-         if (self%top == 0) then
-            call self%coarse%solve(self%finest, b, x, err)
-         else
-            call self%coarse%solve(self%levels(0)%a, b, x, err)
-         end if
+         call self%coarse%solve(b, x, err)
          if (allocated(err)) then
             x = 0.0_dp
             self%failed = .true.
@@ -282,23 +295,41 @@ contains
       real(dp), intent(out) :: x(:)
 
       associate (lev => self%levels(l), below => self%levels(l - 1), p => self%transfer%p(l), &
-                 r => self%transfer%r(l))
-         call lev%smoother%smooth(a, b, x, .true., lev%r1, lev%r2)
-         call a%residual(b, x, lev%r1)
+                 r => self%transfer%r(l), halo => self%transfer%halos(l))
+         call lev%smoother%smooth(a, halo, b, x, .true., lev%r1, lev%r2, lev%r3)
+         call level_product(a, halo, x, lev%r3)
+         ! the residual from the entries this rank owns: the ranks' restrictions then add up
+         call owned_residual(b, lev%r3, halo%owned, lev%r1)
          if (allocated(lev%rt)) then
             call restrict(r, lev%rt, lev%r1, below%b)
          else
             call restrict(r, r%val, lev%r1, below%b)
          end if
+         call self%transfer%halos(l - 1)%add(below%b)
          call cycle_level(self, l - 1, below%b, below%x)
          if (allocated(lev%pt)) then
             call prolong_add(p, lev%pt, below%x, x)
          else
             call prolong_add(p, p%val, below%x, x)
          end if
-         call lev%smoother%smooth(a, b, x, .false., lev%r1, lev%r2)
+         call lev%smoother%smooth(a, halo, b, x, .false., lev%r1, lev%r2, lev%r3)
       end associate
    end subroutine two_grid_step
+
+   !> r = b − ax on the owned entries, 0 elsewhere.
+   subroutine owned_residual(b, ax, owned, r)
+      real(dp), intent(in) :: b(:), ax(:)
+      logical, intent(in) :: owned(:)
+      real(dp), intent(out) :: r(:)
+
+      integer(ip) :: i
+
+      !$omp parallel do default(none) shared(b, ax, owned, r) private(i) schedule(static) if(size(r) > 4096)
+      do i = 1, size(r, kind=ip)
+         r(i) = merge(b(i) - ax(i), 0.0_dp, owned(i))
+      end do
+      !$omp end parallel do
+   end subroutine owned_residual
 
    !> bc = R r with R's pattern and the values `rv`.
    subroutine restrict(r, rv, res, bc)
@@ -340,7 +371,6 @@ contains
    subroutine free(self)
       class(multigrid_t), intent(inout) :: self
 
-      call self%coarse%free()
       if (allocated(self%levels)) deallocate (self%levels)
       self%top = -1
       self%finest => null()

@@ -8,11 +8,12 @@ module twomem_linalg_operators
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t
    use twomem_linalg_csr, only: csr_t
+   use twomem_base_comm, only: comm_t
    implicit none
    private
 
    public :: linear_operator_t, preconditioner_t, inner_product_t
-   public :: csr_operator_t, identity_preconditioner_t, euclidean_product_t
+   public :: csr_operator_t, identity_preconditioner_t, euclidean_product_t, distributed_product_t
 
    type, abstract :: linear_operator_t
    contains
@@ -83,6 +84,15 @@ module twomem_linalg_operators
       procedure :: dot => euclidean_dot
    end type euclidean_product_t
 
+   !> The Euclidean product of distributed vectors: every entry counted by the one rank that
+   !> owns it (`owned` has the vectors' length), the ranks' sums added.
+   type, extends(inner_product_t) :: distributed_product_t
+      type(comm_t) :: comm
+      logical, allocatable :: owned(:)
+   contains
+      procedure :: dot => distributed_dot
+   end type distributed_product_t
+
 contains
 
    !> sqrt(x·x); NaN stays NaN (max(0, NaN) may well be 0, which would call a NaN vector zero)
@@ -146,4 +156,26 @@ contains
       !$omp end parallel do
       s = sum(partial)
    end function euclidean_dot
+   !> As `euclidean_dot`, over the owned entries, then summed over the ranks.
+   real(dp) function distributed_dot(self, x, y) result(s)
+      class(distributed_product_t), intent(in) :: self
+      real(dp), intent(in) :: x(:), y(:)
+
+      integer(ip), parameter :: block = 4096
+      real(dp), allocatable :: partial(:)
+      integer(ip) :: n, nb, b, i
+
+      n = size(x, kind=ip)
+      nb = (n + block - 1)/block
+      allocate (partial(nb))
+      !$omp parallel do default(none) shared(self, x, y, partial, n, nb) private(b, i) schedule(static) if(nb > 1)
+      do b = 1, nb
+         partial(b) = 0.0_dp
+         do i = (b - 1)*block + 1, min(b*block, n)
+            if (self%owned(i)) partial(b) = partial(b) + x(i)*y(i)
+         end do
+      end do
+      !$omp end parallel do
+      s = self%comm%sum(sum(partial))
+   end function distributed_dot
 end module twomem_linalg_operators

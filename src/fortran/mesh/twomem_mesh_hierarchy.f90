@@ -182,7 +182,69 @@ contains
       !$omp end do
       !$omp end parallel
       call refined_patches(coarse, fine)
+      call refined_partition(coarse, fine)
    end subroutine refine_red
+
+   !> The partition data of the children: each inherits its parent's owner and gets its number
+   !> in the refined whole mesh, which the serial numbering fixes (see `refine_red`): vertex
+   !> nv + e for the midpoint of whole-mesh edge e, triangle 4(t − 1) + c, edges 2e − 1, 2e
+   !> (the half at the lower-numbered end first) and 2 ne + 3(t − 1) + i.
+   subroutine refined_partition(coarse, fine)
+      type(mesh_t), intent(in) :: coarse
+      type(mesh_t), intent(inout) :: fine
+
+      integer(ip) :: nvc, nec, e, t, i, ge, gt
+      integer :: k
+
+      nvc = coarse%nv
+      nec = coarse%ne
+      fine%nt_owned = 4*coarse%nt_owned
+      fine%nv_global = coarse%nv_global + coarse%ne_global
+      fine%nt_global = 4*coarse%nt_global
+      fine%ne_global = 2*coarse%ne_global + 3*coarse%nt_global
+      allocate (fine%global_vertex(fine%nv), fine%global_triangle(fine%nt), fine%global_edge(fine%ne), &
+                fine%triangle_owner(fine%nt), fine%vertex_owner(fine%nv))
+      !$omp parallel default(none) shared(coarse, fine, nvc, nec) private(e, t, i, ge, gt, k)
+      !$omp do schedule(static)
+      do i = 1, nvc
+         fine%global_vertex(i) = coarse%global_vertex(i)
+         fine%vertex_owner(i) = coarse%vertex_owner(i)
+      end do
+      !$omp end do nowait
+      !$omp do schedule(static)
+      do e = 1, nec
+         ge = coarse%global_edge(e)
+         fine%global_vertex(nvc + e) = coarse%nv_global + ge
+         ! the midpoint's triangles are children of the triangles beside the edge (the owner
+         ! is exact where the local mesh holds both, as around every vertex of an own triangle)
+         fine%vertex_owner(nvc + e) = huge(1)
+         do k = 1, 2
+            t = coarse%edge_triangles(k, e)
+            if (t > 0) fine%vertex_owner(nvc + e) = min(fine%vertex_owner(nvc + e), coarse%triangle_owner(t))
+         end do
+         if (coarse%global_vertex(coarse%edges(1, e)) < coarse%global_vertex(coarse%edges(2, e))) then
+            fine%global_edge(2*e - 1) = 2*ge - 1
+            fine%global_edge(2*e) = 2*ge
+         else
+            fine%global_edge(2*e - 1) = 2*ge
+            fine%global_edge(2*e) = 2*ge - 1
+         end if
+      end do
+      !$omp end do nowait
+      !$omp do schedule(static)
+      do t = 1, coarse%nt
+         gt = coarse%global_triangle(t)
+         do k = 1, 4
+            fine%global_triangle(4*(t - 1) + k) = 4*(gt - 1) + k
+            fine%triangle_owner(4*(t - 1) + k) = coarse%triangle_owner(t)
+         end do
+         do i = 1, 3
+            fine%global_edge(2*nec + 3*(t - 1) + i) = 2*coarse%ne_global + 3*(gt - 1) + i
+         end do
+      end do
+      !$omp end do
+      !$omp end parallel
+   end subroutine refined_partition
 
    !> Area and diameter of triangle t, computed as `mesh_t%init` computes them.
    subroutine measure(mesh, t)
@@ -212,7 +274,8 @@ contains
          fine%patch_ptr(a + 1) = coarse%patch_ptr(a + 1) - coarse%patch_ptr(a)
       end do
       do e = 1, coarse%ne
-         fine%patch_ptr(coarse%nv + e + 1) = merge(3, 6, coarse%boundary_edge(e))
+         ! three children on each side of the edge that the local mesh holds
+         fine%patch_ptr(coarse%nv + e + 1) = merge(3, 6, coarse%edge_triangles(2, e) == 0)
       end do
       do a = 1, fine%nv
          fine%patch_ptr(a + 1) = fine%patch_ptr(a + 1) + fine%patch_ptr(a)

@@ -35,11 +35,24 @@ module twomem_mesh_triangulation
       real(dp) :: diameter = 0.0_dp
       !> triangles whose orientation `init` reversed
       integer(ip) :: n_flipped = 0
+      !> Distributed runs: this rank's piece of a partitioned mesh. Triangles 1..nt_owned are
+      !> its own; the rest are the ghost layer (the other ranks' triangles that share a vertex
+      !> with its own), which the estimators' patches need. Every local vertex, edge and
+      !> triangle carries its number in the whole (serial) mesh, so results are gathered in the
+      !> serial layout. vertex_owner is the lowest rank owning a triangle at the vertex (−1 for
+      !> a vertex of ghost triangles only). A whole mesh is one rank's piece of itself:
+      !> nt_owned = nt, global numbers = local ones, every owner 0.
+      integer(ip) :: nt_owned = 0
+      integer(ip) :: nv_global = 0, nt_global = 0, ne_global = 0
+      integer(ip), allocatable :: global_vertex(:), global_triangle(:), global_edge(:)
+      integer, allocatable :: triangle_owner(:), vertex_owner(:)
    contains
       procedure :: init => mesh_init
       procedure :: free => mesh_free
       procedure :: n_boundary_vertices
       procedure :: total_area
+      procedure :: set_whole
+      procedure :: in_subdomain
    end type mesh_t
 
 contains
@@ -159,7 +172,46 @@ contains
       else
          self%diameter = boundary_diameter(self)
       end if
+      call self%set_whole()
    end subroutine mesh_init
+
+   !> Mark the mesh as a whole: one rank's piece of itself.
+   subroutine set_whole(self)
+      class(mesh_t), intent(inout) :: self
+
+      integer(ip) :: i
+
+      self%nt_owned = self%nt
+      self%nv_global = self%nv
+      self%nt_global = self%nt
+      self%ne_global = self%ne
+      self%global_vertex = [(i, i=1, self%nv)]
+      self%global_triangle = [(i, i=1, self%nt)]
+      self%global_edge = [(i, i=1, self%ne)]
+      allocate (self%triangle_owner(self%nt), self%vertex_owner(self%nv))
+      self%triangle_owner = 0
+      self%vertex_owner = 0
+   end subroutine set_whole
+
+   !> Vertices of this rank's own triangles (the solver's unknowns live there; the other local
+   !> vertices belong to the ghost layer only).
+   function in_subdomain(self) result(inside)
+      class(mesh_t), intent(in) :: self
+      logical, allocatable :: inside(:)
+
+      integer(ip) :: a, m
+
+      allocate (inside(self%nv))
+      do a = 1, self%nv
+         inside(a) = .false.
+         do m = self%patch_ptr(a), self%patch_ptr(a + 1) - 1
+            if (self%patch_triangles(m) <= self%nt_owned) then
+               inside(a) = .true.
+               exit
+            end if
+         end do
+      end do
+   end function in_subdomain
 
    subroutine mesh_free(self)
       class(mesh_t), intent(inout) :: self
@@ -169,6 +221,15 @@ contains
       self%ne = 0
       self%diameter = 0.0_dp
       self%n_flipped = 0
+      self%nt_owned = 0
+      self%nv_global = 0
+      self%nt_global = 0
+      self%ne_global = 0
+      if (allocated(self%global_vertex)) deallocate (self%global_vertex)
+      if (allocated(self%global_triangle)) deallocate (self%global_triangle)
+      if (allocated(self%global_edge)) deallocate (self%global_edge)
+      if (allocated(self%triangle_owner)) deallocate (self%triangle_owner)
+      if (allocated(self%vertex_owner)) deallocate (self%vertex_owner)
       if (allocated(self%vertices)) deallocate (self%vertices)
       if (allocated(self%triangles)) deallocate (self%triangles)
       if (allocated(self%edges)) deallocate (self%edges)

@@ -1,17 +1,20 @@
 !> Cycling detection for exact Newton-min, a primal–dual active set method: with full steps and
 !> exact solves its iterate is a function of the active set alone, so meeting a set again
-!> means the iteration will repeat forever. Each Newton step's active set is remembered as two
-!> polynomial hashes and its size; a damped step breaks the map from set to iterate, so sets
-!> are only compared since the last damped step.
+!> means the iteration will repeat forever. Each Newton step's active set is remembered by its
+!> size and two hashes; a damped step breaks the map from set to iterate, so sets are only
+!> compared since the last damped step. The hashes add a pseudo-random value per active
+!> vertex, keyed by its whole-mesh number: they are independent of the order in which ranks and
+!> threads visit the vertices, so every rank of a distributed run finds the same set.
 module twomem_newton_cycling
    use twomem_base_kinds, only: ip, i8
+   use twomem_base_comm, only: comm_t
    implicit none
    private
 
    public :: active_set_watch_t
 
    type :: active_set_watch_t
-      integer(i8), allocatable :: hash(:)
+      integer(i8), allocatable :: hash(:, :)
       integer, allocatable :: size(:)
       integer :: last_damped = 0
    contains
@@ -21,6 +24,9 @@ module twomem_newton_cycling
       procedure :: repeats
    end type active_set_watch_t
 
+   !> moduli of the two hashes: primes below 2**31, so 2**31 terms cannot overflow 64 bits
+   integer(i8), parameter :: p1 = 2147483647_i8, p2 = 2147483629_i8
+
 contains
 
    !> Room for steps 0..max_it.
@@ -29,17 +35,33 @@ contains
       integer, intent(in) :: max_it
 
       if (allocated(self%hash)) deallocate (self%hash, self%size)
-      allocate (self%hash(0:max_it), self%size(0:max_it))
+      allocate (self%hash(2, 0:max_it), self%size(0:max_it))
       self%last_damped = 0
    end subroutine init
 
-   subroutine record(self, k, active)
+   !> The active set of step k: active(i) for the unknowns with whole-mesh numbers global(i),
+   !> counted where `owned`. Collective.
+   subroutine record(self, k, active, global, owned, comm)
       class(active_set_watch_t), intent(inout) :: self
       integer, intent(in) :: k
-      logical, intent(in) :: active(:)
+      logical, intent(in) :: active(:), owned(:)
+      integer(ip), intent(in) :: global(:)
+      type(comm_t), intent(in) :: comm
 
-      self%hash(k) = hash_set(active)
-      self%size(k) = count(active)
+      integer(i8) :: h1, h2
+      integer(ip) :: i
+
+      h1 = 0
+      h2 = 0
+      do i = 1, size(active, kind=ip)
+         if (active(i) .and. owned(i)) then
+            h1 = h1 + mix(int(global(i), i8), 1_i8)
+            h2 = h2 + mix(int(global(i), i8), 2_i8)
+         end if
+      end do
+      self%hash(1, k) = mod(comm%sum(h1), p1)
+      self%hash(2, k) = mod(comm%sum(h2), p2)
+      self%size(k) = comm%sum(count(active .and. owned))
    end subroutine record
 
    !> Step k was damped by the line search.
@@ -60,30 +82,21 @@ contains
 
       repeats = .false.
       do j = self%last_damped, k - 2
-         if (self%hash(j) == self%hash(k) .and. self%size(j) == self%size(k)) then
+         if (all(self%hash(:, j) == self%hash(:, k)) .and. self%size(j) == self%size(k)) then
             repeats = .true.
             return
          end if
       end do
    end function repeats
 
-   !> Hash of the active set (two polynomial hashes modulo primes below 2**31, so no product
-   !> overflows 64 bits).
-   pure integer(i8) function hash_set(active) result(h)
-      logical, intent(in) :: active(:)
+   !> A pseudo-random value in [0, p) for vertex number v (two rounds of a multiplicative mix,
+   !> distinct for the two hashes through `seed`).
+   pure integer(i8) function mix(v, seed) result(h)
+      integer(i8), intent(in) :: v, seed
 
-      integer(i8), parameter :: p1 = 2147483647_i8, p2 = 2147483629_i8
-      integer(i8) :: h1, h2
-      integer(ip) :: i
+      integer(i8), parameter :: a = 1000003_i8, b = 999983_i8
 
-      h1 = 0
-      h2 = 0
-      do i = 1, size(active, kind=ip)
-         if (active(i)) then
-            h1 = mod(h1*1000003_i8 + i, p1)
-            h2 = mod(h2*999983_i8 + i, p2)
-         end if
-      end do
-      h = h1*p2 + h2
-   end function hash_set
+      h = mod(v*a + seed*7919_i8, p1)
+      h = mod(h*b + seed, merge(p1, p2, seed == 1))
+   end function mix
 end module twomem_newton_cycling

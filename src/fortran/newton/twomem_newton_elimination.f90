@@ -11,16 +11,19 @@
 !> the exact w; with the approximate w of a V-cycle, (r3 − a w)/b multiplies w's error by a/b
 !> and the balance (ii) by K_ii/(c_μ D), so each row takes the smaller: rows whose shift
 !> c_μ D a/b exceeds K_ii (Fischer–Burmeister near contact, b → 0) use the balance. (Taking
-!> (r3 − a w)/b there left GMRES with no progress at all on such Newton steps.) Applying this with one multigrid
-!> V-cycle for each SPD problem gives a preconditioner that would be the exact inverse with
-!> exact inner solves, so GMRES on the full system needs a few iterations at any mesh size,
-!> while its residual stays the full system's, which the estimators need. The S hierarchy is
-!> built once per mesh; the w operator changes with the Newton step through its diagonal and
-!> its fixed rows, and `setup` rebuilds its coarse levels (truncated at the fixed rows).
+!> (r3 − a w)/b there left GMRES with no progress at all on such Newton steps.) Applying this
+!> with one multigrid V-cycle for each SPD problem gives a preconditioner that would be the
+!> exact inverse with exact inner solves, so GMRES on the full system needs a few iterations at
+!> any mesh size, while its residual stays the full system's, which the estimators need. The S
+!> hierarchy is built once per mesh; the w operator changes with the Newton step through its
+!> diagonal and its fixed rows, and `set_linearization` rebuilds its coarse levels (truncated
+!> at the fixed rows). In a distributed run K is each rank's part: its products are summed
+!> across ranks, and only the owner of a shared row adds the diagonal shift and identity rows.
 module twomem_newton_elimination
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_io
    use twomem_linalg_csr, only: csr_t
+   use twomem_linalg_halo, only: halo_t
    use twomem_linalg_operators, only: preconditioner_t
    use twomem_linalg_multigrid, only: multigrid_t, multigrid_options_t, multigrid_transfer_t
    use twomem_fem_discrete, only: discrete_problem_t
@@ -38,25 +41,28 @@ module twomem_newton_elimination
       integer(ip) :: n = 0
       real(dp) :: mu1 = 1, mu2 = 1, c_mu = 2
       real(dp), allocatable :: mass(:)
-      !> the problem's stiffness K (the problem outlives the preconditioner)
+      !> the problem's stiffness K (the problem outlives the preconditioner), the interface of
+      !> its rows (the transfers' finest level) and its full diagonal
       type(csr_t), pointer :: k => null()
+      type(halo_t), pointer :: halo => null()
+      real(dp), allocatable :: k_diag(:)
       !> the w-block operator K + c_μ D a/b with identity rows at fixed unknowns
       type(csr_t) :: w_matrix
       !> S-block (K) and w-block hierarchies
       type(multigrid_t) :: s_mg, w_mg
-      !> the w-block's shift and fixed rows as last built: a Newton step that leaves them alone
-      !> (Newton-min once the active set is found) keeps the hierarchy
-      real(dp), allocatable :: shift(:)
-      logical :: built = .false.
       !> the C-function rows of the current Newton matrix: a = ∂C/∂(u1 − u2), b = ∂C/∂λ
       real(dp), allocatable :: a(:), b(:)
       logical, allocatable :: fixed(:)
       !> rows whose X3 comes from the membrane balance (ii): fixed rows and large shifts
       logical, allocatable :: by_balance(:)
+      !> the w-block's shift and fixed rows as last built: a Newton step that leaves them alone
+      !> (Newton-min once the active set is found) keeps the hierarchy
+      real(dp), allocatable :: shift(:)
+      logical :: built = .false.
       !> positions of the diagonals of K in its value array
       integer(ip), allocatable :: diag(:)
-      !> work: the two right-hand sides, S, w and w's fixed values
-      real(dp), allocatable :: rhs_s(:), rhs_w(:), s(:), w(:), w_fixed(:)
+      !> work: the two right-hand sides, S, w, w's fixed values and products with K
+      real(dp), allocatable :: rhs_s(:), rhs_w(:), s(:), w(:), w_fixed(:), kw(:)
    contains
       procedure :: init
       procedure :: setup
@@ -67,17 +73,17 @@ module twomem_newton_elimination
 
 contains
 
-   !> The hierarchies for problem p on the levels of `transfer` below p's mesh (none: both blocks
-   !> solved by UMFPACK, the exact elimination).
-   subroutine init(self, p, transfer, options, err)
+   !> The hierarchies for problem p, on level `top` of `transfer` (top = 0: both blocks solved
+   !> directly, the exact elimination). Collective.
+   subroutine init(self, p, transfer, top, options, err)
       class(elimination_preconditioner_t), intent(out) :: self
       type(discrete_problem_t), target, intent(in) :: p
-      type(multigrid_transfer_t), target, intent(in) :: transfer
+      type(multigrid_transfer_t), target, intent(inout) :: transfer
+      integer, intent(in) :: top
       type(multigrid_options_t), intent(in) :: options
       type(error_t), allocatable, intent(out) :: err
 
       integer(ip) :: n, i
-      integer :: top
 
       n = p%n
       self%n = n
@@ -86,18 +92,20 @@ contains
       self%c_mu = 1/p%mu1 + 1/p%mu2
       self%mass = p%mass
       self%k => p%stiffness
-      top = transfer%level_of(n)
+      self%halo => transfer%halos(top)
       call self%s_mg%init(p%stiffness, transfer, top, options, .true., err)
       if (allocated(err)) return
       self%w_matrix = p%stiffness
       call self%w_mg%init(self%w_matrix, transfer, top, options, .false., err, pattern_of=self%s_mg)
       if (allocated(err)) return
-      allocate (self%diag(n))
+      allocate (self%diag(n), self%k_diag(n))
       do i = 1, n
          self%diag(i) = p%stiffness%find(i, i)
+         self%k_diag(i) = p%stiffness%val(self%diag(i))
       end do
+      call self%halo%add(self%k_diag)
       allocate (self%a(n), self%b(n), self%fixed(n), self%by_balance(n), self%shift(n), self%rhs_s(n), self%rhs_w(n), &
-                self%s(n), self%w(n), self%w_fixed(n))
+                self%s(n), self%w(n), self%w_fixed(n), self%kw(n))
       self%fixed = .false.
       self%shift = 0.0_dp
       self%built = .false.
@@ -128,25 +136,27 @@ contains
 
    !> The C-function Jacobian (a = ∂C/∂(u1 − u2), b = ∂C/∂λ per vertex) of the Newton step:
    !> classify the rows (fixed where b = 0, or where the shift c_μ D a/b dwarfs K's diagonal)
-   !> and rebuild the w-block operator and its coarse levels, unless nothing changed.
+   !> and rebuild the w-block operator and its coarse levels, unless nothing changed on any
+   !> rank. Collective.
    subroutine set_linearization(self, da, db, err)
       class(elimination_preconditioner_t), intent(inout) :: self
       real(dp), intent(in) :: da(:), db(:)
       type(error_t), allocatable, intent(out) :: err
 
       integer(ip) :: i
-      logical :: fixed, changed
+      logical :: fixed, changed, zero_row
 
       changed = .not. self%built
-      !$omp parallel do default(none) shared(self, da, db) private(i, fixed) reduction(.or.:changed) schedule(static) &
-      !$omp if(self%n > 4096)
+      zero_row = .false.
+      !$omp parallel do default(none) shared(self, da, db) private(i, fixed) reduction(.or.:changed, zero_row) &
+      !$omp schedule(static) if(self%n > 4096)
       do i = 1, self%n
          self%a(i) = da(i)
          self%b(i) = db(i)
          if (db(i) == 0.0_dp) then
             fixed = .true.
          else
-            fixed = self%c_mu*self%mass(i)*da(i)/db(i) > fixed_ratio*self%k%val(self%diag(i))
+            fixed = self%c_mu*self%mass(i)*da(i)/db(i) > fixed_ratio*self%k_diag(i)
          end if
          if (fixed) then
             changed = changed .or. .not. self%fixed(i) .or. self%shift(i) /= 0.0_dp
@@ -156,30 +166,32 @@ contains
             self%shift(i) = self%c_mu*self%mass(i)*da(i)/db(i)
          end if
          self%fixed(i) = fixed
-         self%by_balance(i) = fixed .or. self%shift(i) > self%k%val(self%diag(i))
+         self%by_balance(i) = fixed .or. self%shift(i) > self%k_diag(i)
+         zero_row = zero_row .or. (fixed .and. da(i) == 0.0_dp)
       end do
       !$omp end parallel do
-      if (any(self%fixed .and. self%a == 0.0_dp)) then
+      if (self%halo%comm%any_true(zero_row)) then
          call make_error(err, exit_io, 'multigrid preconditioner', 'a C-function row of the Newton matrix is zero')
          return
       end if
-      if (.not. changed) return
-      call fill_w_operator(self%k, self%diag, self%fixed, self%shift, self%w_matrix)
+      if (.not. self%halo%comm%any_true(changed)) return
+      call fill_w_operator(self%k, self%diag, self%fixed, self%shift, self%halo%owned, self%w_matrix)
       call self%w_mg%refresh(self%fixed, err)
       self%built = .not. allocated(err)
    end subroutine set_linearization
 
-   !> w_mat = K + diag(shift) with fixed rows replaced by identity rows and fixed columns cut out.
-   subroutine fill_w_operator(k_mat, diag, fixed, shift, w_mat)
+   !> w_mat = K + diag(shift) with fixed rows replaced by identity rows and fixed columns cut out;
+   !> the shift and the identity's 1 go to the owner's part of a shared row only.
+   subroutine fill_w_operator(k_mat, diag, fixed, shift, owned, w_mat)
       type(csr_t), intent(in) :: k_mat
       integer(ip), intent(in) :: diag(:)
-      logical, intent(in) :: fixed(:)
+      logical, intent(in) :: fixed(:), owned(:)
       real(dp), intent(in) :: shift(:)
       type(csr_t), intent(inout) :: w_mat
 
       integer(ip) :: i, k
 
-      !$omp parallel do default(none) shared(k_mat, diag, fixed, shift, w_mat) private(i, k) schedule(static) &
+      !$omp parallel do default(none) shared(k_mat, diag, fixed, shift, owned, w_mat) private(i, k) schedule(static) &
       !$omp if(k_mat%n > 4096)
       do i = 1, k_mat%n
          do k = k_mat%row_ptr(i), k_mat%row_ptr(i + 1) - 1
@@ -190,45 +202,48 @@ contains
             end if
          end do
          if (fixed(i)) then
-            w_mat%val(diag(i)) = 1.0_dp
-         else
+            w_mat%val(diag(i)) = merge(1.0_dp, 0.0_dp, owned(i))
+         else if (owned(i)) then
             w_mat%val(diag(i)) = w_mat%val(diag(i)) + shift(i)
          end if
       end do
       !$omp end parallel do
    end subroutine fill_w_operator
 
-   !> z ≈ A⁻¹ r by the block elimination with one V-cycle per SPD block.
+   !> z ≈ A⁻¹ r by the block elimination with one V-cycle per SPD block. Collective.
    subroutine apply(self, r, z)
       class(elimination_preconditioner_t), intent(inout) :: self
       real(dp), intent(in) :: r(:)
       real(dp), intent(out) :: z(:)
 
-      call right_hand_sides(self%n, self%mu1, self%mu2, self%c_mu, self%mass, self%a, self%b, self%fixed, &
-                            self%k, r, self%rhs_s, self%rhs_w, self%w_fixed)
+      call right_hand_sides(self%n, self%mu1, self%mu2, self%c_mu, self%mass, self%a, self%b, self%fixed, r, &
+                            self%rhs_s, self%rhs_w, self%w_fixed)
+      ! the fixed values enter the free rows as K_FC w_C on the right-hand side
+      call fixed_coupling(self%k, self%fixed, self%w_fixed, self%kw)
+      call self%halo%add(self%kw)
+      call subtract_free(self%fixed, self%kw, self%rhs_w)
       call self%s_mg%vcycle(self%rhs_s, self%s)
       call self%w_mg%vcycle(self%rhs_w, self%w)
       call add_fixed_values(self%w_fixed, self%w)
+      call rows_product(self%k, self%by_balance, self%w, self%kw)
+      call self%halo%add(self%kw)
       call back_substitute(self%n, self%mu1, self%mu2, self%c_mu, self%mass, self%a, self%b, self%by_balance, &
-                           self%k, r, self%s, self%w, z)
+                           self%kw, r, self%s, self%w, z)
    end subroutine apply
 
-   !> rhs_s = r1 + r2; on free rows rhs_w = r1/μ1 − r2/μ2 + c_μ D r3/b − K_FC w_C, where w_C =
-   !> r3/a are the fixed values (zero elsewhere, and rhs_w = 0 on fixed rows).
-   subroutine right_hand_sides(n, mu1, mu2, c_mu, mass, a, b, fixed, k_mat, r, rhs_s, rhs_w, w_fixed)
+   !> rhs_s = r1 + r2; on free rows rhs_w = r1/μ1 − r2/μ2 + c_μ D r3/b (the K_FC w_C part comes
+   !> later); on fixed rows w_C = r3/a and rhs_w = 0.
+   subroutine right_hand_sides(n, mu1, mu2, c_mu, mass, a, b, fixed, r, rhs_s, rhs_w, w_fixed)
       integer(ip), intent(in) :: n
       real(dp), intent(in) :: mu1, mu2, c_mu, mass(:), a(:), b(:)
       logical, intent(in) :: fixed(:)
-      type(csr_t), intent(in) :: k_mat
       real(dp), intent(in) :: r(:)
       real(dp), intent(out) :: rhs_s(:), rhs_w(:), w_fixed(:)
 
-      integer(ip) :: i, k
-      real(dp) :: t
+      integer(ip) :: i
 
-      !$omp parallel default(none) shared(n, mu1, mu2, c_mu, mass, a, b, fixed, k_mat, r, rhs_s, rhs_w, w_fixed) &
-      !$omp private(i, k, t) if(n > 4096)
-      !$omp do schedule(static)
+      !$omp parallel do default(none) shared(n, mu1, mu2, c_mu, mass, a, b, fixed, r, rhs_s, rhs_w, w_fixed) &
+      !$omp private(i) schedule(static) if(n > 4096)
       do i = 1, n
          rhs_s(i) = r(i) + r(n + i)
          if (fixed(i)) then
@@ -239,19 +254,70 @@ contains
             rhs_w(i) = r(i)/mu1 - r(n + i)/mu2 + c_mu*mass(i)*r(2*n + i)/b(i)
          end if
       end do
-      !$omp end do
-      !$omp do schedule(static)
-      do i = 1, n
-         if (fixed(i)) cycle
-         t = 0.0_dp
-         do k = k_mat%row_ptr(i), k_mat%row_ptr(i + 1) - 1
-            t = t + k_mat%val(k)*w_fixed(k_mat%col(k))
-         end do
-         rhs_w(i) = rhs_w(i) - t
-      end do
-      !$omp end do
-      !$omp end parallel
+      !$omp end parallel do
    end subroutine right_hand_sides
+
+   !> kw = this rank's part of K w_C on the free rows (w_C vanishes off the fixed rows).
+   subroutine fixed_coupling(k_mat, fixed, w_fixed, kw)
+      type(csr_t), intent(in) :: k_mat
+      logical, intent(in) :: fixed(:)
+      real(dp), intent(in) :: w_fixed(:)
+      real(dp), intent(out) :: kw(:)
+
+      integer(ip) :: i, k
+      real(dp) :: t
+
+      !$omp parallel do default(none) shared(k_mat, fixed, w_fixed, kw) private(i, k, t) schedule(static) &
+      !$omp if(k_mat%n > 4096)
+      do i = 1, k_mat%n
+         t = 0.0_dp
+         if (.not. fixed(i)) then
+            do k = k_mat%row_ptr(i), k_mat%row_ptr(i + 1) - 1
+               t = t + k_mat%val(k)*w_fixed(k_mat%col(k))
+            end do
+         end if
+         kw(i) = t
+      end do
+      !$omp end parallel do
+   end subroutine fixed_coupling
+
+   !> rhs_w = rhs_w − kw on the free rows.
+   subroutine subtract_free(fixed, kw, rhs_w)
+      logical, intent(in) :: fixed(:)
+      real(dp), intent(in) :: kw(:)
+      real(dp), intent(inout) :: rhs_w(:)
+
+      integer(ip) :: i
+
+      !$omp parallel do default(none) shared(fixed, kw, rhs_w) private(i) schedule(static) if(size(kw) > 4096)
+      do i = 1, size(kw, kind=ip)
+         if (.not. fixed(i)) rhs_w(i) = rhs_w(i) - kw(i)
+      end do
+      !$omp end parallel do
+   end subroutine subtract_free
+
+   !> kw = this rank's part of K w on the rows in `rows`, 0 elsewhere.
+   subroutine rows_product(k_mat, rows, w, kw)
+      type(csr_t), intent(in) :: k_mat
+      logical, intent(in) :: rows(:)
+      real(dp), intent(in) :: w(:)
+      real(dp), intent(out) :: kw(:)
+
+      integer(ip) :: i, k
+      real(dp) :: t
+
+      !$omp parallel do default(none) shared(k_mat, rows, w, kw) private(i, k, t) schedule(static) if(k_mat%n > 4096)
+      do i = 1, k_mat%n
+         t = 0.0_dp
+         if (rows(i)) then
+            do k = k_mat%row_ptr(i), k_mat%row_ptr(i + 1) - 1
+               t = t + k_mat%val(k)*w(k_mat%col(k))
+            end do
+         end if
+         kw(i) = t
+      end do
+      !$omp end parallel do
+   end subroutine rows_product
 
    !> w = w + w_fixed (the cycle left the fixed rows at zero)
    subroutine add_fixed_values(w_fixed, w)
@@ -267,27 +333,22 @@ contains
       !$omp end parallel do
    end subroutine add_fixed_values
 
-   !> z from S and w: X3 from the C-function row or from the balance (ii), then X1, X2.
-   subroutine back_substitute(n, mu1, mu2, c_mu, mass, a, b, by_balance, k_mat, r, s, w, z)
+   !> z from S and w: X3 from the C-function row or from the balance (ii) (kw = K w on those
+   !> rows), then X1, X2.
+   subroutine back_substitute(n, mu1, mu2, c_mu, mass, a, b, by_balance, kw, r, s, w, z)
       integer(ip), intent(in) :: n
       real(dp), intent(in) :: mu1, mu2, c_mu, mass(:), a(:), b(:)
       logical, intent(in) :: by_balance(:)
-      type(csr_t), intent(in) :: k_mat
-      real(dp), intent(in) :: r(:), s(:), w(:)
+      real(dp), intent(in) :: kw(:), r(:), s(:), w(:)
       real(dp), intent(out) :: z(:)
 
-      integer(ip) :: i, k
-      real(dp) :: kw
+      integer(ip) :: i
 
-      !$omp parallel do default(none) shared(n, mu1, mu2, c_mu, mass, a, b, by_balance, k_mat, r, s, w, z) &
-      !$omp private(i, k, kw) schedule(static) if(n > 4096)
+      !$omp parallel do default(none) shared(n, mu1, mu2, c_mu, mass, a, b, by_balance, kw, r, s, w, z) &
+      !$omp private(i) schedule(static) if(n > 4096)
       do i = 1, n
          if (by_balance(i)) then
-            kw = 0.0_dp
-            do k = k_mat%row_ptr(i), k_mat%row_ptr(i + 1) - 1
-               kw = kw + k_mat%val(k)*w(k_mat%col(k))
-            end do
-            z(2*n + i) = (kw - r(i)/mu1 + r(n + i)/mu2)/(c_mu*mass(i))
+            z(2*n + i) = (kw(i) - r(i)/mu1 + r(n + i)/mu2)/(c_mu*mass(i))
          else
             z(2*n + i) = (r(2*n + i) - a(i)*w(i))/b(i)
          end if

@@ -66,7 +66,7 @@ contains
       row%alg_residual = residual_norm/self%b_norm
       row%newton_it = self%newton_it
       row%gmres_it = self%gmres_before + iteration
-      row%active = count(x(1:n) - x(n + 1:2*n) <= x(2*n + 1:))
+      row%active = self%residual%sys%global_count(x(1:n) - x(n + 1:2*n) <= x(2*n + 1:))
       row%inner = .true.
       row%step = ieee_value(1.0_dp, ieee_quiet_nan)
       row%active_changed = -1

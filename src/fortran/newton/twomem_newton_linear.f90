@@ -6,14 +6,13 @@
 !> It also keeps the account of GMRES solves that ended without converging, which the driver
 !> reports when Newton itself fails.
 module twomem_newton_linear
-   use twomem_base_kinds, only: dp
+   use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_bad_input
    use twomem_linalg_csr, only: csr_t
-   use twomem_linalg_operators, only: preconditioner_t, csr_operator_t, identity_preconditioner_t, &
-      euclidean_product_t
+   use twomem_linalg_operators, only: preconditioner_t, csr_operator_t, identity_preconditioner_t
    use twomem_linalg_ilu0, only: ilu0_preconditioner_t
    use twomem_linalg_jacobi, only: jacobi_preconditioner_t
-   use twomem_linalg_umfpack, only: umfpack_solver_t
+   use twomem_linalg_gathered_solve, only: gathered_solver_t
    use twomem_linalg_multigrid, only: multigrid_options_t, multigrid_transfer_t
    use twomem_linalg_gmres, only: gmres_solve, gmres_options_t, gmres_monitor_t, gmres_observer_t, &
       gmres_workspace_t
@@ -33,10 +32,10 @@ module twomem_newton_linear
       !> solver_direct or solver_gmres
       integer :: kind = solver_direct
       type(gmres_options_t) :: options
-      type(umfpack_solver_t) :: direct
+      !> UMFPACK on the whole Newton matrix (gathered on rank 0 in a distributed run)
+      type(gathered_solver_t) :: direct
       class(preconditioner_t), allocatable :: prec
       type(gmres_workspace_t) :: workspace
-      type(euclidean_product_t) :: dot
       !> the last GMRES solve
       type(gmres_monitor_t) :: monitor
       !> GMRES solves that ended neither converged nor stopped by the observer, and the last reason
@@ -75,15 +74,16 @@ contains
       needs_matrix = kind == solver_direct .or. precond /= precond_mg
    end function needs_matrix
 
-   !> `precond` matters for GMRES only. precond_mg needs the problem and the transfers of the
-   !> hierarchy below the problem's mesh (none: the exact elimination); both must outlive the
-   !> solver.
-   subroutine linear_init(self, kind, precond, options, problem, transfer, err)
+   !> `precond` matters for GMRES only. precond_mg needs the problem and the transfers of its
+   !> hierarchy, the problem's mesh being level `level` (0: the exact elimination); both must
+   !> outlive the solver. Collective.
+   subroutine linear_init(self, kind, precond, options, problem, transfer, level, err)
       class(linear_step_t), intent(inout) :: self
       integer, intent(in) :: kind, precond
       type(gmres_options_t), intent(in) :: options
       type(discrete_problem_t), target, intent(in) :: problem
-      type(multigrid_transfer_t), target, intent(in) :: transfer
+      type(multigrid_transfer_t), target, intent(inout) :: transfer
+      integer, intent(in) :: level
       type(error_t), allocatable, intent(out) :: err
 
       type(multigrid_options_t) :: mg_options
@@ -92,13 +92,16 @@ contains
       self%options = options
       self%failures = 0
       if (allocated(self%prec)) deallocate (self%prec)
-      if (kind /= solver_gmres) return
+      if (kind == solver_direct) then
+         call init_direct(self%direct, problem)
+         return
+      end if
       select case (precond)
       case (precond_mg)
          allocate (elimination_preconditioner_t :: self%prec)
          select type (prec => self%prec)
          type is (elimination_preconditioner_t)
-            call prec%init(problem, transfer, mg_options, err)
+            call prec%init(problem, transfer, level, mg_options, err)
          end select
       case (precond_ilu0)
          allocate (ilu0_preconditioner_t :: self%prec)
@@ -110,6 +113,20 @@ contains
          call make_error(err, exit_bad_input, 'gmres.precond', 'unknown preconditioner')
       end select
    end subroutine linear_init
+
+   !> The gathered direct solver of the Newton system: unknown i of block k is keyed
+   !> (k − 1) M + (whole-mesh vertex of i), M the largest vertex number, so the whole system
+   !> keeps the block order (X1, X2, X3) and, within a block, the vertex order of the whole mesh.
+   subroutine init_direct(direct, problem)
+      type(gathered_solver_t), intent(inout) :: direct
+      type(discrete_problem_t), intent(in) :: problem
+
+      integer(ip) :: m
+
+      m = problem%halo%comm%max(maxval([0_ip, problem%global]))
+      call direct%init(problem%halo%comm, [problem%global, m + problem%global, 2*m + problem%global], &
+                       [problem%halo%owned, problem%halo%owned, problem%halo%owned])
+   end subroutine init_direct
 
    !> Solve A x = b for the current linearization of `sys`; x holds the initial guess on entry
    !> (used by GMRES). `atol` > 0 adds an absolute target on ‖b − A x‖ for GMRES; the observer
@@ -130,7 +147,7 @@ contains
       if (self%kind == solver_direct) then
          call self%direct%factor(sys%a, err)
          if (allocated(err)) return
-         call self%direct%solve(sys%a, b, x, err)
+         call self%direct%solve(b, x, err)
          return
       end if
       options = self%options
@@ -140,12 +157,12 @@ contains
          call prec%set_linearization(sys%da, sys%db, err)
          if (allocated(err)) return
          matrix_free%sys => sys
-         call gmres_solve(matrix_free, prec, self%dot, b, x, options, self%monitor, err, observer, self%workspace)
+         call gmres_solve(matrix_free, prec, sys%dot, b, x, options, self%monitor, err, observer, self%workspace)
       class default
          call prec%setup(sys%a, err)
          if (allocated(err)) return
          matrix%a => sys%a
-         call gmres_solve(matrix, prec, self%dot, b, x, options, self%monitor, err, observer, self%workspace)
+         call gmres_solve(matrix, prec, sys%dot, b, x, options, self%monitor, err, observer, self%workspace)
       end select
       if (allocated(err)) return
       if (.not. self%monitor%converged .and. self%monitor%reason /= 'stopped by observer') then

@@ -4,6 +4,7 @@
 !> the membrane rows as strong residuals D⁻¹(F − E X), in load units and independent of h, so
 !> that they weigh like the C-function rows. Both are evaluated into work vectors held here:
 !> they are called every Newton step, every ν GMRES iterations and at every backtracking trial.
+!> Both are global: sums over every rank's owned unknowns.
 module twomem_newton_residual
    use twomem_base_kinds, only: dp, ip
    use twomem_newton_cfun, only: cfun_eval
@@ -39,7 +40,7 @@ contains
       self%sys => sys
       self%cfun = cfun
       self%inv_mass = [1/sys%mass, 1/sys%mass]
-      self%f_norm = norm2(sys%f)
+      self%f_norm = sqrt(sys%sum_squares(sys%f))
       if (.not. self%f_norm > 0.0_dp) self%f_norm = 1.0_dp
       allocate (self%ex(2*sys%n), self%c(sys%n), self%da(sys%n), self%db(sys%n))
    end subroutine init
@@ -53,7 +54,7 @@ contains
 
       call cfun_eval(self%cfun, x, c, da, db)
       call self%sys%apply_e(x, self%ex)
-      rel = sqrt(sum((self%sys%f - self%ex)**2) + sum(c**2))/self%f_norm
+      rel = sqrt(self%sys%sum_squares(self%sys%f - self%ex) + self%sys%sum_squares(c))/self%f_norm
    end subroutine relative
 
    !> ‖[D⁻¹(F − E X); C(X)]‖. With the weak rows instead, (g, 0, 0) looks almost solved
@@ -64,6 +65,6 @@ contains
 
       call cfun_eval(self%cfun, x, self%c, self%da, self%db)
       call self%sys%apply_e(x, self%ex)
-      merit = sqrt(sum((self%inv_mass*(self%sys%f - self%ex))**2) + sum(self%c**2))
+      merit = sqrt(self%sys%sum_squares(self%inv_mass*(self%sys%f - self%ex)) + self%sys%sum_squares(self%c))
    end function merit
 end module twomem_newton_residual

@@ -66,16 +66,18 @@ module twomem_newton_solver
 
 contains
 
-   !> Newton for problem p from x0. `transfer` (the prolongations of the hierarchy that p's mesh
-   !> belongs to) serves the multigrid preconditioner.
-   subroutine newton_solve(p, options, x0, result, err, observer, transfer)
+   !> Newton for problem p from x0. `transfer` (the prolongations of the hierarchy whose level
+   !> `level` is p's mesh; default: its finest) serves the multigrid preconditioner. Collective:
+   !> in a distributed run every rank calls it with its piece of the problem.
+   subroutine newton_solve(p, options, x0, result, err, observer, transfer, level)
       type(discrete_problem_t), target, intent(in) :: p
       type(newton_options_t), intent(in) :: options
       real(dp), intent(in) :: x0(:)
       type(newton_result_t), target, intent(out) :: result
       type(error_t), allocatable, intent(out) :: err
       class(newton_observer_t), intent(inout), target, optional :: observer
-      type(multigrid_transfer_t), target, intent(in), optional :: transfer
+      type(multigrid_transfer_t), target, intent(inout), optional :: transfer
+      integer, intent(in), optional :: level
 
       type(newton_system_t), target :: sys
       type(nonlinear_residual_t), target :: residual
@@ -103,10 +105,15 @@ contains
       call sys%init(p, needs_matrix(kind, options%precond))
       call residual%init(sys, options%cfun)
       if (present(transfer)) then
-         call solver%init(kind, options%precond, options%gmres, p, transfer, err)
+         if (present(level)) then
+            call solver%init(kind, options%precond, options%gmres, p, transfer, level, err)
+         else
+            call solver%init(kind, options%precond, options%gmres, p, transfer, transfer%levels, err)
+         end if
       else
-         call no_transfer%init([csr_t ::], err)
-         if (.not. allocated(err)) call solver%init(kind, options%precond, options%gmres, p, no_transfer, err)
+         ! one level: multigrid is the exact elimination
+         call no_transfer%init([csr_t ::], err, halos=[p%halo], coarse_keys=p%global)
+         if (.not. allocated(err)) call solver%init(kind, options%precond, options%gmres, p, no_transfer, 0, err)
       end if
       if (allocated(err)) return
       allocate (c(n), da(n), db(n), b(3*n), ax(3*n), x_new(3*n), active(n), previous(n))
@@ -150,11 +157,11 @@ contains
          if (kind == solver_gmres) then
             inner%newton_it = k
             inner%gmres_before = result%linear_iterations
-            inner%b_norm = max(norm2(b), tiny(1.0_dp))
+            inner%b_norm = max(sys%dot%norm(b), tiny(1.0_dp))
             call solver%solve(sys, b, x_new, err, observer=inner)
             if (allocated(err)) return
             result%linear_iterations = result%linear_iterations + solver%monitor%iterations
-            if (.not. all(ieee_is_finite(x_new))) then
+            if (p%halo%comm%any_true(.not. all(ieee_is_finite(x_new)))) then
                why = 'not converged: GMRES broke down ('//solver%monitor%reason//') with a non-finite iterate'
                exit
             end if
@@ -165,7 +172,7 @@ contains
          call sys%apply(x_new, ax)
          ax = b - ax
          row = not_computed()
-         row%alg_residual = norm2(ax)/max(norm2(b), tiny(1.0_dp))
+         row%alg_residual = sys%dot%norm(ax)/max(sys%dot%norm(b), tiny(1.0_dp))
          step = 1.0_dp
          if (options%line_search) step = search%step(residual, k, x, x_new)
          if (step < 1.0_dp) call watch%damped(k)
@@ -231,9 +238,9 @@ contains
          active = x(1:n) - x(n + 1:2*n) <= x(2*n + 1:)
          row%newton_it = k
          row%gmres_it = result%linear_iterations
-         row%active = count(active)
-         row%active_changed = count(active .neqv. previous)
-         call watch%record(k, active)
+         row%active = sys%global_count(active)
+         row%active_changed = sys%global_count(active .neqv. previous)
+         call watch%record(k, active, p%global, p%halo%owned, p%halo%comm)
          if (reuse) then
             call row%take_observations(result%history%rows(result%history%n))
             result%history%n = result%history%n - 1

@@ -10,11 +10,14 @@
 !> solvers that factorize it (UMFPACK, ILU(0), Jacobi). Its pattern is fixed once: every
 !> C-function row holds its three diagonal entries whichever are zero, so the symbolic
 !> factorization (and ILU(0)'s analysis) survives all Newton steps. Both forms compute every
-!> row in the same order with the same products, so they agree bit for bit.
+!> row in the same order with the same products, so they agree bit for bit. In a distributed
+!> run the product sums the ranks' parts of shared rows (the problem's halo), and `dot`, the
+!> inner product of Newton vectors, counts every unknown once.
 module twomem_newton_system
    use twomem_base_kinds, only: dp, ip
    use twomem_linalg_csr, only: csr_t
-   use twomem_linalg_operators, only: linear_operator_t
+   use twomem_linalg_operators, only: linear_operator_t, distributed_product_t
+   use twomem_linalg_halo, only: halo_t
    use twomem_fem_discrete, only: discrete_problem_t
    implicit none
    private
@@ -36,11 +39,16 @@ module twomem_newton_system
       type(csr_t) :: a
       !> positions in a%val of the C-row entries (X1, X2, X3) of each vertex, (3, n)
       integer(ip), allocatable :: c_pos(:, :)
+      !> the unknowns' interface, and the inner product of vectors [X1; X2; X3]
+      type(halo_t) :: halo
+      type(distributed_product_t) :: dot
    contains
       procedure :: init => system_init
       procedure :: set_jacobian
       procedure :: apply => system_apply
       procedure :: apply_e
+      procedure :: sum_squares
+      procedure :: global_count
    end type newton_system_t
 
    !> The system as the operator GMRES iterates with.
@@ -69,7 +77,36 @@ contains
       self%db = 1.0_dp
       self%assembled = assembled
       if (assembled) call assemble(self)
+      self%halo = p%halo
+      self%dot%comm = p%halo%comm
+      self%dot%owned = [p%halo%owned, p%halo%owned, p%halo%owned]
    end subroutine system_init
+
+   !> Σ v(i)² over the owned unknowns of every rank; v stacks fields of the unknowns (length a
+   !> multiple of n). In the order of the entries, as Fortran's sum would add them.
+   real(dp) function sum_squares(self, v) result(s)
+      class(newton_system_t), intent(in) :: self
+      real(dp), intent(in) :: v(:)
+
+      integer(ip) :: i, n, f
+
+      n = self%n
+      s = 0.0_dp
+      do f = 0, size(v, kind=ip)/n - 1
+         do i = 1, n
+            if (self%halo%owned(i)) s = s + v(f*n + i)**2
+         end do
+      end do
+      s = self%halo%comm%sum(s)
+   end function sum_squares
+
+   !> How many of the unknowns marked in `mask` (length n) there are on all ranks.
+   integer function global_count(self, mask) result(c)
+      class(newton_system_t), intent(in) :: self
+      logical, intent(in) :: mask(:)
+
+      c = self%halo%comm%sum(count(mask .and. self%halo%owned))
+   end function global_count
 
    subroutine assemble(self)
       type(newton_system_t), intent(inout) :: self
@@ -140,9 +177,9 @@ contains
       end do
    end subroutine set_jacobian
 
-   !> y = A x (length 3n).
+   !> y = A x (length 3n). Collective.
    subroutine system_apply(self, x, y)
-      class(newton_system_t), intent(in) :: self
+      class(newton_system_t), intent(inout) :: self
       real(dp), intent(in) :: x(:)
       real(dp), intent(out) :: y(:)
 
@@ -160,7 +197,7 @@ contains
    !> E X: the two membrane block rows applied to X (length 2n), in the order and with the
    !> products of the assembled rows (columns ascending, the D column last).
    subroutine apply_e(self, x, ex)
-      class(newton_system_t), intent(in) :: self
+      class(newton_system_t), intent(inout) :: self
       real(dp), intent(in) :: x(:)
       real(dp), intent(out) :: ex(:)
 
@@ -177,8 +214,17 @@ contains
             s1 = s1 + (self%mu1*self%k%val(m))*x(self%k%col(m))
             s2 = s2 + (self%mu2*self%k%val(m))*x(n + self%k%col(m))
          end do
-         ex(i) = s1 + (-self%mass(i))*x(2*n + i)
-         ex(n + i) = s2 + self%mass(i)*x(2*n + i)
+         ex(i) = s1
+         ex(n + i) = s2
+      end do
+      !$omp end parallel do
+      ! the stiffness parts of shared rows summed, then the (full) lumped mass
+      call self%halo%add(ex(1:n))
+      call self%halo%add(ex(n + 1:2*n))
+      !$omp parallel do default(none) shared(self, x, ex, n) private(i) schedule(static) if(n > 4096)
+      do i = 1, n
+         ex(i) = ex(i) + (-self%mass(i))*x(2*n + i)
+         ex(n + i) = ex(n + i) + self%mass(i)*x(2*n + i)
       end do
       !$omp end parallel do
    end subroutine apply_e

@@ -1,0 +1,157 @@
+!> Newton on the levels of the hierarchy: on the finest level alone from the paper's initial
+!> guess (g, 0, 0), or by nested iteration, from T_0 up, each level's solution interpolated as
+!> the next one's initial guess, which keeps the Newton count on the finest level nearly
+!> independent of the mesh (the contact front starts one layer from its place). The multigrid
+!> transfers of the whole hierarchy (prolongations, each level's interface in a distributed run,
+!> the keys of the coarsest level's gathered solve) are built once here and serve every level.
+module twomem_app_levels
+   use, intrinsic :: iso_fortran_env, only: output_unit
+   use twomem_base_kinds, only: dp, ip
+   use twomem_base_errors, only: error_t
+   use twomem_base_comm, only: comm_t
+   use twomem_base_timer, only: wall_time
+   use twomem_base_text, only: fixed
+   use twomem_base_phases, only: phase_clock_t, phase_assembly, phase_solve
+   use twomem_input_config, only: config_t
+   use twomem_mesh_hierarchy, only: mesh_hierarchy_t
+   use twomem_fem_problem, only: problem_data_t
+   use twomem_fem_discrete, only: discrete_problem_t
+   use twomem_fem_transfer, only: interior_prolongations, interior_numbering, interior_halo
+   use twomem_linalg_csr, only: csr_t
+   use twomem_linalg_halo, only: halo_t
+   use twomem_linalg_multigrid, only: multigrid_transfer_t
+   use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_observer_t, newton_solve, &
+      method_direct, method_gmres, method_adaptive, forcing_paper
+   use twomem_newton_linear, only: precond_mg
+   implicit none
+   private
+
+   public :: solve_levels, coarse_work_t
+
+   !> Work spent on the coarser levels of nested iteration.
+   type :: coarse_work_t
+      integer :: newton_iterations = 0, gmres_iterations = 0
+   end type coarse_work_t
+
+contains
+
+   !> Newton for the finest problem p (nested iteration when newton.initial = 'nested').
+   !> Collective.
+   subroutine solve_levels(cfg, comm, hierarchy, data, p, options, clock, newton, coarse, err, observer)
+      type(config_t), intent(in) :: cfg
+      type(comm_t), intent(in) :: comm
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
+      class(problem_data_t), intent(in) :: data
+      type(discrete_problem_t), target, intent(in) :: p
+      type(newton_options_t), intent(in) :: options
+      type(phase_clock_t), intent(inout) :: clock
+      type(newton_result_t), intent(out) :: newton
+      type(coarse_work_t), intent(out) :: coarse
+      type(error_t), allocatable, intent(out) :: err
+      class(newton_observer_t), intent(inout), optional :: observer
+
+      type(discrete_problem_t), target :: pl
+      type(newton_options_t) :: quiet
+      type(newton_result_t) :: step
+      type(multigrid_transfer_t), target :: transfer
+      real(dp), allocatable :: fine(:, :)
+      real(dp) :: t_level
+      integer :: l, finest
+
+      finest = hierarchy%levels
+      call build_transfer(comm, hierarchy, options, transfer, err)
+      if (allocated(err)) return
+      if (trim(cfg%newton%initial) /= 'nested' .or. finest == 0) then
+         call newton_solve(p, options, [spread(data%g, 1, p%n), spread(0.0_dp, 1, 2*p%n)], newton, err, observer, &
+                           transfer, finest)
+         return
+      end if
+      quiet = options
+      quiet%verbose = .false.
+      ! the estimators live on the finest hierarchy: coarser levels of an adaptive run use the
+      ! paper's inexact GMRES instead
+      if (quiet%linear == method_adaptive) then
+         quiet%linear = method_gmres
+         quiet%forcing = forcing_paper
+      end if
+      do l = 0, finest - 1
+         t_level = wall_time()
+         call clock%switch(phase_assembly)
+         call pl%init(hierarchy%meshes(l), data, err, comm)
+         call clock%switch(phase_solve)
+         if (allocated(err)) return
+         if (l == 0) then
+            call newton_solve(pl, quiet, [spread(data%g, 1, pl%n), spread(0.0_dp, 1, 2*pl%n)], step, err, &
+                              transfer=transfer, level=l)
+         else
+            call newton_solve(pl, quiet, interior_values(pl, fine), step, err, transfer=transfer, level=l)
+         end if
+         if (allocated(err)) return
+         coarse%newton_iterations = coarse%newton_iterations + step%iterations
+         coarse%gmres_iterations = coarse%gmres_iterations + step%linear_iterations
+         if (comm%is_root()) then
+            write (output_unit, '("nested: level ",i2,": ",i4," Newton steps, ",i6," GMRES iterations (",a,"), ",a, &
+                 &" s")') l, step%iterations, step%linear_iterations, step%status, fixed(wall_time() - t_level, 2)
+            if (.not. step%converged) write (output_unit, '(a,i0,a)') 'warning: level ', l, &
+               ' did not converge; its iterate still serves as the initial guess of the next level'
+         end if
+         call interpolate(hierarchy, l, pl, data%g, step%x, fine)
+      end do
+      call newton_solve(p, options, interior_values(p, fine), newton, err, observer, transfer, finest)
+   end subroutine solve_levels
+
+   !> The multigrid transfers of the hierarchy (none when no solve uses multigrid). Collective.
+   subroutine build_transfer(comm, hierarchy, options, transfer, err)
+      type(comm_t), intent(in) :: comm
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
+      type(newton_options_t), intent(in) :: options
+      type(multigrid_transfer_t), intent(inout) :: transfer
+      type(error_t), allocatable, intent(out) :: err
+
+      type(halo_t), allocatable :: halos(:)
+      integer(ip), allocatable :: unknown(:), interior(:), keys(:)
+      integer(ip) :: a
+      integer :: l, top
+
+      ! the multigrid preconditioner of every level uses the levels below it
+      top = merge(hierarchy%levels, 0, options%precond == precond_mg .and. options%linear /= method_direct)
+      allocate (halos(0:top))
+      do l = 0, top
+         unknown = interior_numbering(hierarchy%meshes(l))
+         interior = pack([(a, a=1, hierarchy%meshes(l)%nv)], unknown > 0)
+         call interior_halo(hierarchy%meshes(l), interior, comm, halos(l))
+         if (l == 0) keys = hierarchy%meshes(0)%global_vertex(interior)
+      end do
+      call transfer%init(interior_prolongations(hierarchy, top), err, halos=halos, coarse_keys=keys)
+   end subroutine build_transfer
+
+   !> fine(:, k): the nodal fields u1, u2, λ of level l's solution x, interpolated to level l+1.
+   subroutine interpolate(hierarchy, l, pl, g, x, fine)
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
+      integer, intent(in) :: l
+      type(discrete_problem_t), intent(in) :: pl
+      real(dp), intent(in) :: g, x(:)
+      real(dp), allocatable, intent(inout) :: fine(:, :)
+
+      real(dp), allocatable :: u(:, :)
+      integer :: k
+
+      if (allocated(fine)) deallocate (fine)
+      allocate (u(hierarchy%meshes(l)%nv, 3), fine(hierarchy%meshes(l + 1)%nv, 3))
+      u(:, 1) = pl%to_nodal(x(1:pl%n), g)
+      u(:, 2) = pl%to_nodal(x(pl%n + 1:2*pl%n), 0.0_dp)
+      u(:, 3) = pl%to_nodal(x(2*pl%n + 1:), 0.0_dp)
+      do k = 1, 3
+         call hierarchy%prolong(l + 1, u(:, k), fine(:, k))
+      end do
+   end subroutine interpolate
+
+   !> [X1; X2; X3] at the interior vertices of `p` from nodal fields (nv, 3).
+   function interior_values(p, nodal) result(x)
+      type(discrete_problem_t), intent(in) :: p
+      real(dp), intent(in) :: nodal(:, :)
+      real(dp), allocatable :: x(:)
+
+      x = [nodal(p%interior, 1), nodal(p%interior, 2), nodal(p%interior, 3)]
+   end function interior_values
+end module twomem_app_levels

@@ -1,0 +1,93 @@
+!> The mesh hierarchy of a run: rank 0 makes the coarse mesh (a built-in generator or a Gmsh
+!> file) and shares it, every rank takes its piece of the partition (`twomem_mesh_partition`)
+!> and refines it `mesh.levels` times. One rank takes the whole mesh: the same path, nothing
+!> cut. The sizes printed are those of the whole meshes.
+module twomem_app_mesh
+   use, intrinsic :: iso_fortran_env, only: output_unit
+   use twomem_base_kinds, only: dp
+   use twomem_base_errors, only: error_t
+   use twomem_base_comm, only: comm_t
+   use twomem_input_config, only: config_t
+   use twomem_mesh_triangulation, only: mesh_t
+   use twomem_mesh_hierarchy, only: mesh_hierarchy_t
+   use twomem_mesh_generators, only: make_disk, make_square, disk_boundary_spacing
+   use twomem_mesh_gmsh, only: read_gmsh
+   use twomem_mesh_partition, only: share_mesh, distribute_coarse
+   implicit none
+   private
+
+   public :: build_hierarchy
+
+contains
+
+   !> This rank's piece of the refinement hierarchy of the case's mesh. Collective.
+   subroutine build_hierarchy(cfg, comm, hierarchy, err)
+      type(config_t), intent(in) :: cfg
+      type(comm_t), intent(in) :: comm
+      type(mesh_hierarchy_t), intent(inout) :: hierarchy
+      type(error_t), allocatable, intent(out) :: err
+
+      type(mesh_t) :: whole, piece
+      integer :: l
+
+      if (comm%is_root()) call coarse_mesh(cfg, whole, err)
+      call comm%agree(err)
+      if (allocated(err)) return
+      call share_mesh(comm, whole, 'coarse mesh', err)
+      call comm%agree(err)
+      if (allocated(err)) return
+      call distribute_coarse(comm, whole, piece, err)
+      call comm%agree(err)
+      if (allocated(err)) return
+      call whole%free()
+      call hierarchy%init(piece, cfg%mesh%levels, err)
+      call comm%agree(err)
+      if (allocated(err)) return
+      do l = 0, hierarchy%levels
+         associate (m => hierarchy%meshes(l))
+            call report_level(comm, l, m)
+         end associate
+      end do
+   end subroutine build_hierarchy
+
+   !> The whole coarse mesh (rank 0 only).
+   subroutine coarse_mesh(cfg, coarse, err)
+      type(config_t), intent(in) :: cfg
+      type(mesh_t), intent(inout) :: coarse
+      type(error_t), allocatable, intent(out) :: err
+
+      real(dp) :: boundary_h
+
+      select case (trim(cfg%mesh%domain))
+      case ('disk')
+         boundary_h = cfg%mesh%boundary_h
+         if (boundary_h <= 0.0_dp) boundary_h = disk_boundary_spacing(cfg%mesh%coarse_h, cfg%mesh%levels)
+         write (output_unit, '("mesh: unit disk, coarse_h ",g0.4,", boundary spacing ",g0.4,", ",i0," levels")') &
+            cfg%mesh%coarse_h, boundary_h, cfg%mesh%levels
+         call make_disk(cfg%mesh%coarse_h, boundary_h, coarse, err)
+      case ('square')
+         write (output_unit, '("mesh: square (-1,1)^2, coarse_h ",g0.4,", ",i0," levels")') &
+            cfg%mesh%coarse_h, cfg%mesh%levels
+         call make_square(cfg%mesh%coarse_h, coarse, err)
+      case ('gmsh')
+         write (output_unit, '("mesh: ",a,", ",i0," levels")') trim(cfg%mesh%file), cfg%mesh%levels
+         call read_gmsh(trim(cfg%mesh%file), coarse, err)
+         if (.not. allocated(err) .and. coarse%n_flipped > 0) write (output_unit, &
+            '("  note: ",i0," clockwise triangles reoriented")') coarse%n_flipped
+      end select
+   end subroutine coarse_mesh
+
+   !> One line per level: whole-mesh sizes and the range of element sizes. Collective.
+   subroutine report_level(comm, l, m)
+      type(comm_t), intent(in) :: comm
+      integer, intent(in) :: l
+      type(mesh_t), intent(in) :: m
+
+      real(dp) :: h_min, h_max
+
+      h_min = comm%min_real(minval(m%h(1:m%nt_owned), mask=m%nt_owned > 0))
+      h_max = comm%max(maxval(m%h(1:m%nt_owned), mask=m%nt_owned > 0))
+      if (comm%is_root()) write (output_unit, '("  level ",i2,": ",i9," vertices ",i10," triangles  h ",es9.3, &
+           &" .. ",es9.3)') l, m%nv_global, m%nt_global, h_min, h_max
+   end subroutine report_level
+end module twomem_app_mesh

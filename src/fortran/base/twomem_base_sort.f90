@@ -1,0 +1,85 @@
+!> Sorting of integer keys, for the bookkeeping of distributed runs (interfaces listed in
+!> whole-mesh order, keys numbered on rank 0). Heap sort: O(n log n) in the worst case, no
+!> recursion, no extra memory.
+module twomem_base_sort
+   use twomem_base_kinds, only: ip
+   implicit none
+   private
+
+   public :: sort_ints, sorting_permutation
+
+contains
+
+   !> a in ascending order.
+   pure subroutine sort_ints(a)
+      integer(ip), intent(inout) :: a(:)
+
+      integer(ip), allocatable :: none(:)
+
+      allocate (none(size(a)))
+      call heap_sort(a, none)
+   end subroutine sort_ints
+
+   !> The permutation that puts `keys` in ascending order: keys(order) is sorted.
+   pure function sorting_permutation(keys) result(order)
+      integer(ip), intent(in) :: keys(:)
+      integer(ip), allocatable :: order(:)
+
+      integer(ip), allocatable :: k(:)
+      integer(ip) :: i
+
+      ! allocated first: gfortran 12 warns about assigning to an unallocated array at -O0
+      allocate (k(size(keys)), order(size(keys)))
+      k(:) = keys
+      order(:) = [(i, i=1, size(keys, kind=ip))]
+      call heap_sort(k, order)
+   end function sorting_permutation
+
+   !> Sort `key` ascending, applying the same moves to `other`.
+   pure subroutine heap_sort(key, other)
+      integer(ip), intent(inout) :: key(:), other(:)
+
+      integer(ip) :: n, i
+
+      n = size(key, kind=ip)
+      do i = n/2, 1, -1
+         call sift(key, other, i, n)
+      end do
+      do i = n, 2, -1
+         call swap(key, other, 1_ip, i)
+         call sift(key, other, 1_ip, i - 1)
+      end do
+   end subroutine heap_sort
+
+   pure subroutine sift(key, other, start, last)
+      integer(ip), intent(inout) :: key(:), other(:)
+      integer(ip), intent(in) :: start, last
+
+      integer(ip) :: root, child
+
+      root = start
+      do while (2*root <= last)
+         child = 2*root
+         if (child < last) then
+            if (key(child + 1) > key(child)) child = child + 1
+         end if
+         if (key(root) >= key(child)) return
+         call swap(key, other, root, child)
+         root = child
+      end do
+   end subroutine sift
+
+   pure subroutine swap(key, other, i, j)
+      integer(ip), intent(inout) :: key(:), other(:)
+      integer(ip), intent(in) :: i, j
+
+      integer(ip) :: t
+
+      t = key(i)
+      key(i) = key(j)
+      key(j) = t
+      t = other(i)
+      other(i) = other(j)
+      other(j) = t
+   end subroutine swap
+end module twomem_base_sort
