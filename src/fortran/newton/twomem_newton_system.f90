@@ -75,11 +75,11 @@ contains
       allocate (self%da(p%n), self%db(p%n))
       self%da = 0.0_dp
       self%db = 1.0_dp
-      self%assembled = assembled
-      if (assembled) call assemble(self)
       self%halo = p%halo
       self%dot%comm = p%halo%comm
       self%dot%owned = [p%halo%owned, p%halo%owned, p%halo%owned]
+      self%assembled = assembled
+      if (assembled) call assemble(self)
    end subroutine system_init
 
    !> Σ v(i)² over the owned unknowns of every rank; v stacks fields of the unknowns (length a
@@ -149,6 +149,9 @@ contains
             self%a%val(self%a%find(i, self%k%col(m))) = self%mu1*self%k%val(m)
             self%a%val(self%a%find(n + i, n + self%k%col(m))) = self%mu2*self%k%val(m)
          end do
+         ! the matrix of a distributed run is each rank's part: the stiffness of its triangles,
+         ! and the nodal entries (mass, C-function rows) at the unknowns it owns
+         if (.not. self%halo%owned(i)) cycle
          self%a%val(self%a%find(i, 2*n + i)) = -self%mass(i)
          self%a%val(self%a%find(n + i, 2*n + i)) = self%mass(i)
       end do
@@ -171,6 +174,7 @@ contains
       self%db = db
       if (.not. self%assembled) return
       do i = 1, self%n
+         if (.not. self%halo%owned(i)) cycle
          self%a%val(self%c_pos(1, i)) = da(i)
          self%a%val(self%c_pos(2, i)) = -da(i)
          self%a%val(self%c_pos(3, i)) = db(i)
