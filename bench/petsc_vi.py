@@ -258,6 +258,20 @@ def _dunavant5() -> tuple[np.ndarray, np.ndarray]:
 RULE5_BARY, RULE5_WEIGHTS = _dunavant5()
 
 
+def _check_rule5() -> None:
+    """∫ x^i y^j over the reference triangle is i! j! / (i + j + 2)!: exact for i + j ≤ 5."""
+    from math import factorial
+    x, y = RULE5_BARY[:, 1], RULE5_BARY[:, 2]
+    for i in range(6):
+        for j in range(6 - i):
+            exact = factorial(i) * factorial(j) / factorial(i + j + 2)
+            if abs(0.5 * RULE5_WEIGHTS @ (x ** i * y ** j) - exact) > 1e-14:
+                fail(f"degree-5 rule is not exact for x^{i} y^{j}")
+
+
+_check_rule5()
+
+
 @dataclass
 class Level:
     mesh: Mesh
@@ -342,6 +356,20 @@ def fields(lv: Level, case: Case, w: np.ndarray, s: np.ndarray) -> dict:
     I = lv.interior
     lam[I] = (case.mu1 * (lv.K @ u1)[I] - lv.load1[I]) / lv.mass[I]
     return dict(u1=u1, u2=u2, lam=lam)
+
+
+def kkt_check(lv: Level, case: Case, fld: dict) -> dict:
+    """The second equation μ2 K u2 + D λ = F2 (the first defines λ) and complementarity of a
+    solution, relative to the size of their terms: an assembly-independent self-check."""
+    I = lv.interior
+    u1, u2, lam = fld["u1"], fld["u2"], fld["lam"]
+    ku2 = case.mu2 * (lv.K @ u2)[I]
+    r2 = ku2 + lv.mass[I] * lam[I] - lv.load2[I]
+    scale = max(np.max(np.abs(ku2)), np.max(np.abs(lv.mass[I] * lam[I])), np.max(np.abs(lv.load2[I])))
+    w = (u1 - u2)[I]
+    return dict(eq2_rel=float(np.max(np.abs(r2)) / scale),
+                min_gap=float(np.min(w)), min_lambda=float(np.min(lam[I])),
+                compl_rel=float(np.max(np.abs(np.minimum(w / np.max(np.abs(w)), lam[I] / np.max(np.abs(lam[I])))))))
 
 
 # --------------------------------------------------------------------------------------------
@@ -669,8 +697,13 @@ def main(argv: list[str]) -> int:
         if not runs:
             continue
         summary = summarize_petsc(runs, interp)
-        diff = difference(fields(fine, case, *to_nodal(fine, x, case.g)), ref, perm)
+        fld = fields(fine, case, *to_nodal(fine, x, case.g))
+        diff = difference(fld, ref, perm)
         rows.append(petsc_row(summary, label, nested, diff))
+        kkt = kkt_check(fine, case, fld)
+        summary["kkt"] = kkt
+        notes.append(f"{label}: second equation residual {kkt['eq2_rel']:.1e} (relative), min(w) {kkt['min_gap']:.1e}, "
+                     f"min(λ) {kkt['min_lambda']:.1e}, max|min(w, λ)| {kkt['compl_rel']:.1e} (each scaled by its max)")
         petsc_tables[label] = summary
         if not summary["converged"]:
             notes.append(f"warning: {label}: a SNES solve did not converge (see the reason column)")
