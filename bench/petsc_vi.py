@@ -383,9 +383,14 @@ class Tolerances:
     ksp_max_it: int = 2000
 
 
-def petsc_options(PETSc, tol: Tolerances) -> dict:
-    """Defaults put in the options database before the user's `--petsc-options` (which win)."""
-    return {"snes_type": "vinewtonrsls", "snes_rtol": 0.0, "snes_stol": 0.0,
+def petsc_options(tol: Tolerances) -> dict:
+    """Defaults put in the options database before the user's `--petsc-options` (which win).
+
+    snes_vi_zero_tolerance: PETSc's default 1e-8 treats w ≤ 1e-8 with ∂J/∂w > 0 as active and
+    freezes it there; measured on the cold 191k-vertex solve, one vertex stayed at w ≈ 1e-8 with
+    λ > 0 (λ off by 2.6e-4 relative). With 0 only vertices projected onto w = 0 are active.
+    """
+    return {"snes_type": "vinewtonrsls", "snes_rtol": 0.0, "snes_stol": 0.0, "snes_vi_zero_tolerance": 0.0,
             "snes_max_it": tol.snes_max_it, "ksp_type": "cg", "ksp_norm_type": "unpreconditioned",
             "ksp_rtol": tol.ksp_rtol, "ksp_atol": 0.0, "ksp_max_it": tol.ksp_max_it,
             "pc_type": "hypre", "pc_hypre_type": "boomeramg"}
@@ -590,6 +595,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     ap.add_argument("--newton-tol", type=float, default=1e-10, help="twomem newton.tol; SNES atol = this · ‖∇J(0)‖")
     ap.add_argument("--ksp-rtol", type=float, default=1e-10, help="CG relative tolerance (twomem: gmres.rtol = 1e-10)")
     ap.add_argument("--petsc-options", default="", help="extra PETSc options, e.g. \"-snes_monitor -ksp_converged_reason\"")
+    ap.add_argument("--agree", type=float, default=1e-8,
+                    help="warn when a PETSc solution differs from twomem's reference by more (relative)")
     ap.add_argument("-o", "--output", help="write every measurement as JSON here")
     args = ap.parse_args(argv)
     if args.levels < 0 or args.repeat < 1:
@@ -630,6 +637,77 @@ def petsc_row(summary: dict, label: str, nested: bool, diff: dict) -> dict:
                 solve_s=summary["solve_s"], difference=diff)
 
 
+@dataclass
+class Measurements:
+    """Everything the repeats produce: per twomem configuration its runs, per PETSc start its
+    per-level statistics and interpolation times, and the last finest solution of each."""
+    configs: list
+    twomem: dict = field(default_factory=dict)
+    petsc: dict = field(default_factory=lambda: {"nested": [], "cold": []})
+    interp: dict = field(default_factory=lambda: {"nested": [], "cold": []})
+    x: dict = field(default_factory=dict)
+
+
+def twomem_configs(threads: list[Omp]) -> list[tuple[str, list[str], Omp]]:
+    configs = [(f"twomem, MG-GMRES, tol 1e-10, nested, {t.label()}", TWOMEM_TIMED, t) for t in threads]
+    configs.append((f"twomem, MG-GMRES, tol 1e-12 (reference), nested, {threads[0].label()}",
+                    TWOMEM_REFERENCE, threads[0]))
+    return configs
+
+
+def run_repeats(PETSc, args, exe: Path, case: Case, levels: list[Level], systems: list[VI],
+                tol: Tolerances, work: Path) -> Measurements:
+    """Interleaved repeats (twomem rows, PETSc nested, PETSc cold) so that slow phases of the
+    machine's load hit every method alike."""
+    m = Measurements(configs=twomem_configs(args.threads))
+    m.twomem = {i: [] for i in range(len(m.configs))}
+    cold_repeat = 0 if args.skip_cold else args.cold_repeat
+    for r in range(max(args.repeat, cold_repeat)):
+        if r < args.repeat:
+            for i, (_, overrides, omp) in enumerate(m.configs):
+                run = run_twomem(exe, case, work / "timed.h5", overrides, omp)
+                del run["vertices"], run["triangles"]                # same mesh as the reference
+                m.twomem[i].append(run)
+            m.x["nested"], st, ti = petsc_nested(PETSc, levels, systems, case, tol)
+            m.petsc["nested"].append(st)
+            m.interp["nested"].append(ti)
+            times = ", ".join(f"{m.twomem[i][-1]['performance']['solve_seconds']:.3g}" for i in m.twomem)
+            print(f"run {r + 1}: twomem (table rows) {times} s; PETSc nested {sum(s.solve_s for s in st) + ti:.3g} s",
+                  flush=True)
+        if r < cold_repeat:
+            m.x["cold"], st, ti = petsc_cold(PETSc, levels, systems, case, tol)
+            m.petsc["cold"].append(st)
+            m.interp["cold"].append(ti)
+            print(f"run {r + 1}: PETSc cold {st[0].solve_s:.3g} s ({st[0].snes_it} SNES, {st[0].ksp_it} CG)", flush=True)
+    return m
+
+
+def build_rows(m: Measurements, fine: Level, case: Case, ref: dict, perm: np.ndarray, agree: float):
+    """Table rows, PETSc per-level summaries and notes (self-checks, warnings)."""
+    rows, petsc_tables, notes = [], {}, []
+    for i, (label, _, _) in enumerate(m.configs):
+        last = m.twomem[i][-1]                                # twomem's vertex order, like ref
+        diff = difference({k: last[k][perm] for k in ("u1", "u2", "lam")}, ref, perm)
+        rows.append(twomem_row(m.twomem[i], label, diff))
+    for start in ("nested", "cold"):
+        if not m.petsc[start]:
+            continue
+        label = f"PETSc vinewtonrsls, CG+BoomerAMG, {start}"
+        summary = summarize_petsc(m.petsc[start], m.interp[start])
+        fld = fields(fine, case, *to_nodal(fine, m.x[start], case.g))
+        diff = difference(fld, ref, perm)
+        rows.append(petsc_row(summary, label, start == "nested", diff))
+        kkt = summary["kkt"] = kkt_check(fine, case, fld)
+        petsc_tables[label] = summary
+        notes.append(f"{label}: second equation residual {kkt['eq2_rel']:.1e} (relative), min(w) {kkt['min_gap']:.1e}, "
+                     f"min(λ) {kkt['min_lambda']:.1e}, max|min(w, λ)| {kkt['compl_rel']:.1e} (each scaled by its max)")
+        if not summary["converged"]:
+            notes.append(f"warning: {label}: a SNES solve did not converge (see the reason column)")
+        if diff["max_rel"] > agree:
+            notes.append(f"warning: {label}: differs from twomem's reference by {diff['max_rel']:.1e} (> {agree:g})")
+    return rows, petsc_tables, notes
+
+
 def main(argv: list[str]) -> int:
     args = parse_args(argv)
     PETSc = import_petsc(args.petsc_options.split())
@@ -639,7 +717,7 @@ def main(argv: list[str]) -> int:
     exe = exe.resolve()
     case = Case(args.coarse_h, args.boundary_h, args.levels, args.mu1, args.mu2, args.f1, args.f2, args.g)
     tol = Tolerances(newton_tol=args.newton_tol, ksp_rtol=args.ksp_rtol)
-    defaults = petsc_options(PETSc, tol)
+    defaults = petsc_options(tol)
     set_default_options(PETSc, defaults)
     PETSc.Log.begin()
     load_before = os.getloadavg()
@@ -652,73 +730,29 @@ def main(argv: list[str]) -> int:
               f"mu1 {case.mu1} mu2 {case.mu2} f1 {case.f1} f2 {case.f2} g {case.g}; vertices per level "
               + ", ".join(str(lv.mesh.nv) for lv in levels), flush=True)
         systems = [vi_system(lv, case) for lv in levels]
-
         ref = run_twomem(exe, case, work / "reference.h5", TWOMEM_REFERENCE, args.threads[0])
+        if ref["triangles"].shape != fine.mesh.triangles.shape:
+            fail("finest mesh differs from twomem's: triangle counts differ")
         perm, gap = match_vertices(fine.mesh.vertices, ref["vertices"])
         print(f"mesh check: finest mesh equals twomem's ({fine.mesh.nv} vertices, "
               f"{fine.mesh.triangles.shape[0]} triangles; coordinates differ by at most {gap:.1e})", flush=True)
-        if ref["triangles"].shape != fine.mesh.triangles.shape:
-            fail("finest mesh differs from twomem's: triangle counts differ")
+        m = run_repeats(PETSc, args, exe, case, levels, systems, tol, work)
 
-        configs = [(f"twomem, MG-GMRES, tol 1e-10, nested, {t.label()}", TWOMEM_TIMED, t) for t in args.threads]
-        configs.append((f"twomem, MG-GMRES, tol 1e-12 (reference), nested, {args.threads[0].label()}",
-                        TWOMEM_REFERENCE, args.threads[0]))
-        twomem_runs = {i: [] for i in range(len(configs))}
-        nested_runs, nested_interp, cold_runs, cold_interp = [], [], [], []
-        x_nested = x_cold = None
-        for r in range(max(args.repeat, 0 if args.skip_cold else args.cold_repeat)):
-            if r < args.repeat:
-                for i, (_, overrides, omp) in enumerate(configs):
-                    run = run_twomem(exe, case, work / "timed.h5", overrides, omp)
-                    del run["vertices"], run["triangles"]                # same mesh as the reference
-                    twomem_runs[i].append(run)
-                x_nested, st, ti = petsc_nested(PETSc, levels, systems, case, tol)
-                nested_runs.append(st)
-                nested_interp.append(ti)
-                print(f"run {r + 1}: twomem (table rows) " + ", ".join(f"{twomem_runs[i][-1]['performance']['solve_seconds']:.3g} s"
-                                                         for i in range(len(configs)))
-                      + f"; PETSc nested {sum(s.solve_s for s in st) + ti:.3g} s", flush=True)
-            if not args.skip_cold and r < args.cold_repeat:
-                x_cold, st, ti = petsc_cold(PETSc, levels, systems, case, tol)
-                cold_runs.append(st)
-                cold_interp.append(ti)
-                print(f"run {r + 1}: PETSc cold {st[0].solve_s:.3g} s ({st[0].snes_it} SNES, {st[0].ksp_it} CG)", flush=True)
-
-    rows, petsc_tables, notes = [], {}, []
-    for i, (label, _, _) in enumerate(configs):
-        last = twomem_runs[i][-1]                             # twomem's vertex order, like ref
-        diff = difference({k: last[k][perm] for k in ("u1", "u2", "lam")}, ref, perm)
-        rows.append(twomem_row(twomem_runs[i], label, diff))
-    results = dict(case=vars(case), vertices=[lv.mesh.nv for lv in levels], mesh_check_gap=gap,
-                   refine_s=t_mesh, assembly_s=[lv.seconds for lv in levels],
-                   petsc_options=defaults, petsc_user_options=args.petsc_options,
-                   snes_atol=[tol.newton_tol * float(np.linalg.norm(vi.b)) for vi in systems],
-                   twomem_timed_overrides=TWOMEM_TIMED, twomem_reference_overrides=TWOMEM_REFERENCE,
-                   repeat=args.repeat, cold_repeat=0 if args.skip_cold else args.cold_repeat)
-    for label, runs, interp, x, nested in (("PETSc vinewtonrsls, CG+BoomerAMG, nested", nested_runs, nested_interp, x_nested, True),
-                                           ("PETSc vinewtonrsls, CG+BoomerAMG, cold", cold_runs, cold_interp, x_cold, False)):
-        if not runs:
-            continue
-        summary = summarize_petsc(runs, interp)
-        fld = fields(fine, case, *to_nodal(fine, x, case.g))
-        diff = difference(fld, ref, perm)
-        rows.append(petsc_row(summary, label, nested, diff))
-        kkt = kkt_check(fine, case, fld)
-        summary["kkt"] = kkt
-        notes.append(f"{label}: second equation residual {kkt['eq2_rel']:.1e} (relative), min(w) {kkt['min_gap']:.1e}, "
-                     f"min(λ) {kkt['min_lambda']:.1e}, max|min(w, λ)| {kkt['compl_rel']:.1e} (each scaled by its max)")
-        petsc_tables[label] = summary
-        if not summary["converged"]:
-            notes.append(f"warning: {label}: a SNES solve did not converge (see the reason column)")
+    rows, petsc_tables, notes = build_rows(m, fine, case, ref, perm, args.agree)
     if args.skip_cold:
         notes.append("PETSc cold solve skipped (--skip-cold).")
     load_after = os.getloadavg()
     notes.append(f"\nload average (1, 5, 15 min) at start {load_before[0]:.1f} {load_before[1]:.1f} {load_before[2]:.1f}, "
                  f"at end {load_after[0]:.1f} {load_after[1]:.1f} {load_after[2]:.1f} on {os.cpu_count()} cores")
-    results.update(load_before=load_before, load_after=load_after)
     print_tables(fine.mesh.nv, rows, petsc_tables, args.repeat, notes)
-    results.update(rows=rows, petsc=petsc_tables)
     if args.output:
+        results = dict(case=vars(case), vertices=[lv.mesh.nv for lv in levels], mesh_check_gap=gap,
+                       refine_s=t_mesh, assembly_s=[lv.seconds for lv in levels],
+                       petsc_options=defaults, petsc_user_options=args.petsc_options,
+                       snes_atol=[tol.newton_tol * float(np.linalg.norm(vi.b)) for vi in systems],
+                       twomem_timed_overrides=TWOMEM_TIMED, twomem_reference_overrides=TWOMEM_REFERENCE,
+                       repeat=args.repeat, cold_repeat=0 if args.skip_cold else args.cold_repeat,
+                       load_before=load_before, load_after=load_after, rows=rows, petsc=petsc_tables)
         Path(args.output).write_text(json.dumps(results, indent=1, default=float))
         print(f"\nwritten: {args.output}")
     return 0
