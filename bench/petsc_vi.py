@@ -1,0 +1,767 @@
+#!/usr/bin/python3
+"""PETSc peer benchmark: twomem against PETSc's reduced-space VI Newton on the same discrete problem.
+
+What it measures. On the built-in unit disk (coarse mesh from twomem, refined `--levels` times by
+red refinement here, in numpy), the script assembles twomem's discrete two-membrane problem
+independently (P1 stiffness K, lumped mass D = diag(|ω_a|/3), loads by a degree-5 rule, lifting
+of u1 = g on ∂Ω) and poses it as the bound-constrained QP
+
+    min ½ xᵀ H x − bᵀ x   over x = (w, s) = (u1 − u2, u1 + u2) at interior vertices,  w ≥ 0,
+    H = ¼ [[(μ1+μ2) K, (μ1−μ2) K], [(μ1−μ2) K, (μ1+μ2) K]],
+
+whose KKT conditions are twomem's equations with multiplier D λ. PETSc solves it with SNES
+`vinewtonrsls` (reduced-space active-set Newton), CG + hypre BoomerAMG on each reduced system,
+(a) cold on the finest mesh from (w, s) = (g, g) (twomem's (g, 0, 0) guess) and (b) by nested
+iteration (solve level 0, interpolate by midpoint averaging, ... finest). In the same run twomem
+solves the same case (Newton-min, GMRES with its multigrid block preconditioner, nested
+iteration), its own `/performance@solve_seconds` is read, and a markdown table compares
+Newton/SNES steps, Krylov iterations and solve seconds (median of `--repeat` runs, interleaved:
+twomem, PETSc nested, PETSc cold, twomem, ...). The finest PETSc solution is compared with a
+tightly converged twomem solution (newton.tol = gmres.rtol = 1e-12) on the same vertices.
+
+PETSc runs on one process (Debian's hypre has no OpenMP); twomem uses `--threads` OpenMP
+threads (a comma list gives one twomem row each; `2:passive` also sets OMP_WAIT_POLICY=passive,
+which matters on a loaded machine: libgomp's spinning barriers then cost twomem 20x). Timings on
+a shared machine are noisy: read medians, and the spread in the JSON output.
+
+    bench/setup_petsc.sh                              # once: Debian's petsc4py, h5py, scipy
+    /usr/bin/python3 bench/petsc_vi.py --levels 2     # coarse_h 0.05, boundary_h 0.01: 48k vertices
+    /usr/bin/python3 bench/petsc_vi.py --levels 3 --skip-cold -o results.json
+
+`--petsc-options "-ksp_monitor ..."` is passed to PETSc's options database after the defaults,
+so any option below can be overridden from the command line.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PETSC_DIR = "/usr/lib/petscdir/petsc3.18/x86_64-linux-gnu-real"
+PROG = "petsc_vi.py"
+
+
+def fail(message: str, code: int = 2) -> None:
+    """One-line error on stderr, no traceback."""
+    print(f"{PROG}: error: {message}", file=sys.stderr)
+    sys.exit(code)
+
+
+# --------------------------------------------------------------------------------------------
+# imports that only the benchmark needs
+# --------------------------------------------------------------------------------------------
+def import_petsc(extra_options: list[str]):
+    """petsc4py initialised with our program name and the user's extra options; PETSc module."""
+    os.environ.setdefault("PETSC_DIR", PETSC_DIR)
+    # Debian's petsc4py.pth reads PETSC_DIR when the interpreter starts; add the path ourselves
+    # so the benchmark also works when the variable was not set beforehand.
+    site = Path(os.environ["PETSC_DIR"]) / "lib" / "python3" / "dist-packages"
+    if site.is_dir() and str(site) not in sys.path:
+        sys.path.append(str(site))
+    try:
+        import petsc4py
+        petsc4py.init([PROG, *extra_options])
+        from petsc4py import PETSc
+    except ImportError as exc:
+        fail(f"petsc4py is not importable under {sys.executable} ({exc}): run bench/setup_petsc.sh", 3)
+    return PETSc
+
+
+def import_numerics():
+    try:
+        import h5py  # noqa: F401
+        import numpy  # noqa: F401
+        import scipy.sparse  # noqa: F401
+    except ImportError as exc:
+        fail(f"{exc.name} is not importable under {sys.executable}: run bench/setup_petsc.sh", 3)
+
+
+import_numerics()
+import h5py  # noqa: E402
+import numpy as np  # noqa: E402
+import scipy.sparse as sp  # noqa: E402
+
+
+# --------------------------------------------------------------------------------------------
+# the case and twomem
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Case:
+    coarse_h: float
+    boundary_h: float
+    levels: int
+    mu1: float
+    mu2: float
+    f1: float
+    f2: float
+    g: float
+
+    def overrides(self, levels: int | None = None) -> list[str]:
+        lv = self.levels if levels is None else levels
+        return [f"mesh.domain=disk", f"mesh.coarse_h={self.coarse_h}", f"mesh.boundary_h={self.boundary_h}",
+                f"mesh.levels={lv}", f"problem.mu1={self.mu1}", f"problem.mu2={self.mu2}",
+                f"problem.f1={self.f1}", f"problem.f2={self.f2}", f"problem.g={self.g}",
+                "problem.exact=none", "newton.cfun=min"]
+
+
+# the timed twomem run: Newton-min, GMRES to a fixed 1e-10 with the default (multigrid) preconditioner,
+# nested iteration (default); the reference run converges both tolerances to 1e-12
+TWOMEM_TIMED = ["newton.linear=gmres", "gmres.forcing=fixed", "newton.tol=1e-10", "gmres.rtol=1e-10",
+                "newton.initial=nested"]
+TWOMEM_REFERENCE = ["newton.linear=gmres", "gmres.forcing=fixed", "newton.tol=1e-12", "gmres.rtol=1e-12",
+                    "newton.initial=nested"]
+TWOMEM_QUIET = ["estimate.enabled=.false.", "output.history=.false.", "output.xdmf=.false.",
+                "output.estimators=.false."]
+NESTED_LINE = re.compile(r"nested: level\s+(\d+):\s+(\d+) Newton steps,\s+(\d+) GMRES iterations \(([^)]*)\), ([0-9.]+) s")
+
+
+@dataclass(frozen=True)
+class Omp:
+    """OpenMP set-up of a twomem run: thread count and optional OMP_WAIT_POLICY."""
+    threads: int
+    wait: str = ""
+
+    @classmethod
+    def parse(cls, text: str) -> "Omp":
+        n, _, wait = text.partition(":")
+        if not n.isdigit() or int(n) < 1 or wait not in ("", "active", "passive"):
+            raise ValueError(text)
+        return cls(int(n), wait)
+
+    def env(self) -> dict:
+        env = dict(os.environ, OMP_NUM_THREADS=str(self.threads))
+        env.pop("OMP_WAIT_POLICY", None)
+        if self.wait:
+            env["OMP_WAIT_POLICY"] = self.wait
+        return env
+
+    def label(self) -> str:
+        s = f"{self.threads} thread{'s' if self.threads > 1 else ''}"
+        return s + (f", OMP_WAIT_POLICY={self.wait}" if self.wait else "")
+
+
+def run_twomem(exe: Path, case: Case, out: Path, extra: list[str], omp: Omp, levels: int | None = None) -> dict:
+    """Run twomem, return its result (mesh, solution, summary, performance) and the nested lines."""
+    cmd = [str(exe), "run", str(ROOT / "input" / "default.nml"), *case.overrides(levels), *TWOMEM_QUIET,
+           *extra, f"output.file={out}"]
+    env = omp.env()
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    if proc.returncode != 0:
+        last = (proc.stderr.strip() or proc.stdout.strip() or "no output").splitlines()[-1]
+        fail(f"twomem exited with {proc.returncode} ({' '.join(cmd[3:])}): {last}", 3)
+    res = read_result(out)
+    res["nested"] = [dict(level=int(m[0]), newton=int(m[1]), krylov=int(m[2]), status=m[3], seconds=float(m[4]))
+                     for m in NESTED_LINE.findall(proc.stdout)]
+    return res
+
+
+def read_result(path: Path) -> dict:
+    with h5py.File(path, "r") as f:
+        if not str(f.attrs["status"]).startswith("converged"):
+            fail(f"{path}: twomem did not converge: {f.attrs['status']}", 1)
+        return dict(vertices=f["mesh/vertices"][...], triangles=f["mesh/triangles"][...].astype(np.int64),
+                    u1=f["solution/u1"][...], u2=f["solution/u2"][...], lam=f["solution/lambda"][...],
+                    summary={k: v.item() for k, v in f["summary"].attrs.items()},
+                    performance={k: float(v) for k, v in f["performance"].attrs.items()})
+
+
+# --------------------------------------------------------------------------------------------
+# meshes: red refinement, as twomem does it (edge numbering may differ)
+# --------------------------------------------------------------------------------------------
+@dataclass
+class Mesh:
+    vertices: np.ndarray          # (nv, 2)
+    triangles: np.ndarray         # (nt, 3) int64, counter-clockwise
+    edges: np.ndarray             # (ne, 2) unique vertex pairs, i < j
+    edge_of: np.ndarray           # (nt, 3) edge index of the sides (0,1), (1,2), (2,0)
+    boundary: np.ndarray          # (nv,) bool: on an edge of exactly one triangle
+
+    @property
+    def nv(self) -> int:
+        return self.vertices.shape[0]
+
+
+def make_mesh(vertices: np.ndarray, triangles: np.ndarray) -> Mesh:
+    """Edges (by a 1-D key i·nv + j, faster than unique over rows) and boundary vertices."""
+    nv = vertices.shape[0]
+    t = triangles
+    sides = np.stack([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]], axis=1).reshape(-1, 2)
+    sides.sort(axis=1)
+    keys, edge_of, counts = np.unique(sides[:, 0] * nv + sides[:, 1], return_inverse=True, return_counts=True)
+    edges = np.stack([keys // nv, keys % nv], axis=1)
+    if np.any(counts > 2):
+        fail("non-manifold mesh: an edge is shared by more than two triangles")
+    boundary = np.zeros(nv, dtype=bool)
+    boundary[edges[counts == 1].ravel()] = True
+    return Mesh(vertices=vertices, triangles=t, edges=edges, edge_of=edge_of.reshape(-1, 3), boundary=boundary)
+
+
+def red_refine(mesh: Mesh) -> Mesh:
+    """Coarse vertices first, then one midpoint per edge (boundary midpoints stay on the chords);
+    four children per triangle, all with the parent's orientation."""
+    v, t = mesh.vertices, mesh.triangles
+    mid = 0.5 * (v[mesh.edges[:, 0]] + v[mesh.edges[:, 1]])
+    m = mesh.edge_of + mesh.nv                                # midpoints of (a,b), (b,c), (c,a)
+    a, b, c = t[:, 0], t[:, 1], t[:, 2]
+    ab, bc, ca = m[:, 0], m[:, 1], m[:, 2]
+    children = np.concatenate([np.stack(k, axis=1) for k in ((a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca))])
+    return make_mesh(np.concatenate([v, mid]), children)
+
+
+def prolong(coarse: Mesh, x: np.ndarray) -> np.ndarray:
+    """P1 interpolation of a nodal field from `coarse` to its red refinement: midpoint averages."""
+    return np.concatenate([x, 0.5 * (x[coarse.edges[:, 0]] + x[coarse.edges[:, 1]])])
+
+
+def match_vertices(mine: np.ndarray, theirs: np.ndarray) -> tuple[np.ndarray, float]:
+    """Permutation p with theirs[p] ≈ mine (same vertex set), and the largest coordinate gap.
+
+    Vertices are ordered by coordinates rounded to 1e-9 (far below the smallest edge) so that a
+    last-bit difference cannot reorder them; the gap is then measured on the raw coordinates.
+    """
+    if mine.shape != theirs.shape:
+        fail(f"finest mesh differs from twomem's: {mine.shape[0]} vertices here, {theirs.shape[0]} in twomem")
+    def order(v):
+        k = np.round(v * 1e9).astype(np.int64)
+        return np.lexsort((k[:, 1], k[:, 0]))
+    om, ot = order(mine), order(theirs)
+    perm = np.empty_like(om)
+    perm[om] = ot
+    gap = float(np.max(np.abs(theirs[perm] - mine)))
+    if gap > 1e-12:
+        fail(f"finest mesh differs from twomem's: vertex coordinates differ by up to {gap:.3e}")
+    return perm, gap
+
+
+# --------------------------------------------------------------------------------------------
+# P1 assembly (independent of twomem): stiffness, lumped mass, degree-5 loads
+# --------------------------------------------------------------------------------------------
+def _dunavant5() -> tuple[np.ndarray, np.ndarray]:
+    """Dunavant's 7-point rule, exact for degree 5: barycentric points (7, 3), weights (sum 1)."""
+    pts, wts = [(1 / 3, 1 / 3, 1 / 3)], [0.225]
+    for a, b, w in ((0.059715871789770, 0.470142064105115, 0.132394152788506),
+                    (0.797426985353087, 0.101286507323456, 0.125939180544827)):
+        pts += [(a, b, b), (b, a, b), (b, b, a)]
+        wts += [w] * 3
+    return np.array(pts), np.array(wts)
+
+
+RULE5_BARY, RULE5_WEIGHTS = _dunavant5()
+
+
+def _check_rule5() -> None:
+    """∫ x^i y^j over the reference triangle is i! j! / (i + j + 2)!: exact for i + j ≤ 5."""
+    from math import factorial
+    x, y = RULE5_BARY[:, 1], RULE5_BARY[:, 2]
+    for i in range(6):
+        for j in range(6 - i):
+            exact = factorial(i) * factorial(j) / factorial(i + j + 2)
+            if abs(0.5 * RULE5_WEIGHTS @ (x ** i * y ** j) - exact) > 1e-14:
+                fail(f"degree-5 rule is not exact for x^{i} y^{j}")
+
+
+_check_rule5()
+
+
+@dataclass
+class Level:
+    mesh: Mesh
+    K: sp.csr_matrix              # (nv, nv) P1 stiffness, all vertices
+    mass: np.ndarray              # (nv,) |ω_a|/3
+    load1: np.ndarray             # (nv,) (f1, ψ_a) by the degree-5 rule
+    load2: np.ndarray
+    interior: np.ndarray          # indices of interior vertices
+    seconds: float = 0.0          # assembly time
+
+
+def assemble(mesh: Mesh, case: Case) -> Level:
+    t0 = time.perf_counter()
+    v, t = mesh.vertices, mesh.triangles
+    p0, p1, p2 = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    det = (p1[:, 0] - p0[:, 0]) * (p2[:, 1] - p0[:, 1]) - (p1[:, 1] - p0[:, 1]) * (p2[:, 0] - p0[:, 0])
+    if np.any(det <= 0):
+        fail("mesh has a triangle that is not counter-clockwise or is degenerate")
+    area = 0.5 * det
+    opp = np.stack([p2 - p1, p0 - p2, p1 - p0], axis=1)       # side opposite each corner
+    grad = np.stack([-opp[:, :, 1], opp[:, :, 0]], axis=2) / det[:, None, None]
+    kloc = area[:, None, None] * np.einsum("kid,kjd->kij", grad, grad)
+    rows = np.repeat(t, 3, axis=1).ravel()
+    cols = np.tile(t, (1, 3)).ravel()
+    K = sp.csr_matrix((kloc.ravel(), (rows, cols)), shape=(mesh.nv, mesh.nv))   # duplicates summed
+    mass = np.bincount(t.ravel(), weights=np.repeat(area / 3.0, 3), minlength=mesh.nv)
+    load1 = load_vector(mesh, area, lambda x: np.full(x.shape[:-1], case.f1))
+    load2 = load_vector(mesh, area, lambda x: np.full(x.shape[:-1], case.f2))
+    lv = Level(mesh=mesh, K=K, mass=mass, load1=load1, load2=load2, interior=np.flatnonzero(~mesh.boundary))
+    lv.seconds = time.perf_counter() - t0
+    return lv
+
+
+def load_vector(mesh: Mesh, area: np.ndarray, f) -> np.ndarray:
+    """(f, ψ_a) = Σ_K |K| Σ_q w_q f(x_q) ψ_a(x_q) with the degree-5 rule; f takes points (..., 2)."""
+    t = mesh.triangles
+    xq = np.einsum("qi,kid->kqd", RULE5_BARY, mesh.vertices[t])          # (nt, 7, 2)
+    fw = f(xq) * RULE5_WEIGHTS[None, :] * area[:, None]                  # (nt, 7)
+    local = fw @ RULE5_BARY                                              # (nt, 3): ψ_i(x_q) = bary_i
+    return np.bincount(t.ravel(), weights=local.ravel(), minlength=mesh.nv)
+
+
+# --------------------------------------------------------------------------------------------
+# the VI in (w, s) = (u1 − u2, u1 + u2)
+# --------------------------------------------------------------------------------------------
+@dataclass
+class VI:
+    H: sp.csr_matrix              # (2n, 2n) Hessian of the QP at the interior unknowns [w; s]
+    b: np.ndarray                 # (2n,) so that ∇J(x) = H x − b (lifting of w = s = g included)
+    n: int
+
+
+def vi_system(lv: Level, case: Case) -> VI:
+    """J(u1, u2) = ½μ1 u1ᵀK u1 + ½μ2 u2ᵀK u2 − (f1, u1) − (f2, u2) with u1 = (s + w)/2,
+    u2 = (s − w)/2 gives ∂²J/∂w² = ∂²J/∂s² = (μ1+μ2)/4 K and ∂²J/∂w∂s = (μ1−μ2)/4 K; the linear
+    part is ½[(f1 − f2, ψ); (f1 + f2, ψ)] minus the boundary columns applied to w = s = g."""
+    a, c = (case.mu1 + case.mu2) / 4.0, (case.mu1 - case.mu2) / 4.0
+    I = lv.interior
+    B = np.flatnonzero(lv.mesh.boundary)
+    KI = lv.K[I]
+    KII, KIB = KI[:, I], KI[:, B]
+    H = sp.bmat([[a * KII, c * KII], [c * KII, a * KII]], format="csr")
+    lift = KIB @ np.full(B.size, case.g)                      # K_IB g, for both w and s
+    b_w = 0.5 * (lv.load1[I] - lv.load2[I]) - (a + c) * lift
+    b_s = 0.5 * (lv.load1[I] + lv.load2[I]) - (c + a) * lift
+    H.sort_indices()
+    return VI(H=H, b=np.concatenate([b_w, b_s]), n=I.size)
+
+
+def to_nodal(lv: Level, x: np.ndarray, g: float) -> tuple[np.ndarray, np.ndarray]:
+    """Interior [w; s] → nodal w, s with the boundary values w = s = g."""
+    n = lv.interior.size
+    w, s = np.full(lv.mesh.nv, g), np.full(lv.mesh.nv, g)
+    w[lv.interior], s[lv.interior] = x[:n], x[n:]
+    return w, s
+
+
+def fields(lv: Level, case: Case, w: np.ndarray, s: np.ndarray) -> dict:
+    """u1, u2 and λ = (μ1 K u1 − F1)/D at interior vertices (0 on ∂Ω), from the first equation."""
+    u1, u2 = 0.5 * (s + w), 0.5 * (s - w)
+    lam = np.zeros(lv.mesh.nv)
+    I = lv.interior
+    lam[I] = (case.mu1 * (lv.K @ u1)[I] - lv.load1[I]) / lv.mass[I]
+    return dict(u1=u1, u2=u2, lam=lam)
+
+
+def kkt_check(lv: Level, case: Case, fld: dict) -> dict:
+    """The second equation μ2 K u2 + D λ = F2 (the first defines λ) and complementarity of a
+    solution, relative to the size of their terms: an assembly-independent self-check."""
+    I = lv.interior
+    u1, u2, lam = fld["u1"], fld["u2"], fld["lam"]
+    ku2 = case.mu2 * (lv.K @ u2)[I]
+    r2 = ku2 + lv.mass[I] * lam[I] - lv.load2[I]
+    scale = max(np.max(np.abs(ku2)), np.max(np.abs(lv.mass[I] * lam[I])), np.max(np.abs(lv.load2[I])))
+    w = (u1 - u2)[I]
+    return dict(eq2_rel=float(np.max(np.abs(r2)) / scale),
+                min_gap=float(np.min(w)), min_lambda=float(np.min(lam[I])),
+                compl_rel=float(np.max(np.abs(np.minimum(w / np.max(np.abs(w)), lam[I] / np.max(np.abs(lam[I])))))))
+
+
+# --------------------------------------------------------------------------------------------
+# PETSc
+# --------------------------------------------------------------------------------------------
+@dataclass
+class Tolerances:
+    newton_tol: float             # SNES atol = newton_tol · ‖b‖ (twomem: ‖R_lin‖ ≤ tol ‖[F; 0]‖)
+    ksp_rtol: float               # CG relative tolerance on the true (unpreconditioned) residual
+    snes_max_it: int = 200
+    ksp_max_it: int = 2000
+
+
+def petsc_options(tol: Tolerances) -> dict:
+    """Defaults put in the options database before the user's `--petsc-options` (which win).
+
+    snes_vi_zero_tolerance: PETSc's default 1e-8 treats w ≤ 1e-8 with ∂J/∂w > 0 as active and
+    freezes it there; measured on the cold 191k-vertex solve, one vertex stayed at w ≈ 1e-8 with
+    λ > 0 (λ off by 2.6e-4 relative). With 0 only vertices projected onto w = 0 are active.
+    """
+    return {"snes_type": "vinewtonrsls", "snes_rtol": 0.0, "snes_stol": 0.0, "snes_vi_zero_tolerance": 0.0,
+            "snes_max_it": tol.snes_max_it, "ksp_type": "cg", "ksp_norm_type": "unpreconditioned",
+            "ksp_rtol": tol.ksp_rtol, "ksp_atol": 0.0, "ksp_max_it": tol.ksp_max_it,
+            "pc_type": "hypre", "pc_hypre_type": "boomeramg"}
+
+
+def set_default_options(PETSc, defaults: dict) -> None:
+    """Put the defaults where the user's command-line options did not already set the key."""
+    opts = PETSc.Options()
+    for key, value in defaults.items():
+        if not opts.hasName(key):
+            opts.setValue(key, value)
+
+
+@dataclass
+class SolveStats:
+    level: int
+    nv: int
+    snes_it: int
+    ksp_it: int
+    reason: str
+    setup_s: float                # PETSc matrix, vectors, SNES/KSP objects
+    solve_s: float                # SNESSolve (includes BoomerAMG set-up on every reduced system)
+    pc_setup_s: float             # of which PCSetUp (BoomerAMG hierarchies)
+    solve_cpu_s: float            # CPU seconds of SNESSolve (less sensitive to other users' load)
+    active: int = 0               # interior vertices with w = 0
+
+
+def _pc_setup_time(PETSc) -> float:
+    return PETSc.Log.Event("PCSetUp").getPerfInfo()["time"]
+
+
+def snes_solve(PETSc, vi: VI, x0: np.ndarray, tol: Tolerances, level: int, nv: int) -> tuple[np.ndarray, SolveStats]:
+    """One SNES vinewtonrsls solve of ∇J(x) = H x − b ⊥ w ≥ 0 from x0."""
+    t0 = time.perf_counter()
+    comm = PETSc.COMM_SELF
+    H = vi.H
+    A = PETSc.Mat().createAIJ(size=H.shape, csr=(H.indptr.astype(PETSc.IntType),
+                                                 H.indices.astype(PETSc.IntType), H.data), comm=comm)
+    A.assemble()
+    rhs = PETSc.Vec().createWithArray(vi.b.copy(), comm=comm)
+    x = PETSc.Vec().createWithArray(x0.copy(), comm=comm)
+    f = x.duplicate()
+    lower = x.duplicate()
+    upper = x.duplicate()
+    lower.array[: vi.n] = 0.0
+    lower.array[vi.n:] = PETSc.NINFINITY
+    upper.set(PETSc.INFINITY)
+
+    def residual(snes, xv, fv):
+        A.mult(xv, fv)
+        fv.axpy(-1.0, rhs)
+
+    def jacobian(snes, xv, J, P):
+        pass                                                  # H is constant
+
+    snes = PETSc.SNES().create(comm=comm)
+    snes.setFunction(residual, f)
+    snes.setJacobian(jacobian, A, A)
+    snes.setVariableBounds(lower, upper)
+    snes.setFromOptions()
+    if not PETSc.Options().hasName("snes_atol"):
+        snes.setTolerances(atol=tol.newton_tol * float(np.linalg.norm(vi.b)))
+    snes.setSolution(x)                                       # SNESSetUp_VI sizes its work vectors on it
+    snes.setUp()
+    t1 = time.perf_counter()
+    pc0 = _pc_setup_time(PETSc)
+    c1 = time.process_time()
+    snes.solve(None, x)
+    t2 = time.perf_counter()
+    c2 = time.process_time()
+    xs = x.array.copy()
+    stats = SolveStats(level=level, nv=nv, snes_it=snes.getIterationNumber(),
+                       ksp_it=snes.getLinearSolveIterations(), reason=snes_reason(PETSc, snes),
+                       setup_s=t1 - t0, solve_s=t2 - t1, pc_setup_s=_pc_setup_time(PETSc) - pc0, solve_cpu_s=c2 - c1,
+                       active=int(np.count_nonzero(xs[: vi.n] <= 0.0)))
+    for obj in (snes, A, rhs, x, f, lower, upper):
+        obj.destroy()
+    return xs, stats
+
+
+def snes_reason(PETSc, snes) -> str:
+    r = snes.getConvergedReason()
+    names = {v: k for k, v in vars(PETSc.SNES.ConvergedReason).items() if not k.startswith("_") and isinstance(v, int)}
+    return names.get(r, str(r))
+
+
+def petsc_nested(PETSc, levels: list[Level], systems: list[VI], case: Case, tol: Tolerances):
+    """Level 0 from (g, g), then each level from the midpoint interpolation of the previous one."""
+    stats, x = [], None
+    t_interp = 0.0
+    for l, (lv, vi) in enumerate(zip(levels, systems)):
+        if l == 0:
+            x0 = np.full(2 * vi.n, case.g)
+        else:
+            t0 = time.perf_counter()
+            w, s = to_nodal(levels[l - 1], x, case.g)
+            w, s = prolong(levels[l - 1].mesh, w), prolong(levels[l - 1].mesh, s)
+            x0 = np.concatenate([w[lv.interior], s[lv.interior]])
+            t_interp += time.perf_counter() - t0
+        x, st = snes_solve(PETSc, vi, x0, tol, l, lv.mesh.nv)
+        stats.append(st)
+    return x, stats, t_interp
+
+
+def petsc_cold(PETSc, levels: list[Level], systems: list[VI], case: Case, tol: Tolerances):
+    vi = systems[-1]
+    x, st = snes_solve(PETSc, vi, np.full(2 * vi.n, case.g), tol, len(levels) - 1, levels[-1].mesh.nv)
+    return x, [st], 0.0
+
+
+# --------------------------------------------------------------------------------------------
+# comparison and report
+# --------------------------------------------------------------------------------------------
+def difference(mine: dict, ref: dict, perm: np.ndarray) -> dict:
+    """max |mine − ref| and that relative to max |ref| per field, ref mapped onto our vertices."""
+    out = {}
+    for k in ("u1", "u2", "lam"):
+        r = ref[k][perm]
+        d = float(np.max(np.abs(mine[k] - r)))
+        out[k] = dict(abs=d, rel=d / max(float(np.max(np.abs(r))), 1e-300))
+    out["max_rel"] = max(v["rel"] for v in out.values())
+    return out
+
+
+def median(values):
+    return statistics.median(values) if values else float("nan")
+
+
+def summarize_petsc(runs: list[list[SolveStats]], t_interp: list[float]) -> dict:
+    """Medians over repeats of the per-level numbers and of the totals (iterations do not vary)."""
+    first = runs[0]
+    per_level = []
+    for i, st in enumerate(first):
+        per_level.append(dict(level=st.level, nv=st.nv, snes_it=st.snes_it, ksp_it=st.ksp_it, reason=st.reason,
+                              active=st.active,
+                              setup_s=median([r[i].setup_s for r in runs]),
+                              solve_s=median([r[i].solve_s for r in runs]),
+                              pc_setup_s=median([r[i].pc_setup_s for r in runs]),
+                              solve_cpu_s=median([r[i].solve_cpu_s for r in runs])))
+    totals = [sum(s.solve_s for s in r) + ti for r, ti in zip(runs, t_interp)]
+    setups = [sum(s.setup_s for s in r) for r in runs]
+    return dict(levels=per_level, solve_s=median(totals), solve_s_all=totals, setup_s=median(setups),
+                snes_it_finest=first[-1].snes_it, snes_it_coarse=sum(s.snes_it for s in first[:-1]),
+                ksp_it_finest=first[-1].ksp_it, ksp_it_coarse=sum(s.ksp_it for s in first[:-1]),
+                converged=all(s.reason.startswith("CONVERGED") for r in runs for s in r))
+
+
+def fmt_steps(finest: int, coarse: int, nested: bool) -> str:
+    return f"{finest} (+{coarse})" if nested else f"{finest}"
+
+
+def print_tables(nv: int, rows: list[dict], petsc_rows: dict, repeat: int, notes: list[str]) -> None:
+    first = next((r for r in rows if r["method"].startswith("twomem")), None)
+    ref = first["solve_s"] if first else float("nan")
+    print(f"\nSolve seconds: median of {repeat} interleaved runs on a shared machine (noisy); twomem's own "
+          "/performance@solve_seconds, PETSc's SNESSolve time summed over levels (assembly excluded from both). "
+          "Steps and iterations: finest level (+ coarser levels of nested iteration). "
+          f"PETSc/twomem: against the first row ({first['method'] if first else '-'}).\n")
+    print("| vertices | method | Newton/SNES steps | Krylov iterations | solve s | PETSc/twomem | "
+          "max rel. difference u1, u2, λ vs twomem 1e-12 |")
+    print("| --- | --- | --- | --- | --- | --- | --- |")
+    for r in rows:
+        d = r["difference"]
+        diff = f"{d['u1']['rel']:.1e}, {d['u2']['rel']:.1e}, {d['lam']['rel']:.1e}"
+        ratio = r["solve_s"] / ref if r["method"].startswith("PETSc") else 1.0
+        print(f"| {nv} | {r['method']} | {r['steps']} | {r['krylov']} | {r['solve_s']:.3g} | "
+              f"{ratio:.3g} | {diff} |")
+    for name, summary in petsc_rows.items():
+        print(f"\n{name}, per level (medians of {repeat}; set-up = PETSc objects, solve = SNESSolve "
+              "including BoomerAMG set-up on every reduced system):\n")
+        print("| level | vertices | SNES steps | CG iterations | active | set-up s | solve s | of which PCSetUp s "
+              "| solve CPU s | reason |")
+        print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+        for lv in summary["levels"]:
+            print(f"| {lv['level']} | {lv['nv']} | {lv['snes_it']} | {lv['ksp_it']} | {lv['active']} | "
+                  f"{lv['setup_s']:.3g} | {lv['solve_s']:.3g} | {lv['pc_setup_s']:.3g} | {lv['solve_cpu_s']:.3g} | "
+                  f"{lv['reason']} |")
+    for n in notes:
+        print(n)
+
+
+# --------------------------------------------------------------------------------------------
+# driver
+# --------------------------------------------------------------------------------------------
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog="\n".join(__doc__.splitlines()[1:]))
+    ap.add_argument("--coarse-h", type=float, default=0.05)
+    ap.add_argument("--boundary-h", type=float, default=0.01, help="always explicit: level l then equals a run with levels=l")
+    ap.add_argument("--levels", type=int, default=2)
+    ap.add_argument("--mu1", type=float, default=2.0)
+    ap.add_argument("--mu2", type=float, default=0.5)
+    ap.add_argument("--f1", type=float, default=-2.0)
+    ap.add_argument("--f2", type=float, default=1.0)
+    ap.add_argument("--g", type=float, default=0.05)
+    ap.add_argument("--twomem", default=str(ROOT / "build" / "release" / "twomem"), help="twomem executable")
+    ap.add_argument("--threads", default="2", help="OMP_NUM_THREADS for twomem; a comma list gives one row "
+                    "each; N:passive also sets OMP_WAIT_POLICY=passive (e.g. 2,1,2:passive)")
+    ap.add_argument("--repeat", type=int, default=3, help="timed runs per method; medians are reported")
+    ap.add_argument("--cold-repeat", type=int, default=None, help="timed cold PETSc runs (default: --repeat)")
+    ap.add_argument("--skip-cold", action="store_true", help="no cold PETSc solve on the finest mesh (slow when large)")
+    ap.add_argument("--newton-tol", type=float, default=1e-10, help="twomem newton.tol; SNES atol = this · ‖∇J(0)‖")
+    ap.add_argument("--ksp-rtol", type=float, default=1e-10, help="CG relative tolerance (twomem: gmres.rtol = 1e-10)")
+    ap.add_argument("--petsc-options", default="", help="extra PETSc options, e.g. \"-snes_monitor -ksp_converged_reason\"")
+    ap.add_argument("--agree", type=float, default=1e-8,
+                    help="warn when a PETSc solution differs from twomem's reference by more (relative)")
+    ap.add_argument("-o", "--output", help="write every measurement as JSON here")
+    args = ap.parse_args(argv)
+    if args.levels < 0 or args.repeat < 1:
+        ap.error("--levels must be ≥ 0 and --repeat ≥ 1")
+    try:
+        args.threads = [Omp.parse(t) for t in args.threads.split(",")]
+    except ValueError as exc:
+        ap.error(f"--threads: {exc}: expected N or N:passive or N:active, comma separated")
+    if args.cold_repeat is None:
+        args.cold_repeat = args.repeat
+    return args
+
+
+def build_levels(exe: Path, case: Case, work: Path) -> tuple[list[Level], float]:
+    """Coarse mesh from twomem (levels=0), refined here; assembled on every level."""
+    coarse = run_twomem(exe, case, work / "coarse.h5", TWOMEM_TIMED, Omp(1), levels=0)
+    t0 = time.perf_counter()
+    meshes = [make_mesh(coarse["vertices"].astype(float), coarse["triangles"])]
+    for _ in range(case.levels):
+        meshes.append(red_refine(meshes[-1]))
+    t_mesh = time.perf_counter() - t0
+    return [assemble(m, case) for m in meshes], t_mesh
+
+
+def twomem_row(runs: list[dict], label: str, diff: dict) -> dict:
+    s = runs[0]["summary"]
+    return dict(method=label, steps=fmt_steps(s["newton_iterations"], s["newton_iterations_coarse"], True),
+                krylov=fmt_steps(s["gmres_iterations"], s["gmres_iterations_coarse"], True),
+                solve_s=median([r["performance"]["solve_seconds"] for r in runs]),
+                solve_s_all=[r["performance"]["solve_seconds"] for r in runs],
+                assembly_s=median([r["performance"]["assembly_seconds"] for r in runs]),
+                nested=runs[0]["nested"], difference=diff)
+
+
+def petsc_row(summary: dict, label: str, nested: bool, diff: dict) -> dict:
+    return dict(method=label, steps=fmt_steps(summary["snes_it_finest"], summary["snes_it_coarse"], nested),
+                krylov=fmt_steps(summary["ksp_it_finest"], summary["ksp_it_coarse"], nested),
+                solve_s=summary["solve_s"], difference=diff)
+
+
+@dataclass
+class Measurements:
+    """Everything the repeats produce: per twomem configuration its runs, per PETSc start its
+    per-level statistics and interpolation times, and the last finest solution of each."""
+    configs: list
+    twomem: dict = field(default_factory=dict)
+    petsc: dict = field(default_factory=lambda: {"nested": [], "cold": []})
+    interp: dict = field(default_factory=lambda: {"nested": [], "cold": []})
+    x: dict = field(default_factory=dict)
+
+
+def twomem_configs(threads: list[Omp]) -> list[tuple[str, list[str], Omp]]:
+    configs = [(f"twomem, MG-GMRES, tol 1e-10, nested, {t.label()}", TWOMEM_TIMED, t) for t in threads]
+    configs.append((f"twomem, MG-GMRES, tol 1e-12 (reference), nested, {threads[0].label()}",
+                    TWOMEM_REFERENCE, threads[0]))
+    return configs
+
+
+def run_repeats(PETSc, args, exe: Path, case: Case, levels: list[Level], systems: list[VI],
+                tol: Tolerances, work: Path) -> Measurements:
+    """Interleaved repeats (twomem rows, PETSc nested, PETSc cold) so that slow phases of the
+    machine's load hit every method alike."""
+    m = Measurements(configs=twomem_configs(args.threads))
+    m.twomem = {i: [] for i in range(len(m.configs))}
+    cold_repeat = 0 if args.skip_cold else args.cold_repeat
+    for r in range(max(args.repeat, cold_repeat)):
+        if r < args.repeat:
+            for i, (_, overrides, omp) in enumerate(m.configs):
+                run = run_twomem(exe, case, work / "timed.h5", overrides, omp)
+                del run["vertices"], run["triangles"]                # same mesh as the reference
+                m.twomem[i].append(run)
+            m.x["nested"], st, ti = petsc_nested(PETSc, levels, systems, case, tol)
+            m.petsc["nested"].append(st)
+            m.interp["nested"].append(ti)
+            times = ", ".join(f"{m.twomem[i][-1]['performance']['solve_seconds']:.3g}" for i in m.twomem)
+            print(f"run {r + 1}: twomem (table rows) {times} s; PETSc nested {sum(s.solve_s for s in st) + ti:.3g} s",
+                  flush=True)
+        if r < cold_repeat:
+            m.x["cold"], st, ti = petsc_cold(PETSc, levels, systems, case, tol)
+            m.petsc["cold"].append(st)
+            m.interp["cold"].append(ti)
+            print(f"run {r + 1}: PETSc cold {st[0].solve_s:.3g} s ({st[0].snes_it} SNES, {st[0].ksp_it} CG)", flush=True)
+    return m
+
+
+def build_rows(m: Measurements, fine: Level, case: Case, ref: dict, perm: np.ndarray, agree: float):
+    """Table rows, PETSc per-level summaries and notes (self-checks, warnings)."""
+    rows, petsc_tables, notes = [], {}, []
+    for i, (label, _, _) in enumerate(m.configs):
+        last = m.twomem[i][-1]                                # twomem's vertex order, like ref
+        diff = difference({k: last[k][perm] for k in ("u1", "u2", "lam")}, ref, perm)
+        rows.append(twomem_row(m.twomem[i], label, diff))
+    for start in ("nested", "cold"):
+        if not m.petsc[start]:
+            continue
+        label = f"PETSc vinewtonrsls, CG+BoomerAMG, {start}"
+        summary = summarize_petsc(m.petsc[start], m.interp[start])
+        fld = fields(fine, case, *to_nodal(fine, m.x[start], case.g))
+        diff = difference(fld, ref, perm)
+        rows.append(petsc_row(summary, label, start == "nested", diff))
+        kkt = summary["kkt"] = kkt_check(fine, case, fld)
+        petsc_tables[label] = summary
+        notes.append(f"{label}: second equation residual {kkt['eq2_rel']:.1e} (relative), min(w) {kkt['min_gap']:.1e}, "
+                     f"min(λ) {kkt['min_lambda']:.1e}, max|min(w, λ)| {kkt['compl_rel']:.1e} (each scaled by its max)")
+        if not summary["converged"]:
+            notes.append(f"warning: {label}: a SNES solve did not converge (see the reason column)")
+        if diff["max_rel"] > agree:
+            notes.append(f"warning: {label}: differs from twomem's reference by {diff['max_rel']:.1e} (> {agree:g})")
+    return rows, petsc_tables, notes
+
+
+def main(argv: list[str]) -> int:
+    args = parse_args(argv)
+    PETSc = import_petsc(args.petsc_options.split())
+    exe = Path(args.twomem)
+    if not exe.is_file() or not os.access(exe, os.X_OK):
+        fail(f"{exe}: no twomem executable (build it: cmake --preset release && cmake --build --preset release)", 3)
+    exe = exe.resolve()
+    case = Case(args.coarse_h, args.boundary_h, args.levels, args.mu1, args.mu2, args.f1, args.f2, args.g)
+    tol = Tolerances(newton_tol=args.newton_tol, ksp_rtol=args.ksp_rtol)
+    defaults = petsc_options(tol)
+    set_default_options(PETSc, defaults)
+    PETSc.Log.begin()
+    load_before = os.getloadavg()
+
+    with tempfile.TemporaryDirectory(prefix="petsc_vi.") as tmp:
+        work = Path(tmp)
+        levels, t_mesh = build_levels(exe, case, work)
+        fine = levels[-1]
+        print(f"case: disk coarse_h {case.coarse_h} boundary_h {case.boundary_h} levels {case.levels}, "
+              f"mu1 {case.mu1} mu2 {case.mu2} f1 {case.f1} f2 {case.f2} g {case.g}; vertices per level "
+              + ", ".join(str(lv.mesh.nv) for lv in levels), flush=True)
+        systems = [vi_system(lv, case) for lv in levels]
+        ref = run_twomem(exe, case, work / "reference.h5", TWOMEM_REFERENCE, args.threads[0])
+        if ref["triangles"].shape != fine.mesh.triangles.shape:
+            fail("finest mesh differs from twomem's: triangle counts differ")
+        perm, gap = match_vertices(fine.mesh.vertices, ref["vertices"])
+        print(f"mesh check: finest mesh equals twomem's ({fine.mesh.nv} vertices, "
+              f"{fine.mesh.triangles.shape[0]} triangles; coordinates differ by at most {gap:.1e})", flush=True)
+        m = run_repeats(PETSc, args, exe, case, levels, systems, tol, work)
+
+    rows, petsc_tables, notes = build_rows(m, fine, case, ref, perm, args.agree)
+    if args.skip_cold:
+        notes.append("PETSc cold solve skipped (--skip-cold).")
+    load_after = os.getloadavg()
+    notes.append(f"\nload average (1, 5, 15 min) at start {load_before[0]:.1f} {load_before[1]:.1f} {load_before[2]:.1f}, "
+                 f"at end {load_after[0]:.1f} {load_after[1]:.1f} {load_after[2]:.1f} on {os.cpu_count()} cores")
+    print_tables(fine.mesh.nv, rows, petsc_tables, args.repeat, notes)
+    if args.output:
+        results = dict(case=vars(case), vertices=[lv.mesh.nv for lv in levels], mesh_check_gap=gap,
+                       refine_s=t_mesh, assembly_s=[lv.seconds for lv in levels],
+                       petsc_options=defaults, petsc_user_options=args.petsc_options,
+                       snes_atol=[tol.newton_tol * float(np.linalg.norm(vi.b)) for vi in systems],
+                       twomem_timed_overrides=TWOMEM_TIMED, twomem_reference_overrides=TWOMEM_REFERENCE,
+                       repeat=args.repeat, cold_repeat=0 if args.skip_cold else args.cold_repeat,
+                       load_before=load_before, load_after=load_after, rows=rows, petsc=petsc_tables)
+        Path(args.output).write_text(json.dumps(results, indent=1, default=float))
+        print(f"\nwritten: {args.output}")
+    return 0
+
+
+if __name__ == "__main__":
+    try:
+        sys.exit(main(sys.argv[1:]))
+    except Exception as exc:                                  # PETSc errors: one line, no traceback
+        if type(exc).__module__.startswith("petsc4py"):
+            fail(f"PETSc: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}", 3)
+        raise

@@ -1,0 +1,63 @@
+#!/usr/bin/env bash
+# Set-up for the PETSc peer benchmark (bench/petsc_vi.py) ONLY: installs Debian's petsc4py
+# (PETSc 3.18 with hypre), h5py and scipy for the system interpreter /usr/bin/python3, then checks
+# that petsc4py imports and that hypre's BoomerAMG can be selected. None of this is a twomem
+# dependency; twomem itself never links PETSc.
+#
+#   bench/setup_petsc.sh        # idempotent: installs only what is missing, then checks
+set -euo pipefail
+
+say() { printf '[setup_petsc] %s\n' "$*"; }
+die() { printf '[setup_petsc] error: %s\n' "$*" >&2; exit 1; }
+
+export PETSC_DIR=${PETSC_DIR:-/usr/lib/petscdir/petsc3.18/x86_64-linux-gnu-real}
+py=/usr/bin/python3
+[ -x "$py" ] || die "$py not found (Debian's petsc4py runs under the system interpreter)"
+
+packages=(python3-petsc4py python3-h5py python3-scipy python3-numpy)
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if ((${#missing[@]})); then
+  say "installing Debian packages: ${missing[*]}"
+  sudo_cmd=()
+  [ "$(id -u)" -eq 0 ] || sudo_cmd=(sudo)
+  export DEBIAN_FRONTEND=noninteractive
+  "${sudo_cmd[@]}" apt-get update -qq
+  "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+else
+  say "Debian packages already installed: ${packages[*]}"
+fi
+
+[ -d "$PETSC_DIR" ] || die "PETSC_DIR=$PETSC_DIR does not exist"
+
+# petsc4py imports, and a 1x1 KSP accepts -pc_type hypre -pc_hypre_type boomeramg
+"$py" - <<'EOF' || die "petsc4py or hypre BoomerAMG check failed (see above)"
+import sys
+import petsc4py
+petsc4py.init(sys.argv[:1])
+from petsc4py import PETSc
+A = PETSc.Mat().createAIJ([2, 2], nnz=2)
+A.setValues([0, 1], [0, 1], [2.0, -1.0, -1.0, 2.0])
+A.assemble()
+ksp = PETSc.KSP().create()
+ksp.setOperators(A)
+ksp.setType("cg")
+pc = ksp.getPC()
+pc.setType("hypre")
+pc.setHYPREType("boomeramg")
+ksp.setFromOptions()
+b = A.createVecLeft()
+b.set(1.0)
+x = A.createVecRight()
+ksp.solve(b, x)
+if pc.getType() != "hypre" or ksp.getConvergedReason() <= 0:
+    sys.exit("BoomerAMG solve did not converge")
+v = PETSc.Sys.getVersion()
+print(f"[setup_petsc] petsc4py {petsc4py.__version__}, PETSc {v[0]}.{v[1]}.{v[2]}: "
+      f"CG + hypre BoomerAMG ok")
+import h5py, scipy  # noqa: F401  (the benchmark reads twomem's HDF5 and assembles with scipy)
+print(f"[setup_petsc] h5py {h5py.__version__}, scipy {scipy.__version__}")
+EOF
+say "ready: PETSC_DIR=$PETSC_DIR /usr/bin/python3 bench/petsc_vi.py --help"
