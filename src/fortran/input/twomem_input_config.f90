@@ -7,7 +7,7 @@
 module twomem_input_config
    use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
    use twomem_base_kinds, only: dp
-   use twomem_base_errors, only: error_t, make_error, prefix_error, exit_bad_input
+   use twomem_base_errors, only: error_t, make_error, prefix_error, exit_bad_input, excerpt
    use twomem_input_namelist, only: string_t, nml_group_t, read_lines, split_lines, &
       parse_namelist, line_where
    use twomem_input_values, only: scan_integer, scan_real, scan_logical, unquote, format_real, &
@@ -191,7 +191,7 @@ contains
       do ig = 1, size(groups)
          gid = find_group(groups(ig)%name)
          if (gid == 0) then
-            call make_error(err, exit_bad_input, line_where(path, groups(ig)%line)//': &'//groups(ig)%name, &
+            call make_error(err, exit_bad_input, line_where(path, groups(ig)%line)//': &'//excerpt(groups(ig)%name), &
                             'unknown group (valid groups: '//group_list()//')')
             return
          end if
@@ -200,7 +200,7 @@ contains
                id = find_key(gid, a%key)
                if (id == 0) then
                   call make_error(err, exit_bad_input, line_where(path, a%line)//': &'//groups(ig)%name &
-                                  //': '//a%key, 'unknown key (valid keys: '//key_list(gid)//')')
+                                  //': '//excerpt(a%key), 'unknown key (valid keys: '//key_list(gid)//')')
                   return
                end if
                call set_value(cfg, id, a%value, a%quoted, err)
@@ -216,7 +216,7 @@ contains
       do i = 1, size(overrides)
          call apply_override(cfg, overrides(i)%s, id, err)
          if (allocated(err)) return
-         origin(id)%s = "override '"//overrides(i)%s//"'"
+         origin(id)%s = "override '"//excerpt(overrides(i)%s)//"'"
       end do
 
       call validate(cfg, origin, err)
@@ -237,7 +237,7 @@ contains
       logical :: quoted
 
       id = 0
-      where = "override '"//text//"'"
+      where = "override '"//excerpt(text)//"'"
       eq = index(text, '=')
       if (eq == 0) then
          call make_error(err, exit_bad_input, where, "expected GROUP.KEY=VALUE (no '=')")
@@ -253,13 +253,13 @@ contains
       key = name(dot + 1:)
       gid = find_group(group)
       if (gid == 0) then
-         call make_error(err, exit_bad_input, where, "unknown group '"//group//"' (valid groups: " &
+         call make_error(err, exit_bad_input, where, "unknown group '"//excerpt(group)//"' (valid groups: " &
                          //group_list()//')')
          return
       end if
       id = find_key(gid, key)
       if (id == 0) then
-         call make_error(err, exit_bad_input, where, '&'//group//": unknown key '"//key &
+         call make_error(err, exit_bad_input, where, '&'//group//": unknown key '"//excerpt(key) &
                          //"' (valid keys: "//key_list(gid)//')')
          return
       end if
@@ -303,21 +303,21 @@ contains
          end if
       case (kind_real)
          if (quoted) then
-            what = 'expected a real number, got the string '//quote(value)
+            what = 'expected a real number, got the string '//quote(excerpt(value))
          else
             call scan_real(value, x, what)
             if (.not. allocated(what)) call store_real(cfg, id, x)
          end if
       case (kind_int)
          if (quoted) then
-            what = 'expected an integer, got the string '//quote(value)
+            what = 'expected an integer, got the string '//quote(excerpt(value))
          else
             call scan_integer(value, n, what)
             if (.not. allocated(what)) call store_int(cfg, id, n)
          end if
       case (kind_logical)
          if (quoted) then
-            what = 'expected a logical (.true. or .false.), got the string '//quote(value)
+            what = 'expected a logical (.true. or .false.), got the string '//quote(excerpt(value))
          else
             call scan_logical(value, b, what)
             if (.not. allocated(what)) call store_logical(cfg, id, b)
@@ -487,7 +487,7 @@ contains
          if (i > 1) list = list//', '
          list = list//quote(trim(allowed(i)))
       end do
-      call fail(err, origin, id, 'must be one of '//list//', got '//quote(trim(value)))
+      call fail(err, origin, id, 'must be one of '//list//', got '//quote(excerpt(trim(value))))
    end subroutine check_word
 
    !> Finite, and within the bounds given (`gt`: >, `ge`: >=, `lt`: <, `le`: <=). Finiteness is

@@ -4,7 +4,7 @@
 !> a list of `key = value` assignments that keep their line number and their raw value text;
 !> `twomem_input_values` converts the values and `twomem_input_config` knows what the keys mean.
 module twomem_input_namelist
-   use twomem_base_errors, only: error_t, make_error, exit_bad_input
+   use twomem_base_errors, only: error_t, make_error, exit_bad_input, excerpt
    use twomem_input_values, only: quote, to_lower, itoa
    implicit none
    private
@@ -173,7 +173,7 @@ contains
          case (tk_group_start)
             do j = 1, ng
                if (groups(j)%name == t(i)%text) then
-                  call make_error(err, exit_bad_input, line_where(file, t(i)%line)//': &'//t(i)%text, &
+                  call make_error(err, exit_bad_input, line_where(file, t(i)%line)//': &'//excerpt(t(i)%text), &
                                   'group given twice (first at line '//itoa(groups(j)%line)//')')
                   return
                end if
@@ -185,7 +185,7 @@ contains
             if (allocated(err)) return
          case default
             call make_error(err, exit_bad_input, line_where(file, t(i)%line), &
-                            'stray text outside groups: '//quote(t(i)%text)//" (a group is '&name ... /')")
+                            'stray text outside groups: '//quote(excerpt(t(i)%text))//" (a group is '&name ... /')")
             return
          end select
       end do
@@ -208,7 +208,7 @@ contains
       character(len=:), allocatable :: key, ctx, here
       integer :: j
 
-      ctx = ': &'//group%name
+      ctx = ': &'//excerpt(group%name)
       do
          if (i > n) then
             call make_error(err, exit_bad_input, line_where(file, group%line)//ctx, &
@@ -226,21 +226,21 @@ contains
          case (tk_comma)
             i = i + 1
          case (tk_group_start)
-            call make_error(err, exit_bad_input, here, "missing '/' at the end of the group before &"//t(i)%text)
+            call make_error(err, exit_bad_input, here, "missing '/' at the end of the group before &"//excerpt(t(i)%text))
             return
          case (tk_equals)
             call make_error(err, exit_bad_input, here, "'=' without a key")
             return
          case (tk_string)
-            call make_error(err, exit_bad_input, here, 'unexpected value '//quote(t(i)%text)//unexpected_hint)
+            call make_error(err, exit_bad_input, here, 'unexpected value '//quote(excerpt(t(i)%text))//unexpected_hint)
             return
          case (tk_bare)
             key = to_lower(t(i)%text)
             if (.not. is_name(key)) then
                if (index(key, '(') > 0) then
-                  call make_error(err, exit_bad_input, here//': '//key, 'array elements and substrings are not supported')
+                  call make_error(err, exit_bad_input, here//': '//excerpt(key), 'array elements and substrings are not supported')
                else
-                  call make_error(err, exit_bad_input, here, 'unexpected value '//quote(t(i)%text)//unexpected_hint)
+                  call make_error(err, exit_bad_input, here, 'unexpected value '//quote(excerpt(t(i)%text))//unexpected_hint)
                end if
                return
             end if
@@ -248,17 +248,17 @@ contains
                call make_error(err, exit_bad_input, here//': '//key, "expected '=' after the key")
                return
             else if (t(i + 1)%kind /= tk_equals) then
-               call make_error(err, exit_bad_input, here//': '//key, "expected '=' after the key")
+               call make_error(err, exit_bad_input, here//': '//excerpt(key), "expected '=' after the key")
                return
             end if
             do j = 1, group%n
                if (group%assignments(j)%key == key) then
-                  call make_error(err, exit_bad_input, here//': '//key, 'key given twice in the group (first at line ' &
+                  call make_error(err, exit_bad_input, here//': '//excerpt(key), 'key given twice in the group (first at line ' &
                                   //itoa(group%assignments(j)%line)//')')
                   return
                end if
             end do
-            call take_value(t, n, i + 2, file, ctx//': '//key, group, key, t(i)%line, err)
+            call take_value(t, n, i + 2, file, ctx//': '//excerpt(key), group, key, t(i)%line, err)
             if (allocated(err)) return
             i = i + 3
          end select
@@ -296,7 +296,7 @@ contains
       end if
       if (t(i)%kind == tk_bare .and. index(t(i)%text, '*') > 0) then
          call make_error(err, exit_bad_input, line_where(file, t(i)%line)//ctx, &
-                         'repeat counts (r*value) are not supported, got '//quote(t(i)%text))
+                         'repeat counts (r*value) are not supported, got '//quote(excerpt(t(i)%text)))
          return
       end if
       a%key = key

@@ -8,7 +8,7 @@
 !> non-manifold edges) are left to `mesh_t%init`, the gate every mesh passes.
 module twomem_mesh_gmsh
    use twomem_base_kinds, only: dp, ip, i8
-   use twomem_base_errors, only: error_t, make_error, exit_bad_input
+   use twomem_base_errors, only: error_t, make_error, exit_bad_input, excerpt
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_mesh_gmsh_text, only: text_reader_t, str
    implicit none
@@ -77,7 +77,7 @@ contains
          if (reader%n_tokens == 0) cycle
          name = reader%token(1)
          if (name(1:1) /= '$') then
-            call reader%fail(err, 'expected a section such as $Nodes, found "'//name//'"')
+            call reader%fail(err, 'expected a section such as $Nodes, found "'//reader%shown(1)//'"')
             return
          end if
          select case (name)
@@ -141,7 +141,7 @@ contains
       end do
       if (reader%token(1) /= '$MeshFormat') then
          call reader%fail(err, 'not a Gmsh mesh: the file must start with $MeshFormat, found "'// &
-                          reader%token(1)//'"')
+                          reader%shown(1)//'"')
          return
       end if
       call reader%next_data('$MeshFormat', 'the version line', err)
@@ -167,7 +167,7 @@ contains
          version = msh41
       end select
       if (version == 0) then
-         call reader%fail(err, 'MSH version '//reader%token(1)//' is not supported: write the '// &
+         call reader%fail(err, 'MSH version '//reader%shown(1)//' is not supported: write the '// &
                           'mesh as MSH 4.1 or 2.2 (Gmsh option Mesh.MshFileVersion)')
          return
       end if
@@ -188,7 +188,7 @@ contains
 
       start = reader%line_no
       if (index(name, '$End') == 1) then
-         call reader%fail(err, name//' closes a section that was never opened')
+         call reader%fail(err, excerpt(name)//' closes a section that was never opened')
          return
       end if
       do
@@ -196,7 +196,8 @@ contains
          if (allocated(err)) return
          if (eof) then
             call make_error(err, exit_bad_input, reader%path//':'//str(start), &
-                            'section '//name//' is never closed by $End'//name(2:))
+                            'section '//excerpt(name)//' is never closed by '// &
+                            excerpt('$End'//name(2:)))
             return
          end if
          if (reader%n_tokens == 0) cycle
@@ -309,7 +310,7 @@ contains
          if (allocated(err)) return
          ! mesh_t squares coordinate differences; beyond this they would overflow
          if (abs(raw%xyz(i, k)) > max_coordinate) then
-            call reader%fail(err, axis(i:i)//' coordinate '//reader%token(first + i - 1)// &
+            call reader%fail(err, axis(i:i)//' coordinate '//reader%shown(first + i - 1)// &
                              ' is too large for a mesh (limit 1e150)')
             return
          end if

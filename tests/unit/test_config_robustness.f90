@@ -1,0 +1,81 @@
+!> Regression tests for defects in the case input found while fuzzing it (tests/fuzz), by the
+!> fuzzer itself or by reading the code it exercised: each is a small input that showed one,
+!> checked against the bad-input contract (one short line naming the file or override, exit
+!> category 2) or against what a valid input must give.
+module test_config_robustness
+   use twomem_base_errors, only: exit_bad_input
+   use twomem_input_config, only: config_t, string_t, load_config, load_config_text, config_echo
+   use twomem_testing, only: unittest_t, new_unittest, check, error_t
+   use test_config, only: write_case, no_overrides, words, expect_error
+   implicit none
+   private
+
+   public :: collect_config_robustness
+
+   character, parameter :: nl = new_line('a'), cr = achar(13), tab = achar(9), esc = achar(27)
+
+contains
+
+   subroutine collect_config_robustness(tests)
+      type(unittest_t), allocatable, intent(out) :: tests(:)
+
+      tests = [new_unittest('messages_are_one_short_line', test_short_messages)]
+   end subroutine collect_config_robustness
+
+   !> Messages quoted input whole and raw: a 5000-character token made a 5000-character
+   !> message, and an escape or a newline in an override made it more than one clean line.
+   subroutine test_short_messages(err)
+      type(error_t), allocatable, intent(out) :: err
+
+      character(len=:), allocatable :: message
+
+      call load_message('robust_stray.nml', esc//repeat('y', 5000)//nl, no_overrides(), message)
+      call check(err, index(message, ":1: stray text outside groups: '<0x1B>yyy") > 0, 'stray text: '//message)
+      call check_short(err, message)
+      call load_message('robust_key.nml', '&mesh '//repeat('k', 5000)//' = 1 /', no_overrides(), message)
+      call check(err, index(message, 'unknown key') > 0, 'long key: '//message)
+      call check_short(err, message)
+      call load_message('robust_group.nml', '&'//repeat('g', 5000)//' /', no_overrides(), message)
+      call check(err, index(message, 'unknown group') > 0, 'long group: '//message)
+      call check_short(err, message)
+      call load_message('robust_value.nml', "&mesh domain = '"//repeat('d', 250)//tab//"' /", &
+                        no_overrides(), message)
+      call check_short(err, message)
+      call load_message('robust_override.nml', '', words('mesh.levels=1'//nl//'2'), message)
+      call check(err, index(message, "override 'mesh.levels=1<0x0A>2'") == 1, 'override: '//message)
+      call check_short(err, message)
+      call load_message('robust_override_long.nml', '', words('mesh.'//repeat('z', 3000)//'=1'), message)
+      call check(err, index(message, "override 'mesh.zzz") == 1, 'long override: '//message)
+      call check_short(err, message)
+   end subroutine test_short_messages
+
+   !> Load `content` with `overrides`, expecting a bad-input error; its message, or '' if none.
+   subroutine load_message(name, content, overrides, message)
+      character(len=*), intent(in) :: name, content
+      type(string_t), intent(in) :: overrides(:)
+      character(len=:), allocatable, intent(out) :: message
+
+      type(config_t) :: cfg
+      type(error_t), allocatable :: got
+
+      message = ''
+      call load_config(write_case(name, content), overrides, cfg, got)
+      if (.not. allocated(got)) return
+      if (got%code == exit_bad_input) message = got%message
+   end subroutine load_message
+
+   !> No control character and at most a few hundred characters besides the file name.
+   subroutine check_short(err, message)
+      type(error_t), allocatable, intent(inout) :: err
+      character(len=*), intent(in) :: message
+
+      integer :: i
+
+      call check(err, len(message) > 0, 'no bad-input error')
+      call check(err, len(message) < 400 + 200, 'message of too many characters')
+      do i = 1, len(message)
+         call check(err, iachar(message(i:i)) >= 32 .and. iachar(message(i:i)) /= 127, &
+                    'control character in the message')
+      end do
+   end subroutine check_short
+end module test_config_robustness
