@@ -19,7 +19,8 @@ contains
    subroutine collect_config_robustness(tests)
       type(unittest_t), allocatable, intent(out) :: tests(:)
 
-      tests = [new_unittest('messages_are_one_short_line', test_short_messages)]
+      tests = [new_unittest('messages_are_one_short_line', test_short_messages), &
+               new_unittest('nan_boundary_h_does_not_trap', test_nan_boundary_h)]
    end subroutine collect_config_robustness
 
    !> Messages quoted input whole and raw: a 5000-character token made a 5000-character
@@ -78,4 +79,18 @@ contains
                     'control character in the message')
       end do
    end subroutine check_short
+
+   !> The cross rule boundary_h <= coarse_h compared a NaN, which traps in debug builds (SIGFPE
+   !> instead of a message); the finiteness check must speak first.
+   subroutine test_nan_boundary_h(err)
+      type(error_t), allocatable, intent(out) :: err
+
+      call expect_error(err, 'robust_nan_bh.nml', '&mesh boundary_h = nan /', &
+                        [character(len=40) :: ':1:', 'boundary_h must be finite'])
+      call expect_error(err, 'robust_nan_ch.nml', '&mesh coarse_h = nan, boundary_h = 0.1 /', &
+                        [character(len=40) :: ':1:', 'coarse_h must be finite'])
+      call expect_error(err, 'robust_nan_bh_override.nml', '', &
+                        [character(len=40) :: "override 'mesh.boundary_h=nan'", 'must be finite'], &
+                        words('mesh.boundary_h=nan'), in_file=.false.)
+   end subroutine test_nan_boundary_h
 end module test_config_robustness
