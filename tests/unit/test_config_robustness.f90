@@ -20,7 +20,8 @@ contains
       type(unittest_t), allocatable, intent(out) :: tests(:)
 
       tests = [new_unittest('messages_are_one_short_line', test_short_messages), &
-               new_unittest('nan_boundary_h_does_not_trap', test_nan_boundary_h)]
+               new_unittest('nan_boundary_h_does_not_trap', test_nan_boundary_h), &
+               new_unittest('control_characters_in_text', test_control_characters)]
    end subroutine collect_config_robustness
 
    !> Messages quoted input whole and raw: a 5000-character token made a 5000-character
@@ -93,4 +94,27 @@ contains
                         [character(len=40) :: "override 'mesh.boundary_h=nan'", 'must be finite'], &
                         words('mesh.boundary_h=nan'), in_file=.false.)
    end subroutine test_nan_boundary_h
+
+   !> A newline reached a file name through an override and was accepted; the echo (stored as a
+   !> result's input) then held a string broken over two lines and no longer loaded.
+   subroutine test_control_characters(err)
+      type(error_t), allocatable, intent(out) :: err
+
+      type(config_t) :: cfg, again
+      type(error_t), allocatable :: got
+
+      call expect_error(err, 'robust_nl_override.nml', '', &
+                        [character(len=40) :: "override 'output.file=a<0x0A>b.h5'", 'control character'], &
+                        words('output.file=a'//nl//'b.h5'), in_file=.false.)
+      call expect_error(err, 'robust_tab_file.nml', "&output file = 'a"//tab//"b.h5' /", &
+                        [character(len=40) :: ':1:', '&output', 'control character', "'a<0x09>b.h5'"])
+      ! what is accepted must echo to a case that loads back to itself
+      call load_config(write_case('robust_echo.nml', ''), words("output.file='a b/c''d.h5'"), cfg, got)
+      call check(err, .not. allocated(got), 'a path with a blank and a quote is accepted')
+      if (allocated(err)) return
+      call load_config_text(config_echo(cfg), trim(cfg%source), no_overrides(), again, got)
+      call check(err, .not. allocated(got), 'the echo reloads')
+      if (allocated(err)) return
+      call check(err, config_echo(again) == config_echo(cfg), 'the echo reloads to the same case')
+   end subroutine test_control_characters
 end module test_config_robustness

@@ -296,6 +296,9 @@ contains
       case (kind_word, kind_path)
          if (len(value) > config_len) then
             what = 'text longer than '//itoa(config_len)//' characters'
+         else if (has_control_character(value)) then
+            ! a newline would break the echo, which must reload as a case file
+            what = 'text with a control character, got '//quote(excerpt(value))
          else if (key_kinds(id) == kind_word) then
             call store_text(cfg, id, to_lower(trim(adjustl(value))))
          else
@@ -638,6 +641,18 @@ contains
       dot = index(name, '.', back=.true.)
       if (dot > 1) name = name(1:dot - 1)
    end function case_name_of
+
+   !> Bytes 0-31 and 127, which no word or file name of a case may contain.
+   pure logical function has_control_character(s)
+      character(len=*), intent(in) :: s
+
+      integer :: i
+
+      has_control_character = .false.
+      do i = 1, len(s)
+         if (iachar(s(i:i)) < 32 .or. iachar(s(i:i)) == 127) has_control_character = .true.
+      end do
+   end function has_control_character
 
    pure integer function find_group(name) result(gid)
       character(len=*), intent(in) :: name
