@@ -21,7 +21,8 @@ contains
 
       tests = [new_unittest('messages_are_one_short_line', test_short_messages), &
                new_unittest('nan_boundary_h_does_not_trap', test_nan_boundary_h), &
-               new_unittest('control_characters_in_text', test_control_characters)]
+               new_unittest('control_characters_in_text', test_control_characters), &
+               new_unittest('long_strings_in_linear_time', test_long_strings)]
    end subroutine collect_config_robustness
 
    !> Messages quoted input whole and raw: a 5000-character token made a 5000-character
@@ -117,4 +118,26 @@ contains
       if (allocated(err)) return
       call check(err, config_echo(again) == config_echo(cfg), 'the echo reloads to the same case')
    end subroutine test_control_characters
+
+   !> Quoted values were built a character at a time, and lines a chunk at a time: quadratic
+   !> time, minutes for a megabyte (a binary file given as the case). Now linear: a megabyte
+   !> takes milliseconds, so 5 s of CPU time leaves a wide margin even on a loaded machine.
+   subroutine test_long_strings(err)
+      type(error_t), allocatable, intent(out) :: err
+
+      real :: start, finish
+      character(len=:), allocatable :: big
+
+      call cpu_time(start)
+      big = repeat('x', 1000000)
+      call expect_error(err, 'robust_long_string.nml', "&output file = '"//big//"' /", &
+                        [character(len=40) :: ':1:', 'text longer than 256'])
+      call expect_error(err, 'robust_long_line.nml', big, &
+                        [character(len=40) :: ':1:', 'stray text outside groups'])
+      call expect_error(err, 'robust_long_override.nml', '', &
+                        [character(len=40) :: "override 'output.file='xxx", 'text longer than 256'], &
+                        words("output.file='"//big(1:100000)//"'"), in_file=.false.)
+      call cpu_time(finish)
+      call check(err, finish - start < 5.0, 'a megabyte of input took more than 5 s')
+   end subroutine test_long_strings
 end module test_config_robustness

@@ -59,7 +59,7 @@ contains
       character(len=512) :: msg
       character(len=256) :: buf
       character(len=:), allocatable :: line
-      integer :: unit, ios, n, size_read
+      integer :: unit, ios, n, size_read, used
       logical :: is_dir
 
       allocate (lines(0))
@@ -76,11 +76,12 @@ contains
          return
       end if
       n = 0
+      allocate (character(len=len(buf)) :: line)
       outer: do
-         line = ''
+         used = 0
          do
             read (unit, '(a)', advance='no', size=size_read, iostat=ios, iomsg=msg) buf
-            if (ios == 0 .or. is_iostat_eor(ios)) line = line//buf(1:size_read)
+            if (ios == 0 .or. is_iostat_eor(ios)) call append(line, used, buf(1:size_read))
             if (is_iostat_eor(ios)) exit
             if (is_iostat_end(ios)) exit outer
             if (ios /= 0) then
@@ -90,11 +91,29 @@ contains
             end if
          end do
          n = n + 1
-         call push_line(lines, n, line)
+         call push_line(lines, n, line(1:used))
       end do outer
       close (unit)
       lines = lines(1:n)
    end subroutine read_lines
+
+   !> Append `piece` to text(1:used), doubling the buffer when it is full: a line read in short
+   !> chunks costs linear time however long it is (a binary file has megabytes between newlines).
+   subroutine append(text, used, piece)
+      character(len=:), allocatable, intent(inout) :: text
+      integer, intent(inout) :: used
+      character(len=*), intent(in) :: piece
+
+      character(len=:), allocatable :: wider
+
+      if (used + len(piece) > len(text)) then
+         allocate (character(len=2*(used + len(piece))) :: wider)
+         wider(1:used) = text(1:used)
+         call move_alloc(wider, text)
+      end if
+      text(used + 1:used + len(piece)) = piece
+      used = used + len(piece)
+   end subroutine append
 
    !> Lines of a text held in memory (e.g. the `input` attribute of a result file).
    subroutine split_lines(text, lines)
@@ -314,11 +333,12 @@ contains
       type(token_t), allocatable, intent(out) :: t(:)
       integer, intent(out) :: n
 
-      integer :: il, p, q, m
+      integer :: il, p, q, m, k
       character(len=:), allocatable :: s, word
       character :: c, delim
 
       allocate (t(64))
+      allocate (character(len=256) :: word)
       n = 0
       do il = 1, size(lines)
          s = lines(il)%s
@@ -345,19 +365,24 @@ contains
                   if (.not. is_name_char(s(q:q))) exit
                   q = q + 1
                end do
-               word = to_lower(s(p + 1:q - 1))
-               if (len(word) == 0) then
+               if (q == p + 1) then
                   call push_token(t, n, tk_error, "expected a group name after '"//c//"'", il)
                   return
-               else if (word == 'end') then
+               else if (to_lower(s(p + 1:q - 1)) == 'end') then
                   call push_token(t, n, tk_group_end, c//'end', il)
                else
-                  call push_token(t, n, tk_group_start, word, il)
+                  call push_token(t, n, tk_group_start, to_lower(s(p + 1:q - 1)), il)
                end if
                p = q
             else if (c == "'" .or. c == '"') then
                delim = c
-               word = ''
+               ! the text goes into a buffer as long as the line: appending one character at a
+               ! time to a growing string costs quadratic time, minutes on a long line
+               if (len(word) < m) then
+                  deallocate (word)
+                  allocate (character(len=m) :: word)
+               end if
+               k = 0
                q = p + 1
                do
                   if (q > m) then
@@ -367,17 +392,19 @@ contains
                   if (s(q:q) == delim) then
                      if (q < m) then
                         if (s(q + 1:q + 1) == delim) then
-                           word = word//delim
+                           k = k + 1
+                           word(k:k) = delim
                            q = q + 2
                            cycle
                         end if
                      end if
                      exit
                   end if
-                  word = word//s(q:q)
+                  k = k + 1
+                  word(k:k) = s(q:q)
                   q = q + 1
                end do
-               call push_token(t, n, tk_string, word, il)
+               call push_token(t, n, tk_string, word(1:k), il)
                p = q + 1
             else
                q = p

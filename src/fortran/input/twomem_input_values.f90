@@ -168,7 +168,7 @@ contains
       character(len=:), allocatable, intent(out) :: what
 
       character :: delim
-      integer :: q
+      integer :: q, k
 
       quoted = .false.
       value = text
@@ -176,26 +176,32 @@ contains
       delim = text(1:1)
       if (delim /= "'" .and. delim /= '"') return
       quoted = .true.
-      value = ''
+      ! filled in place: growing a string a character at a time costs quadratic time
+      value = repeat(' ', len(text))
+      k = 0
       q = 2
       do
          if (q > len(text)) then
+            value = value(1:k)
             what = 'unterminated string'
             return
          end if
          if (text(q:q) == delim) then
             if (q < len(text)) then
                if (text(q + 1:q + 1) == delim) then
-                  value = value//delim
+                  k = k + 1
+                  value(k:k) = delim
                   q = q + 2
                   cycle
                end if
             end if
             exit
          end if
-         value = value//text(q:q)
+         k = k + 1
+         value(k:k) = text(q:q)
          q = q + 1
       end do
+      value = value(1:k)
       if (q /= len(text)) what = 'unexpected text after the closing quote'
    end subroutine unquote
 
