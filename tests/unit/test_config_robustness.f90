@@ -22,7 +22,8 @@ contains
       tests = [new_unittest('messages_are_one_short_line', test_short_messages), &
                new_unittest('nan_boundary_h_does_not_trap', test_nan_boundary_h), &
                new_unittest('control_characters_in_text', test_control_characters), &
-               new_unittest('long_strings_in_linear_time', test_long_strings)]
+               new_unittest('long_strings_in_linear_time', test_long_strings), &
+               new_unittest('last_line_of_full_chunks_is_read', test_last_line)]
    end subroutine collect_config_robustness
 
    !> Messages quoted input whole and raw: a 5000-character token made a 5000-character
@@ -140,4 +141,43 @@ contains
       call cpu_time(finish)
       call check(err, finish - start < 5.0, 'a megabyte of input took more than 5 s')
    end subroutine test_long_strings
+
+   !> A last line without a newline whose length is a multiple of the reader's 256-character
+   !> chunk ended in a full chunk and then the end of the file, and was dropped: its values
+   !> were silently ignored.
+   subroutine test_last_line(err)
+      type(error_t), allocatable, intent(out) :: err
+
+      character(len=512) :: line
+      character(len=:), allocatable :: message
+
+      line = '&mesh levels = 99 /'
+      call load_raw('robust_chunk512.nml', line, message)
+      call check(err, index(message, 'robust_chunk512.nml:1: &mesh: levels must be <= 12') > 0, &
+                 '512 characters: '//message)
+      line = 'levels = 99 /'
+      call load_raw('robust_chunk256.nml', '&mesh'//nl//line(1:256), message)
+      call check(err, index(message, 'robust_chunk256.nml:2: &mesh: levels must be <= 12') > 0, &
+                 '256 characters: '//message)
+   end subroutine test_last_line
+
+   !> Write `content` byte for byte (a formatted write would end it with a newline), load it,
+   !> and return the error message ('' if it loads).
+   subroutine load_raw(name, content, message)
+      character(len=*), intent(in) :: name, content
+      character(len=:), allocatable, intent(out) :: message
+
+      type(config_t) :: cfg
+      type(error_t), allocatable :: got
+      character(len=:), allocatable :: path
+      integer :: unit
+
+      path = write_case(name, '')
+      open (newunit=unit, file=path, access='stream', form='unformatted', status='replace', action='write')
+      write (unit) content
+      close (unit)
+      message = ''
+      call load_config(path, no_overrides(), cfg, got)
+      if (allocated(got)) message = got%message
+   end subroutine load_raw
 end module test_config_robustness

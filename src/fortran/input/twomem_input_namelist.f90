@@ -83,7 +83,15 @@ contains
             read (unit, '(a)', advance='no', size=size_read, iostat=ios, iomsg=msg) buf
             if (ios == 0 .or. is_iostat_eor(ios)) call append(line, used, buf(1:size_read))
             if (is_iostat_eor(ios)) exit
-            if (is_iostat_end(ios)) exit outer
+            if (is_iostat_end(ios)) then
+               ! a last line without a newline whose length is a multiple of the chunk ends
+               ! in a full chunk and then the end of the file, not in an end of record
+               if (used > 0) then
+                  n = n + 1
+                  call push_line(lines, n, line(1:used))
+               end if
+               exit outer
+            end if
             if (ios /= 0) then
                call make_error(err, exit_bad_input, path, 'cannot read the input file ('//trim(msg)//')')
                close (unit)
