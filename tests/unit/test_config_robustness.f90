@@ -23,7 +23,8 @@ contains
                new_unittest('nan_boundary_h_does_not_trap', test_nan_boundary_h), &
                new_unittest('control_characters_in_text', test_control_characters), &
                new_unittest('long_strings_in_linear_time', test_long_strings), &
-               new_unittest('last_line_of_full_chunks_is_read', test_last_line)]
+               new_unittest('last_line_of_full_chunks_is_read', test_last_line), &
+               new_unittest('memory_splits_lines_like_a_file', test_split_like_file)]
    end subroutine collect_config_robustness
 
    !> Messages quoted input whole and raw: a 5000-character token made a 5000-character
@@ -180,4 +181,21 @@ contains
       call load_config(path, no_overrides(), cfg, got)
       if (allocated(got)) message = got%message
    end subroutine load_raw
+
+   !> The run-time library ends a line of a file at a lone CR too; a text in memory (a result's
+   !> input) must split the same way, or the same text means different cases.
+   subroutine test_split_like_file(err)
+      type(error_t), allocatable, intent(out) :: err
+
+      character(len=*), parameter :: text = '! comment'//cr//'&mesh levels = 99 /'//cr//nl
+      type(config_t) :: cfg
+      type(error_t), allocatable :: got
+
+      call expect_error(err, 'robust_cr.nml', text, [character(len=40) :: ':2:', 'levels must be <= 12'])
+      call load_config_text(text, 'robust_cr.nml', no_overrides(), cfg, got)
+      call check(err, allocated(got), 'from memory, the line after a lone CR is ignored')
+      if (allocated(err)) return
+      call check(err, index(got%message, 'robust_cr.nml:2: &mesh: levels must be <= 12') == 1, &
+                 'from memory: '//got%message)
+   end subroutine test_split_like_file
 end module test_config_robustness

@@ -123,26 +123,34 @@ contains
       used = used + len(piece)
    end subroutine append
 
-   !> Lines of a text held in memory (e.g. the `input` attribute of a result file).
+   !> Lines of a text held in memory (e.g. the `input` attribute of a result file), split as the
+   !> run-time library splits a file: at LF, at CR LF and at a lone CR.
    subroutine split_lines(text, lines)
       character(len=*), intent(in) :: text
       type(string_t), allocatable, intent(out) :: lines(:)
 
+      character, parameter :: lf = achar(10), cr = achar(13)
       integer :: start, k, n
 
       allocate (lines(0))
       n = 0
       start = 1
-      do while (start <= len(text))
-         k = index(text(start:), new_line('a'))
-         n = n + 1
-         if (k == 0) then
-            call push_line(lines, n, text(start:))
-            exit
+      k = 1
+      do while (k <= len(text))
+         if (text(k:k) == lf .or. text(k:k) == cr) then
+            n = n + 1
+            call push_line(lines, n, text(start:k - 1))
+            if (text(k:k) == cr .and. k < len(text)) then
+               if (text(k + 1:k + 1) == lf) k = k + 1
+            end if
+            start = k + 1
          end if
-         call push_line(lines, n, text(start:start + k - 2))
-         start = start + k
+         k = k + 1
       end do
+      if (start <= len(text)) then
+         n = n + 1
+         call push_line(lines, n, text(start:))
+      end if
       lines = lines(1:n)
    end subroutine split_lines
 
