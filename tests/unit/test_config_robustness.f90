@@ -24,7 +24,8 @@ contains
                new_unittest('control_characters_in_text', test_control_characters), &
                new_unittest('long_strings_in_linear_time', test_long_strings), &
                new_unittest('last_line_of_full_chunks_is_read', test_last_line), &
-               new_unittest('memory_splits_lines_like_a_file', test_split_like_file)]
+               new_unittest('memory_splits_lines_like_a_file', test_split_like_file), &
+               new_unittest('many_groups_and_keys_bounded', test_many_names)]
    end subroutine collect_config_robustness
 
    !> Messages quoted input whole and raw: a 5000-character token made a 5000-character
@@ -198,4 +199,34 @@ contains
       call check(err, index(got%message, 'robust_cr.nml:2: &mesh: levels must be <= 12') == 1, &
                  'from memory: '//got%message)
    end subroutine test_split_like_file
+
+   !> Repeated groups and keys are found by comparing each name with those before it: a file
+   !> of 60 000 groups or of 60 000 keys in one group took minutes (quadratic). No case needs
+   !> more than a handful of either, so the parser stops at 100 groups and 200 assignments.
+   subroutine test_many_names(err)
+      type(error_t), allocatable, intent(out) :: err
+
+      integer, parameter :: n = 60000
+      real :: start, finish
+      ! fixed-width lines, filled in place: appending would itself be quadratic
+      character(len=10*n) :: groups
+      character(len=6 + 11*n + 2) :: keys
+      integer :: i
+
+      call cpu_time(start)
+      keys(1:6) = '&mesh'//nl
+      do i = 1, n
+         write (groups(10*i - 9:10*i - 1), '("&g",i5.5," /")') i
+         groups(10*i:10*i) = nl
+         write (keys(6 + 11*i - 10:6 + 11*i - 1), '("k",i5.5," = 1")') i
+         keys(6 + 11*i:6 + 11*i) = nl
+      end do
+      keys(len(keys) - 1:) = '/'//nl
+      call expect_error(err, 'robust_groups.nml', groups, &
+                        [character(len=40) :: ':101:', 'more than 100 groups'])
+      call expect_error(err, 'robust_keys.nml', keys, &
+                        [character(len=40) :: ':202: &mesh', 'more than 200 assignments'])
+      call cpu_time(finish)
+      call check(err, finish - start < 10.0, '60 000 groups or keys took more than 10 s')
+   end subroutine test_many_names
 end module test_config_robustness

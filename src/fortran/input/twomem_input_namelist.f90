@@ -44,6 +44,10 @@ module twomem_input_namelist
 
    character(len=*), parameter :: blanks = ' '//achar(9)//achar(13)
 
+   !> Far more groups and assignments than any case has. Duplicates are found by comparing each
+   !> name with those before it; without a bound, a file of 60 000 groups took minutes.
+   integer, parameter :: max_groups = 100, max_assignments = 200
+
    character(len=*), parameter :: unexpected_hint = &
       " (expected 'key = value'; arrays and multiple values are not supported)"
 
@@ -213,6 +217,11 @@ contains
                   return
                end if
             end do
+            if (ng == max_groups) then
+               call make_error(err, exit_bad_input, line_where(file, t(i)%line), &
+                               'more than '//itoa(max_groups)//' groups: not a case file')
+               return
+            end if
             ng = ng + 1
             call push_group(groups, ng, t(i)%text, t(i)%line)
             i = i + 1
@@ -280,10 +289,15 @@ contains
                return
             end if
             if (i == n) then
-               call make_error(err, exit_bad_input, here//': '//key, "expected '=' after the key")
+               call make_error(err, exit_bad_input, here//': '//excerpt(key), "expected '=' after the key")
                return
             else if (t(i + 1)%kind /= tk_equals) then
                call make_error(err, exit_bad_input, here//': '//excerpt(key), "expected '=' after the key")
+               return
+            end if
+            if (group%n == max_assignments) then
+               call make_error(err, exit_bad_input, here, 'more than '//itoa(max_assignments)// &
+                               ' assignments in one group: not a case file')
                return
             end if
             do j = 1, group%n
