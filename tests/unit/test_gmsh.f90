@@ -196,13 +196,14 @@ contains
    subroutine test_broken(err)
       type(error_t), allocatable, intent(out) :: err
 
-      integer, parameter :: n = 23
+      integer, parameter :: n = 25
       character(len=*), parameter :: files(n) = [character(len=24) :: &
          'absent_node', 'bad_version', 'binary', 'count_mismatch', 'degenerate', &
          'duplicate_node', 'empty', 'extra_nodes', 'missing_nodes', 'nan_coordinate', &
          'no_triangles', 'non_numeric', 'nonmanifold', 'nonplanar', 'overflow_coordinate', &
          'quad', 'second_order', 'tetrahedron', 'truncated_nodes', 'unclosed_section', &
-         'unused_node', 'long_token', 'control_character']
+         'unused_node', 'long_token', 'control_character', 'huge_node_count', &
+         'huge_element_count']
       character(len=*), parameter :: expected(n) = [character(len=40) :: &
          ':14: triangle 2 refers to node tag 9', ':2: MSH version 4 is not supported', &
          ':2: binary', ':5: the header announces 5 nodes', 'zero area', &
@@ -213,7 +214,8 @@ contains
          ':13: element type 3 (4-node quadrangle)', ':22: element type 9', &
          ':18: element type 4 (3D', &
          ':9: the $Nodes section is truncated', ':4: section $PhysicalNames', &
-         ':10: node tag 5 is used by no triangle', ':5: "3333333333', ':5: "3<0x7F>" is not an integer']
+         ':10: node tag 5 is used by no triangle', ':5: "3333333333', ':5: "3<0x7F>" is not an integer', &
+         ':7: the $Nodes section is truncated', ':18: the $Elements section is truncated']
       type(mesh_t) :: mesh
       type(error_t), allocatable :: got
       character(len=:), allocatable :: path, name

@@ -21,12 +21,16 @@ module twomem_mesh_gmsh
    integer(i8), parameter :: max_count = huge(1_ip)
    integer(i8), parameter :: max_tag = 10_i8**18 - 1
    real(dp), parameter :: max_coordinate = 1.0e150_dp
+   !> first size of the node and triangle arrays, which then double as entries are read
+   integer(i8), parameter :: initial_capacity = 1024
 
    !> The file's content in its own numbering, before tags become vertex indices. Line numbers are
    !> kept so that problems found only once everything is read can still point into the file.
    type :: raw_mesh_t
       integer :: version = 0
       integer(ip) :: n_nodes = 0, n_triangles = 0
+      !> counts the headers announce: the arrays grow towards them as entries are read
+      integer(i8) :: max_nodes = 0, max_triangles = 0
       logical :: have_nodes = .false., have_elements = .false.
       integer(i8), allocatable :: node_tag(:)
       real(dp), allocatable :: xyz(:, :)
@@ -213,18 +217,17 @@ contains
 
       integer(i8) :: n
       integer(ip) :: k
-      integer :: stat
 
       call reader%next_data('$Nodes', 'the number of nodes', err, 1, 'the number of nodes')
       if (allocated(err)) return
       call reader%get_int(1, 0_i8, max_count, 'number of nodes', n, err)
       if (allocated(err)) return
       raw%n_nodes = int(n, ip)
-      allocate (raw%node_tag(n), raw%xyz(3, n), raw%node_line(n), stat=stat)
-      if (stat /= 0) call reader%fail(err, 'cannot allocate memory for '//str(n)//' nodes')
-      if (allocated(err)) return
+      raw%max_nodes = n
       do k = 1, raw%n_nodes
          call reader%next_data('$Nodes', 'node', err, 4, 'node tag, x, y, z', int(k, i8), n)
+         if (allocated(err)) return
+         call reserve_nodes(reader, raw, k, err)
          if (allocated(err)) return
          call reader%get_int(1, 1_i8, max_tag, 'node tag', raw%node_tag(k), err)
          if (allocated(err)) return
@@ -243,7 +246,7 @@ contains
 
       integer(i8) :: n_blocks, n, block, entity_dim, parametric, in_block, unused
       integer(ip) :: k, done
-      integer :: header_line, stat
+      integer :: header_line
 
       call reader%next_data('$Nodes', 'the header', err, &
                             4, 'numEntityBlocks numNodes minNodeTag maxNodeTag')
@@ -256,9 +259,7 @@ contains
       if (allocated(err)) return
       header_line = reader%line_no
       raw%n_nodes = int(n, ip)
-      allocate (raw%node_tag(n), raw%xyz(3, n), raw%node_line(n), stat=stat)
-      if (stat /= 0) call reader%fail(err, 'cannot allocate memory for '//str(n)//' nodes')
-      if (allocated(err)) return
+      raw%max_nodes = n
       done = 0
       do block = 1, n_blocks
          call reader%next_data('$Nodes', 'entity block', err, &
@@ -272,6 +273,8 @@ contains
          if (allocated(err)) return
          do k = done + 1, done + int(in_block, ip)
             call reader%next_data('$Nodes', 'the tag of node', err, 1, 'a node tag', int(k, i8), n)
+            if (allocated(err)) return
+            call reserve_nodes(reader, raw, k, err)
             if (allocated(err)) return
             call reader%get_int(1, 1_i8, max_tag, 'node tag', raw%node_tag(k), err)
             if (allocated(err)) return
@@ -326,16 +329,14 @@ contains
 
       integer(i8) :: n, element_type, n_tags, tag
       integer(ip) :: k
-      integer :: n_nodes, stat
+      integer :: n_nodes
 
       call reader%next_data('$Elements', 'the number of elements', err, 1, 'the number of elements')
       if (allocated(err)) return
       call reader%get_int(1, 0_i8, max_count, 'number of elements', n, err)
       if (allocated(err)) return
       ! every element might be a triangle
-      allocate (raw%triangle_nodes(3, n), raw%triangle_tag(n), raw%triangle_line(n), stat=stat)
-      if (stat /= 0) call reader%fail(err, 'cannot allocate memory for '//str(n)//' elements')
-      if (allocated(err)) return
+      raw%max_triangles = n
       do k = 1, int(n, ip)
          call reader%next_data('$Elements', 'element', err, item=int(k, i8), total=n)
          if (allocated(err)) return
@@ -365,7 +366,7 @@ contains
       type(error_t), allocatable, intent(out) :: err
 
       integer(i8) :: n_blocks, n, block, entity_dim, element_type, in_block, unused, tag, k, done
-      integer :: n_nodes, header_line, stat
+      integer :: n_nodes, header_line
 
       call reader%next_data('$Elements', 'the header', err, &
                             4, 'numEntityBlocks numElements minElementTag maxElementTag')
@@ -378,9 +379,7 @@ contains
       if (allocated(err)) return
       header_line = reader%line_no
       ! every element might be a triangle
-      allocate (raw%triangle_nodes(3, n), raw%triangle_tag(n), raw%triangle_line(n), stat=stat)
-      if (stat /= 0) call reader%fail(err, 'cannot allocate memory for '//str(n)//' elements')
-      if (allocated(err)) return
+      raw%max_triangles = n
       done = 0
       do block = 1, n_blocks
          call reader%next_data('$Elements', 'entity block', err, 4, &
@@ -414,6 +413,71 @@ contains
       call reader%expect_end('$Elements', err)
    end subroutine read_elements_41
 
+   !> Room for node k. The arrays grow by doubling as nodes are read, up to the count the header
+   !> announced, rather than being allocated for that count at once: a 100-byte file that
+   !> announces two billion nodes must fail at its end, not reserve 77 GB first.
+   subroutine reserve_nodes(reader, raw, k, err)
+      type(text_reader_t), intent(in) :: reader
+      type(raw_mesh_t), intent(inout) :: raw
+      integer(ip), intent(in) :: k
+      type(error_t), allocatable, intent(out) :: err
+
+      integer(i8), allocatable :: tag(:)
+      real(dp), allocatable :: xyz(:, :)
+      integer, allocatable :: line(:)
+      integer(i8) :: old, new
+      integer :: stat
+
+      old = 0
+      if (allocated(raw%node_tag)) old = size(raw%node_tag, kind=i8)
+      if (k <= old) return
+      new = min(raw%max_nodes, max(2*old, initial_capacity))
+      allocate (tag(new), xyz(3, new), line(new), stat=stat)
+      if (stat /= 0) then
+         call reader%fail(err, 'cannot allocate memory for '//str(new)//' nodes')
+         return
+      end if
+      if (old > 0) then
+         tag(1:old) = raw%node_tag
+         xyz(:, 1:old) = raw%xyz
+         line(1:old) = raw%node_line
+      end if
+      call move_alloc(tag, raw%node_tag)
+      call move_alloc(xyz, raw%xyz)
+      call move_alloc(line, raw%node_line)
+   end subroutine reserve_nodes
+
+   !> Room for triangle t, grown like the nodes.
+   subroutine reserve_triangles(reader, raw, t, err)
+      type(text_reader_t), intent(in) :: reader
+      type(raw_mesh_t), intent(inout) :: raw
+      integer(ip), intent(in) :: t
+      type(error_t), allocatable, intent(out) :: err
+
+      integer(i8), allocatable :: nodes(:, :), tag(:)
+      integer, allocatable :: line(:)
+      integer(i8) :: old, new
+      integer :: stat
+
+      old = 0
+      if (allocated(raw%triangle_tag)) old = size(raw%triangle_tag, kind=i8)
+      if (t <= old) return
+      new = min(raw%max_triangles, max(2*old, initial_capacity))
+      allocate (nodes(3, new), tag(new), line(new), stat=stat)
+      if (stat /= 0) then
+         call reader%fail(err, 'cannot allocate memory for '//str(new)//' elements')
+         return
+      end if
+      if (old > 0) then
+         nodes(:, 1:old) = raw%triangle_nodes
+         tag(1:old) = raw%triangle_tag
+         line(1:old) = raw%triangle_line
+      end if
+      call move_alloc(nodes, raw%triangle_nodes)
+      call move_alloc(tag, raw%triangle_tag)
+      call move_alloc(line, raw%triangle_line)
+   end subroutine reserve_triangles
+
    !> The node tags of a triangle, tokens after `offset`.
    subroutine add_triangle(reader, offset, tag, raw, err)
       type(text_reader_t), intent(in) :: reader
@@ -426,6 +490,8 @@ contains
       integer(ip) :: t
 
       t = raw%n_triangles + 1
+      call reserve_triangles(reader, raw, t, err)
+      if (allocated(err)) return
       do i = 1, 3
          call reader%get_int(offset + i, 1_i8, max_tag, 'node tag', raw%triangle_nodes(i, t), err)
          if (allocated(err)) return
@@ -500,7 +566,7 @@ contains
       real(dp) :: scale
 
       ! CAD transformations can leave round-off in z; anything more is a 3D or tilted mesh.
-      scale = max(1.0_dp, maxval(abs(raw%xyz(1:2, :))))
+      scale = max(1.0_dp, maxval(abs(raw%xyz(1:2, 1:raw%n_nodes))))
       do k = 1, raw%n_nodes
          if (abs(raw%xyz(3, k)) > 1.0e3_dp*epsilon(1.0_dp)*scale) then
             call make_error(err, exit_bad_input, path//':'//str(raw%node_line(k)), 'node tag '// &
