@@ -30,7 +30,8 @@ contains
                new_unittest('sparse_tags_crlf', test_sparse), &
                new_unittest('flips_clockwise', test_clockwise), &
                new_unittest('rejects_broken_files', test_broken), &
-               new_unittest('rejects_missing_file', test_missing)]
+               new_unittest('rejects_missing_file', test_missing), &
+               new_unittest('huge_coordinates', test_huge)]
    end subroutine collect_gmsh
 
    !> Path of a file under tests/data/meshes.
@@ -245,6 +246,19 @@ contains
          if (allocated(err)) return
       end do
    end subroutine test_broken
+
+   !> Coordinates at the reader's limit 1e150 are accepted: the mesh checks must not overflow
+   !> on them. The overlap test multiplied two areas of 5e299 and trapped in debug builds.
+   subroutine test_huge(err)
+      type(error_t), allocatable, intent(out) :: err
+
+      type(mesh_t) :: mesh
+
+      call read_data('huge_coordinates.msh', mesh, err)
+      if (allocated(err)) return
+      call check(err, mesh%nv == 4 .and. mesh%nt == 2 .and. mesh%ne == 5, 'four nodes, two triangles')
+      call check_close(err, mesh%total_area(), 1.0e300_dp, 8*epsilon(1.0_dp), 0.0_dp, 'area')
+   end subroutine test_huge
 
    subroutine test_missing(err)
       type(error_t), allocatable, intent(out) :: err
