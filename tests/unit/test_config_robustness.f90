@@ -53,6 +53,10 @@ contains
       call load_message('robust_override_long.nml', '', words('mesh.'//repeat('z', 3000)//'=1'), message)
       call check(err, index(message, "override 'mesh.zzz") == 1, 'long override: '//message)
       call check_short(err, message)
+      ! blanks before the dot still name the group; found by a longer fuzz run (seed 2)
+      call load_message('robust_override_blanks.nml', '', words('mesh'//repeat(' ', 3000)//'.nokey=1'), message)
+      call check(err, index(message, "': &mesh: unknown key 'nokey'") > 0, 'blanks before the dot: '//message)
+      call check_short(err, message)
    end subroutine test_short_messages
 
    !> Load `content` with `overrides`, expecting a bad-input error; its message, or '' if none.

@@ -259,7 +259,8 @@ contains
       end if
       id = find_key(gid, key)
       if (id == 0) then
-         call make_error(err, exit_bad_input, where, '&'//group//": unknown key '"//excerpt(key) &
+         ! trim: blanks before the dot still name the group (== ignores trailing blanks)
+         call make_error(err, exit_bad_input, where, '&'//trim(group)//": unknown key '"//excerpt(key) &
                          //"' (valid keys: "//key_list(gid)//')')
          return
       end if
