@@ -10,6 +10,8 @@ module test_config
    private
 
    public :: collect_config
+   ! helpers shared with test_config_robustness
+   public :: write_case, no_overrides, words, expect_error
 
    character, parameter :: nl = new_line('a')
 

@@ -30,7 +30,8 @@ contains
                new_unittest('sparse_tags_crlf', test_sparse), &
                new_unittest('flips_clockwise', test_clockwise), &
                new_unittest('rejects_broken_files', test_broken), &
-               new_unittest('rejects_missing_file', test_missing)]
+               new_unittest('rejects_missing_file', test_missing), &
+               new_unittest('huge_coordinates', test_huge)]
    end subroutine collect_gmsh
 
    !> Path of a file under tests/data/meshes.
@@ -196,13 +197,14 @@ contains
    subroutine test_broken(err)
       type(error_t), allocatable, intent(out) :: err
 
-      integer, parameter :: n = 21
+      integer, parameter :: n = 25
       character(len=*), parameter :: files(n) = [character(len=24) :: &
          'absent_node', 'bad_version', 'binary', 'count_mismatch', 'degenerate', &
          'duplicate_node', 'empty', 'extra_nodes', 'missing_nodes', 'nan_coordinate', &
          'no_triangles', 'non_numeric', 'nonmanifold', 'nonplanar', 'overflow_coordinate', &
          'quad', 'second_order', 'tetrahedron', 'truncated_nodes', 'unclosed_section', &
-         'unused_node']
+         'unused_node', 'long_token', 'control_character', 'huge_node_count', &
+         'huge_element_count']
       character(len=*), parameter :: expected(n) = [character(len=40) :: &
          ':14: triangle 2 refers to node tag 9', ':2: MSH version 4 is not supported', &
          ':2: binary', ':5: the header announces 5 nodes', 'zero area', &
@@ -213,12 +215,17 @@ contains
          ':13: element type 3 (4-node quadrangle)', ':22: element type 9', &
          ':18: element type 4 (3D', &
          ':9: the $Nodes section is truncated', ':4: section $PhysicalNames', &
-         ':10: node tag 5 is used by no triangle']
+         ':10: node tag 5 is used by no triangle', ':5: "3333333333', ':5: "3<0x7F>" is not an integer', &
+         ':7: the $Nodes section is truncated', ':18: the $Elements section is truncated']
       type(mesh_t) :: mesh
       type(error_t), allocatable :: got
       character(len=:), allocatable :: path, name
       integer :: i, at
+      character(len=95) :: printable
 
+      do i = 1, 95
+         printable(i:i) = achar(31 + i)
+      end do
       do i = 1, n
          name = trim(files(i))//'.msh'
          call data_file('broken/'//name, path, err)
@@ -233,9 +240,25 @@ contains
          call check(err, index(got%message(at + len(name):), trim(expected(i))) > 0, &
                     name//': message "'//got%message//'" lacks "'//trim(expected(i))//'"')
          call check(err, mesh%nv == 0 .and. mesh%nt == 0, name//': mesh left non-empty')
+         ! found by the fuzzer: tokens were quoted whole and raw, control characters included
+         call check(err, len(got%message) - at < 300, name//': message too long')
+         call check(err, verify(got%message, printable) == 0, name//': control character in the message')
          if (allocated(err)) return
       end do
    end subroutine test_broken
+
+   !> Coordinates at the reader's limit 1e150 are accepted: the mesh checks must not overflow
+   !> on them. The overlap test multiplied two areas of 5e299 and trapped in debug builds.
+   subroutine test_huge(err)
+      type(error_t), allocatable, intent(out) :: err
+
+      type(mesh_t) :: mesh
+
+      call read_data('huge_coordinates.msh', mesh, err)
+      if (allocated(err)) return
+      call check(err, mesh%nv == 4 .and. mesh%nt == 2 .and. mesh%ne == 5, 'four nodes, two triangles')
+      call check_close(err, mesh%total_area(), 1.0e300_dp, 8*epsilon(1.0_dp), 0.0_dp, 'area')
+   end subroutine test_huge
 
    subroutine test_missing(err)
       type(error_t), allocatable, intent(out) :: err

@@ -7,7 +7,7 @@
 module twomem_input_config
    use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
    use twomem_base_kinds, only: dp
-   use twomem_base_errors, only: error_t, make_error, prefix_error, exit_bad_input
+   use twomem_base_errors, only: error_t, make_error, prefix_error, exit_bad_input, excerpt
    use twomem_input_namelist, only: string_t, nml_group_t, read_lines, split_lines, &
       parse_namelist, line_where
    use twomem_input_values, only: scan_integer, scan_real, scan_logical, unquote, format_real, &
@@ -193,7 +193,7 @@ contains
       do ig = 1, size(groups)
          gid = find_group(groups(ig)%name)
          if (gid == 0) then
-            call make_error(err, exit_bad_input, line_where(path, groups(ig)%line)//': &'//groups(ig)%name, &
+            call make_error(err, exit_bad_input, line_where(path, groups(ig)%line)//': &'//excerpt(groups(ig)%name), &
                             'unknown group (valid groups: '//group_list()//')')
             return
          end if
@@ -202,7 +202,7 @@ contains
                id = find_key(gid, a%key)
                if (id == 0) then
                   call make_error(err, exit_bad_input, line_where(path, a%line)//': &'//groups(ig)%name &
-                                  //': '//a%key, 'unknown key (valid keys: '//key_list(gid)//')')
+                                  //': '//excerpt(a%key), 'unknown key (valid keys: '//key_list(gid)//')')
                   return
                end if
                call set_value(cfg, id, a%value, a%quoted, err)
@@ -218,7 +218,7 @@ contains
       do i = 1, size(overrides)
          call apply_override(cfg, overrides(i)%s, id, err)
          if (allocated(err)) return
-         origin(id)%s = "override '"//overrides(i)%s//"'"
+         origin(id)%s = "override '"//excerpt(overrides(i)%s)//"'"
       end do
 
       call validate(cfg, origin, err)
@@ -239,7 +239,7 @@ contains
       logical :: quoted
 
       id = 0
-      where = "override '"//text//"'"
+      where = "override '"//excerpt(text)//"'"
       eq = index(text, '=')
       if (eq == 0) then
          call make_error(err, exit_bad_input, where, "expected GROUP.KEY=VALUE (no '=')")
@@ -255,13 +255,14 @@ contains
       key = name(dot + 1:)
       gid = find_group(group)
       if (gid == 0) then
-         call make_error(err, exit_bad_input, where, "unknown group '"//group//"' (valid groups: " &
+         call make_error(err, exit_bad_input, where, "unknown group '"//excerpt(group)//"' (valid groups: " &
                          //group_list()//')')
          return
       end if
       id = find_key(gid, key)
       if (id == 0) then
-         call make_error(err, exit_bad_input, where, '&'//group//": unknown key '"//key &
+         ! trim: blanks before the dot still name the group (== ignores trailing blanks)
+         call make_error(err, exit_bad_input, where, '&'//trim(group)//": unknown key '"//excerpt(key) &
                          //"' (valid keys: "//key_list(gid)//')')
          return
       end if
@@ -298,6 +299,9 @@ contains
       case (kind_word, kind_path)
          if (len(value) > config_len) then
             what = 'text longer than '//itoa(config_len)//' characters'
+         else if (has_control_character(value)) then
+            ! a newline would break the echo, which must reload as a case file
+            what = 'text with a control character, got '//quote(excerpt(value))
          else if (key_kinds(id) == kind_word) then
             call store_text(cfg, id, to_lower(trim(adjustl(value))))
          else
@@ -305,21 +309,21 @@ contains
          end if
       case (kind_real)
          if (quoted) then
-            what = 'expected a real number, got the string '//quote(value)
+            what = 'expected a real number, got the string '//quote(excerpt(value))
          else
             call scan_real(value, x, what)
             if (.not. allocated(what)) call store_real(cfg, id, x)
          end if
       case (kind_int)
          if (quoted) then
-            what = 'expected an integer, got the string '//quote(value)
+            what = 'expected an integer, got the string '//quote(excerpt(value))
          else
             call scan_integer(value, n, what)
             if (.not. allocated(what)) call store_int(cfg, id, n)
          end if
       case (kind_logical)
          if (quoted) then
-            what = 'expected a logical (.true. or .false.), got the string '//quote(value)
+            what = 'expected a logical (.true. or .false.), got the string '//quote(excerpt(value))
          else
             call scan_logical(value, b, what)
             if (.not. allocated(what)) call store_logical(cfg, id, b)
@@ -413,8 +417,10 @@ contains
          call check_real(err, origin, k_coarse_h, m%coarse_h, ge=1.0e-4_dp, le=2.0_dp)
          call check_int(err, origin, k_levels, m%levels, 0, 12)
          call check_real(err, origin, k_boundary_h, m%boundary_h, ge=0.0_dp, le=2.0_dp)
-         call require(err, origin, k_boundary_h, m%boundary_h <= m%coarse_h, &
-                      'mesh.boundary_h must not exceed mesh.coarse_h (0 chooses it automatically)')
+         ! only once both are known to be finite: comparing a NaN traps in debug builds
+         if (.not. allocated(err)) &
+            call require(err, origin, k_boundary_h, m%boundary_h <= m%coarse_h, &
+                         'mesh.boundary_h must not exceed mesh.coarse_h (0 chooses it automatically)')
          call require(err, origin, k_boundary_h, m%boundary_h == 0.0_dp .or. m%domain == 'disk', &
                       "mesh.boundary_h is only used with mesh.domain='disk'")
 
@@ -489,7 +495,7 @@ contains
          if (i > 1) list = list//', '
          list = list//quote(trim(allowed(i)))
       end do
-      call fail(err, origin, id, 'must be one of '//list//', got '//quote(trim(value)))
+      call fail(err, origin, id, 'must be one of '//list//', got '//quote(excerpt(trim(value))))
    end subroutine check_word
 
    !> Finite, and within the bounds given (`gt`: >, `ge`: >=, `lt`: <, `le`: <=). Finiteness is
@@ -638,6 +644,18 @@ contains
       dot = index(name, '.', back=.true.)
       if (dot > 1) name = name(1:dot - 1)
    end function case_name_of
+
+   !> Bytes 0-31 and 127, which no word or file name of a case may contain.
+   pure logical function has_control_character(s)
+      character(len=*), intent(in) :: s
+
+      integer :: i
+
+      has_control_character = .false.
+      do i = 1, len(s)
+         if (iachar(s(i:i)) < 32 .or. iachar(s(i:i)) == 127) has_control_character = .true.
+      end do
+   end function has_control_character
 
    pure integer function find_group(name) result(gid)
       character(len=*), intent(in) :: name

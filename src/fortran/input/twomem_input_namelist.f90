@@ -4,7 +4,7 @@
 !> a list of `key = value` assignments that keep their line number and their raw value text;
 !> `twomem_input_values` converts the values and `twomem_input_config` knows what the keys mean.
 module twomem_input_namelist
-   use twomem_base_errors, only: error_t, make_error, exit_bad_input
+   use twomem_base_errors, only: error_t, make_error, exit_bad_input, excerpt
    use twomem_input_values, only: quote, to_lower, itoa
    implicit none
    private
@@ -44,6 +44,10 @@ module twomem_input_namelist
 
    character(len=*), parameter :: blanks = ' '//achar(9)//achar(13)
 
+   !> Far more groups and assignments than any case has. Duplicates are found by comparing each
+   !> name with those before it; without a bound, a file of 60 000 groups took minutes.
+   integer, parameter :: max_groups = 100, max_assignments = 200
+
    character(len=*), parameter :: unexpected_hint = &
       " (expected 'key = value'; arrays and multiple values are not supported)"
 
@@ -59,7 +63,7 @@ contains
       character(len=512) :: msg
       character(len=256) :: buf
       character(len=:), allocatable :: line
-      integer :: unit, ios, n, size_read
+      integer :: unit, ios, n, size_read, used
       logical :: is_dir
 
       allocate (lines(0))
@@ -76,13 +80,22 @@ contains
          return
       end if
       n = 0
+      allocate (character(len=len(buf)) :: line)
       outer: do
-         line = ''
+         used = 0
          do
             read (unit, '(a)', advance='no', size=size_read, iostat=ios, iomsg=msg) buf
-            if (ios == 0 .or. is_iostat_eor(ios)) line = line//buf(1:size_read)
+            if (ios == 0 .or. is_iostat_eor(ios)) call append(line, used, buf(1:size_read))
             if (is_iostat_eor(ios)) exit
-            if (is_iostat_end(ios)) exit outer
+            if (is_iostat_end(ios)) then
+               ! a last line without a newline whose length is a multiple of the chunk ends
+               ! in a full chunk and then the end of the file, not in an end of record
+               if (used > 0) then
+                  n = n + 1
+                  call push_line(lines, n, line(1:used))
+               end if
+               exit outer
+            end if
             if (ios /= 0) then
                call make_error(err, exit_bad_input, path, 'cannot read the input file ('//trim(msg)//')')
                close (unit)
@@ -90,32 +103,58 @@ contains
             end if
          end do
          n = n + 1
-         call push_line(lines, n, line)
+         call push_line(lines, n, line(1:used))
       end do outer
       close (unit)
       lines = lines(1:n)
    end subroutine read_lines
 
-   !> Lines of a text held in memory (e.g. the `input` attribute of a result file).
+   !> Append `piece` to text(1:used), doubling the buffer when it is full: a line read in short
+   !> chunks costs linear time however long it is (a binary file has megabytes between newlines).
+   subroutine append(text, used, piece)
+      character(len=:), allocatable, intent(inout) :: text
+      integer, intent(inout) :: used
+      character(len=*), intent(in) :: piece
+
+      character(len=:), allocatable :: wider
+
+      if (used + len(piece) > len(text)) then
+         allocate (character(len=2*(used + len(piece))) :: wider)
+         wider(1:used) = text(1:used)
+         call move_alloc(wider, text)
+      end if
+      text(used + 1:used + len(piece)) = piece
+      used = used + len(piece)
+   end subroutine append
+
+   !> Lines of a text held in memory (e.g. the `input` attribute of a result file), split as the
+   !> run-time library splits a file: at LF, at CR LF and at a lone CR.
    subroutine split_lines(text, lines)
       character(len=*), intent(in) :: text
       type(string_t), allocatable, intent(out) :: lines(:)
 
+      character, parameter :: lf = achar(10), cr = achar(13)
       integer :: start, k, n
 
       allocate (lines(0))
       n = 0
       start = 1
-      do while (start <= len(text))
-         k = index(text(start:), new_line('a'))
-         n = n + 1
-         if (k == 0) then
-            call push_line(lines, n, text(start:))
-            exit
+      k = 1
+      do while (k <= len(text))
+         if (text(k:k) == lf .or. text(k:k) == cr) then
+            n = n + 1
+            call push_line(lines, n, text(start:k - 1))
+            if (text(k:k) == cr .and. k < len(text)) then
+               if (text(k + 1:k + 1) == lf) k = k + 1
+            end if
+            start = k + 1
          end if
-         call push_line(lines, n, text(start:start + k - 2))
-         start = start + k
+         k = k + 1
       end do
+      if (start <= len(text)) then
+         n = n + 1
+         call push_line(lines, n, text(start:))
+      end if
       lines = lines(1:n)
    end subroutine split_lines
 
@@ -173,11 +212,16 @@ contains
          case (tk_group_start)
             do j = 1, ng
                if (groups(j)%name == t(i)%text) then
-                  call make_error(err, exit_bad_input, line_where(file, t(i)%line)//': &'//t(i)%text, &
+                  call make_error(err, exit_bad_input, line_where(file, t(i)%line)//': &'//excerpt(t(i)%text), &
                                   'group given twice (first at line '//itoa(groups(j)%line)//')')
                   return
                end if
             end do
+            if (ng == max_groups) then
+               call make_error(err, exit_bad_input, line_where(file, t(i)%line), &
+                               'more than '//itoa(max_groups)//' groups: not a case file')
+               return
+            end if
             ng = ng + 1
             call push_group(groups, ng, t(i)%text, t(i)%line)
             i = i + 1
@@ -185,7 +229,7 @@ contains
             if (allocated(err)) return
          case default
             call make_error(err, exit_bad_input, line_where(file, t(i)%line), &
-                            'stray text outside groups: '//quote(t(i)%text)//" (a group is '&name ... /')")
+                            'stray text outside groups: '//quote(excerpt(t(i)%text))//" (a group is '&name ... /')")
             return
          end select
       end do
@@ -208,7 +252,7 @@ contains
       character(len=:), allocatable :: key, ctx, here
       integer :: j
 
-      ctx = ': &'//group%name
+      ctx = ': &'//excerpt(group%name)
       do
          if (i > n) then
             call make_error(err, exit_bad_input, line_where(file, group%line)//ctx, &
@@ -226,39 +270,44 @@ contains
          case (tk_comma)
             i = i + 1
          case (tk_group_start)
-            call make_error(err, exit_bad_input, here, "missing '/' at the end of the group before &"//t(i)%text)
+            call make_error(err, exit_bad_input, here, "missing '/' at the end of the group before &"//excerpt(t(i)%text))
             return
          case (tk_equals)
             call make_error(err, exit_bad_input, here, "'=' without a key")
             return
          case (tk_string)
-            call make_error(err, exit_bad_input, here, 'unexpected value '//quote(t(i)%text)//unexpected_hint)
+            call make_error(err, exit_bad_input, here, 'unexpected value '//quote(excerpt(t(i)%text))//unexpected_hint)
             return
          case (tk_bare)
             key = to_lower(t(i)%text)
             if (.not. is_name(key)) then
                if (index(key, '(') > 0) then
-                  call make_error(err, exit_bad_input, here//': '//key, 'array elements and substrings are not supported')
+                  call make_error(err, exit_bad_input, here//': '//excerpt(key), 'array elements and substrings are not supported')
                else
-                  call make_error(err, exit_bad_input, here, 'unexpected value '//quote(t(i)%text)//unexpected_hint)
+                  call make_error(err, exit_bad_input, here, 'unexpected value '//quote(excerpt(t(i)%text))//unexpected_hint)
                end if
                return
             end if
             if (i == n) then
-               call make_error(err, exit_bad_input, here//': '//key, "expected '=' after the key")
+               call make_error(err, exit_bad_input, here//': '//excerpt(key), "expected '=' after the key")
                return
             else if (t(i + 1)%kind /= tk_equals) then
-               call make_error(err, exit_bad_input, here//': '//key, "expected '=' after the key")
+               call make_error(err, exit_bad_input, here//': '//excerpt(key), "expected '=' after the key")
+               return
+            end if
+            if (group%n == max_assignments) then
+               call make_error(err, exit_bad_input, here, 'more than '//itoa(max_assignments)// &
+                               ' assignments in one group: not a case file')
                return
             end if
             do j = 1, group%n
                if (group%assignments(j)%key == key) then
-                  call make_error(err, exit_bad_input, here//': '//key, 'key given twice in the group (first at line ' &
+                  call make_error(err, exit_bad_input, here//': '//excerpt(key), 'key given twice in the group (first at line ' &
                                   //itoa(group%assignments(j)%line)//')')
                   return
                end if
             end do
-            call take_value(t, n, i + 2, file, ctx//': '//key, group, key, t(i)%line, err)
+            call take_value(t, n, i + 2, file, ctx//': '//excerpt(key), group, key, t(i)%line, err)
             if (allocated(err)) return
             i = i + 3
          end select
@@ -296,7 +345,7 @@ contains
       end if
       if (t(i)%kind == tk_bare .and. index(t(i)%text, '*') > 0) then
          call make_error(err, exit_bad_input, line_where(file, t(i)%line)//ctx, &
-                         'repeat counts (r*value) are not supported, got '//quote(t(i)%text))
+                         'repeat counts (r*value) are not supported, got '//quote(excerpt(t(i)%text)))
          return
       end if
       a%key = key
@@ -314,11 +363,12 @@ contains
       type(token_t), allocatable, intent(out) :: t(:)
       integer, intent(out) :: n
 
-      integer :: il, p, q, m
+      integer :: il, p, q, m, k
       character(len=:), allocatable :: s, word
       character :: c, delim
 
       allocate (t(64))
+      allocate (character(len=256) :: word)
       n = 0
       do il = 1, size(lines)
          s = lines(il)%s
@@ -345,19 +395,24 @@ contains
                   if (.not. is_name_char(s(q:q))) exit
                   q = q + 1
                end do
-               word = to_lower(s(p + 1:q - 1))
-               if (len(word) == 0) then
+               if (q == p + 1) then
                   call push_token(t, n, tk_error, "expected a group name after '"//c//"'", il)
                   return
-               else if (word == 'end') then
+               else if (to_lower(s(p + 1:q - 1)) == 'end') then
                   call push_token(t, n, tk_group_end, c//'end', il)
                else
-                  call push_token(t, n, tk_group_start, word, il)
+                  call push_token(t, n, tk_group_start, to_lower(s(p + 1:q - 1)), il)
                end if
                p = q
             else if (c == "'" .or. c == '"') then
                delim = c
-               word = ''
+               ! the text goes into a buffer as long as the line: appending one character at a
+               ! time to a growing string costs quadratic time, minutes on a long line
+               if (len(word) < m) then
+                  deallocate (word)
+                  allocate (character(len=m) :: word)
+               end if
+               k = 0
                q = p + 1
                do
                   if (q > m) then
@@ -367,17 +422,19 @@ contains
                   if (s(q:q) == delim) then
                      if (q < m) then
                         if (s(q + 1:q + 1) == delim) then
-                           word = word//delim
+                           k = k + 1
+                           word(k:k) = delim
                            q = q + 2
                            cycle
                         end if
                      end if
                      exit
                   end if
-                  word = word//s(q:q)
+                  k = k + 1
+                  word(k:k) = s(q:q)
                   q = q + 1
                end do
-               call push_token(t, n, tk_string, word, il)
+               call push_token(t, n, tk_string, word(1:k), il)
                p = q + 1
             else
                q = p

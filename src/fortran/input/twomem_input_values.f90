@@ -7,6 +7,7 @@ module twomem_input_values
    use, intrinsic :: ieee_exceptions, only: ieee_status_type, ieee_get_status, ieee_set_status, &
       ieee_get_halting_mode, ieee_set_halting_mode, ieee_usual
    use twomem_base_kinds, only: dp, i8
+   use twomem_base_errors, only: excerpt
    implicit none
    private
 
@@ -31,16 +32,16 @@ contains
          if (text(1:1) == '+' .or. text(1:1) == '-') p = 2
       end if
       if (p > len(text) .or. verify(text(p:), '0123456789') /= 0) then
-         what = 'expected an integer, got '//quote(text)
+         what = 'expected an integer, got '//quote(excerpt(text))
          return
       end if
       if (len(text) - p + 1 > 18) then
-         what = 'integer out of range, got '//text
+         what = 'integer out of range, got '//excerpt(text)
          return
       end if
       read (text, *, iostat=ios) wide
       if (ios /= 0 .or. abs(wide) > huge(value)) then
-         what = 'integer out of range, got '//text
+         what = 'integer out of range, got '//excerpt(text)
          return
       end if
       value = int(wide)
@@ -66,16 +67,16 @@ contains
       special = .false.
       if (p <= len(t)) special = t(p:) == 'nan' .or. t(p:) == 'inf' .or. t(p:) == 'infinity'
       if (.not. (special .or. is_real_literal(t(p:)))) then
-         what = 'expected a real number, got '//quote(text)
+         what = 'expected a real number, got '//quote(excerpt(text))
          return
       end if
       call read_quietly(t, value, ios)
       if (ios /= 0) then
          value = 0.0_dp
-         what = 'expected a real number, got '//quote(text)
+         what = 'expected a real number, got '//quote(excerpt(text))
       else if (.not. special .and. .not. ieee_is_finite(value)) then
          value = 0.0_dp
-         what = 'real number out of range, got '//text
+         what = 'real number out of range, got '//excerpt(text)
       end if
    end subroutine scan_real
 
@@ -154,7 +155,7 @@ contains
       case ('.false.', '.f.', 'f', 'false')
          value = .false.
       case default
-         what = 'expected a logical (.true. or .false.), got '//quote(text)
+         what = 'expected a logical (.true. or .false.), got '//quote(excerpt(text))
       end select
    end subroutine scan_logical
 
@@ -167,7 +168,7 @@ contains
       character(len=:), allocatable, intent(out) :: what
 
       character :: delim
-      integer :: q
+      integer :: q, k
 
       quoted = .false.
       value = text
@@ -175,26 +176,32 @@ contains
       delim = text(1:1)
       if (delim /= "'" .and. delim /= '"') return
       quoted = .true.
-      value = ''
+      ! filled in place: growing a string a character at a time costs quadratic time
+      value = repeat(' ', len(text))
+      k = 0
       q = 2
       do
          if (q > len(text)) then
+            value = value(1:k)
             what = 'unterminated string'
             return
          end if
          if (text(q:q) == delim) then
             if (q < len(text)) then
                if (text(q + 1:q + 1) == delim) then
-                  value = value//delim
+                  k = k + 1
+                  value(k:k) = delim
                   q = q + 2
                   cycle
                end if
             end if
             exit
          end if
-         value = value//text(q:q)
+         k = k + 1
+         value(k:k) = text(q:q)
          q = q + 1
       end do
+      value = value(1:k)
       if (q /= len(text)) what = 'unexpected text after the closing quote'
    end subroutine unquote
 

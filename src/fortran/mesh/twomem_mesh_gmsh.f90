@@ -8,7 +8,7 @@
 !> non-manifold edges) are left to `mesh_t%init`, the gate every mesh passes.
 module twomem_mesh_gmsh
    use twomem_base_kinds, only: dp, ip, i8
-   use twomem_base_errors, only: error_t, make_error, exit_bad_input
+   use twomem_base_errors, only: error_t, make_error, exit_bad_input, excerpt
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_mesh_gmsh_text, only: text_reader_t, str
    implicit none
@@ -21,12 +21,16 @@ module twomem_mesh_gmsh
    integer(i8), parameter :: max_count = huge(1_ip)
    integer(i8), parameter :: max_tag = 10_i8**18 - 1
    real(dp), parameter :: max_coordinate = 1.0e150_dp
+   !> first size of the node and triangle arrays, which then double as entries are read
+   integer(i8), parameter :: initial_capacity = 1024
 
    !> The file's content in its own numbering, before tags become vertex indices. Line numbers are
    !> kept so that problems found only once everything is read can still point into the file.
    type :: raw_mesh_t
       integer :: version = 0
       integer(ip) :: n_nodes = 0, n_triangles = 0
+      !> counts the headers announce: the arrays grow towards them as entries are read
+      integer(i8) :: max_nodes = 0, max_triangles = 0
       logical :: have_nodes = .false., have_elements = .false.
       integer(i8), allocatable :: node_tag(:)
       real(dp), allocatable :: xyz(:, :)
@@ -77,7 +81,7 @@ contains
          if (reader%n_tokens == 0) cycle
          name = reader%token(1)
          if (name(1:1) /= '$') then
-            call reader%fail(err, 'expected a section such as $Nodes, found "'//name//'"')
+            call reader%fail(err, 'expected a section such as $Nodes, found "'//reader%shown(1)//'"')
             return
          end if
          select case (name)
@@ -141,7 +145,7 @@ contains
       end do
       if (reader%token(1) /= '$MeshFormat') then
          call reader%fail(err, 'not a Gmsh mesh: the file must start with $MeshFormat, found "'// &
-                          reader%token(1)//'"')
+                          reader%shown(1)//'"')
          return
       end if
       call reader%next_data('$MeshFormat', 'the version line', err)
@@ -167,7 +171,7 @@ contains
          version = msh41
       end select
       if (version == 0) then
-         call reader%fail(err, 'MSH version '//reader%token(1)//' is not supported: write the '// &
+         call reader%fail(err, 'MSH version '//reader%shown(1)//' is not supported: write the '// &
                           'mesh as MSH 4.1 or 2.2 (Gmsh option Mesh.MshFileVersion)')
          return
       end if
@@ -188,7 +192,7 @@ contains
 
       start = reader%line_no
       if (index(name, '$End') == 1) then
-         call reader%fail(err, name//' closes a section that was never opened')
+         call reader%fail(err, excerpt(name)//' closes a section that was never opened')
          return
       end if
       do
@@ -196,7 +200,8 @@ contains
          if (allocated(err)) return
          if (eof) then
             call make_error(err, exit_bad_input, reader%path//':'//str(start), &
-                            'section '//name//' is never closed by $End'//name(2:))
+                            'section '//excerpt(name)//' is never closed by '// &
+                            excerpt('$End'//name(2:)))
             return
          end if
          if (reader%n_tokens == 0) cycle
@@ -212,18 +217,17 @@ contains
 
       integer(i8) :: n
       integer(ip) :: k
-      integer :: stat
 
       call reader%next_data('$Nodes', 'the number of nodes', err, 1, 'the number of nodes')
       if (allocated(err)) return
       call reader%get_int(1, 0_i8, max_count, 'number of nodes', n, err)
       if (allocated(err)) return
       raw%n_nodes = int(n, ip)
-      allocate (raw%node_tag(n), raw%xyz(3, n), raw%node_line(n), stat=stat)
-      if (stat /= 0) call reader%fail(err, 'cannot allocate memory for '//str(n)//' nodes')
-      if (allocated(err)) return
+      raw%max_nodes = n
       do k = 1, raw%n_nodes
          call reader%next_data('$Nodes', 'node', err, 4, 'node tag, x, y, z', int(k, i8), n)
+         if (allocated(err)) return
+         call reserve_nodes(reader, raw, k, err)
          if (allocated(err)) return
          call reader%get_int(1, 1_i8, max_tag, 'node tag', raw%node_tag(k), err)
          if (allocated(err)) return
@@ -242,7 +246,7 @@ contains
 
       integer(i8) :: n_blocks, n, block, entity_dim, parametric, in_block, unused
       integer(ip) :: k, done
-      integer :: header_line, stat
+      integer :: header_line
 
       call reader%next_data('$Nodes', 'the header', err, &
                             4, 'numEntityBlocks numNodes minNodeTag maxNodeTag')
@@ -255,9 +259,7 @@ contains
       if (allocated(err)) return
       header_line = reader%line_no
       raw%n_nodes = int(n, ip)
-      allocate (raw%node_tag(n), raw%xyz(3, n), raw%node_line(n), stat=stat)
-      if (stat /= 0) call reader%fail(err, 'cannot allocate memory for '//str(n)//' nodes')
-      if (allocated(err)) return
+      raw%max_nodes = n
       done = 0
       do block = 1, n_blocks
          call reader%next_data('$Nodes', 'entity block', err, &
@@ -271,6 +273,8 @@ contains
          if (allocated(err)) return
          do k = done + 1, done + int(in_block, ip)
             call reader%next_data('$Nodes', 'the tag of node', err, 1, 'a node tag', int(k, i8), n)
+            if (allocated(err)) return
+            call reserve_nodes(reader, raw, k, err)
             if (allocated(err)) return
             call reader%get_int(1, 1_i8, max_tag, 'node tag', raw%node_tag(k), err)
             if (allocated(err)) return
@@ -309,7 +313,7 @@ contains
          if (allocated(err)) return
          ! mesh_t squares coordinate differences; beyond this they would overflow
          if (abs(raw%xyz(i, k)) > max_coordinate) then
-            call reader%fail(err, axis(i:i)//' coordinate '//reader%token(first + i - 1)// &
+            call reader%fail(err, axis(i:i)//' coordinate '//reader%shown(first + i - 1)// &
                              ' is too large for a mesh (limit 1e150)')
             return
          end if
@@ -325,16 +329,14 @@ contains
 
       integer(i8) :: n, element_type, n_tags, tag
       integer(ip) :: k
-      integer :: n_nodes, stat
+      integer :: n_nodes
 
       call reader%next_data('$Elements', 'the number of elements', err, 1, 'the number of elements')
       if (allocated(err)) return
       call reader%get_int(1, 0_i8, max_count, 'number of elements', n, err)
       if (allocated(err)) return
       ! every element might be a triangle
-      allocate (raw%triangle_nodes(3, n), raw%triangle_tag(n), raw%triangle_line(n), stat=stat)
-      if (stat /= 0) call reader%fail(err, 'cannot allocate memory for '//str(n)//' elements')
-      if (allocated(err)) return
+      raw%max_triangles = n
       do k = 1, int(n, ip)
          call reader%next_data('$Elements', 'element', err, item=int(k, i8), total=n)
          if (allocated(err)) return
@@ -364,7 +366,7 @@ contains
       type(error_t), allocatable, intent(out) :: err
 
       integer(i8) :: n_blocks, n, block, entity_dim, element_type, in_block, unused, tag, k, done
-      integer :: n_nodes, header_line, stat
+      integer :: n_nodes, header_line
 
       call reader%next_data('$Elements', 'the header', err, &
                             4, 'numEntityBlocks numElements minElementTag maxElementTag')
@@ -377,9 +379,7 @@ contains
       if (allocated(err)) return
       header_line = reader%line_no
       ! every element might be a triangle
-      allocate (raw%triangle_nodes(3, n), raw%triangle_tag(n), raw%triangle_line(n), stat=stat)
-      if (stat /= 0) call reader%fail(err, 'cannot allocate memory for '//str(n)//' elements')
-      if (allocated(err)) return
+      raw%max_triangles = n
       done = 0
       do block = 1, n_blocks
          call reader%next_data('$Elements', 'entity block', err, 4, &
@@ -413,6 +413,71 @@ contains
       call reader%expect_end('$Elements', err)
    end subroutine read_elements_41
 
+   !> Room for node k. The arrays grow by doubling as nodes are read, up to the count the header
+   !> announced, rather than being allocated for that count at once: a 100-byte file that
+   !> announces two billion nodes must fail at its end, not reserve 77 GB first.
+   subroutine reserve_nodes(reader, raw, k, err)
+      type(text_reader_t), intent(in) :: reader
+      type(raw_mesh_t), intent(inout) :: raw
+      integer(ip), intent(in) :: k
+      type(error_t), allocatable, intent(out) :: err
+
+      integer(i8), allocatable :: tag(:)
+      real(dp), allocatable :: xyz(:, :)
+      integer, allocatable :: line(:)
+      integer(i8) :: old, new
+      integer :: stat
+
+      old = 0
+      if (allocated(raw%node_tag)) old = size(raw%node_tag, kind=i8)
+      if (k <= old) return
+      new = min(raw%max_nodes, max(2*old, initial_capacity))
+      allocate (tag(new), xyz(3, new), line(new), stat=stat)
+      if (stat /= 0) then
+         call reader%fail(err, 'cannot allocate memory for '//str(new)//' nodes')
+         return
+      end if
+      if (old > 0) then
+         tag(1:old) = raw%node_tag
+         xyz(:, 1:old) = raw%xyz
+         line(1:old) = raw%node_line
+      end if
+      call move_alloc(tag, raw%node_tag)
+      call move_alloc(xyz, raw%xyz)
+      call move_alloc(line, raw%node_line)
+   end subroutine reserve_nodes
+
+   !> Room for triangle t, grown like the nodes.
+   subroutine reserve_triangles(reader, raw, t, err)
+      type(text_reader_t), intent(in) :: reader
+      type(raw_mesh_t), intent(inout) :: raw
+      integer(ip), intent(in) :: t
+      type(error_t), allocatable, intent(out) :: err
+
+      integer(i8), allocatable :: nodes(:, :), tag(:)
+      integer, allocatable :: line(:)
+      integer(i8) :: old, new
+      integer :: stat
+
+      old = 0
+      if (allocated(raw%triangle_tag)) old = size(raw%triangle_tag, kind=i8)
+      if (t <= old) return
+      new = min(raw%max_triangles, max(2*old, initial_capacity))
+      allocate (nodes(3, new), tag(new), line(new), stat=stat)
+      if (stat /= 0) then
+         call reader%fail(err, 'cannot allocate memory for '//str(new)//' elements')
+         return
+      end if
+      if (old > 0) then
+         nodes(:, 1:old) = raw%triangle_nodes
+         tag(1:old) = raw%triangle_tag
+         line(1:old) = raw%triangle_line
+      end if
+      call move_alloc(nodes, raw%triangle_nodes)
+      call move_alloc(tag, raw%triangle_tag)
+      call move_alloc(line, raw%triangle_line)
+   end subroutine reserve_triangles
+
    !> The node tags of a triangle, tokens after `offset`.
    subroutine add_triangle(reader, offset, tag, raw, err)
       type(text_reader_t), intent(in) :: reader
@@ -425,6 +490,8 @@ contains
       integer(ip) :: t
 
       t = raw%n_triangles + 1
+      call reserve_triangles(reader, raw, t, err)
+      if (allocated(err)) return
       do i = 1, 3
          call reader%get_int(offset + i, 1_i8, max_tag, 'node tag', raw%triangle_nodes(i, t), err)
          if (allocated(err)) return
@@ -499,7 +566,7 @@ contains
       real(dp) :: scale
 
       ! CAD transformations can leave round-off in z; anything more is a 3D or tilted mesh.
-      scale = max(1.0_dp, maxval(abs(raw%xyz(1:2, :))))
+      scale = max(1.0_dp, maxval(abs(raw%xyz(1:2, 1:raw%n_nodes))))
       do k = 1, raw%n_nodes
          if (abs(raw%xyz(3, k)) > 1.0e3_dp*epsilon(1.0_dp)*scale) then
             call make_error(err, exit_bad_input, path//':'//str(raw%node_line(k)), 'node tag '// &

@@ -7,7 +7,7 @@
 module twomem_mesh_gmsh_text
    use, intrinsic :: iso_fortran_env, only: iostat_end, iostat_eor
    use twomem_base_kinds, only: dp, i8
-   use twomem_base_errors, only: error_t, make_error, exit_bad_input
+   use twomem_base_errors, only: error_t, make_error, exit_bad_input, excerpt
    implicit none
    private
 
@@ -40,6 +40,7 @@ module twomem_mesh_gmsh_text
       procedure :: next_data
       procedure :: expect_end
       procedure :: token
+      procedure :: shown
       procedure :: at
       procedure :: fail
       procedure :: expect_tokens
@@ -185,7 +186,7 @@ contains
          if (self%n_tokens > 0) exit
       end do
       if (self%buf(self%first(1):self%first(1)) == '$') then
-         call self%fail(err, 'the '//section//' section is truncated: found '//self%token(1)// &
+         call self%fail(err, 'the '//section//' section is truncated: found '//self%shown(1)// &
                         ' where '//numbered(what, item, total)//' should be')
       else if (present(n_tokens) .and. present(layout)) then
          call self%expect_tokens(n_tokens, layout, err)
@@ -223,7 +224,7 @@ contains
          if (self%n_tokens > 0) exit
       end do
       if (self%token(1) /= closing) then
-         call self%fail(err, 'expected '//closing//', found "'//self%token(1)//'": the '// &
+         call self%fail(err, 'expected '//closing//', found "'//self%shown(1)//'": the '// &
                         section//' section holds more entries than its header says')
       end if
    end subroutine expect_end
@@ -235,6 +236,15 @@ contains
 
       t = self%buf(self%first(i):self%last(i))
    end function token
+
+   !> Token `i` as a message quotes it: cut short and with control characters spelled out.
+   function shown(self, i) result(t)
+      class(text_reader_t), intent(in) :: self
+      integer, intent(in) :: i
+      character(len=:), allocatable :: t
+
+      t = excerpt(self%buf(self%first(i):self%last(i)))
+   end function shown
 
    !> `file:line` of the current line, the prefix of every message about its content.
    function at(self) result(where)
@@ -282,9 +292,9 @@ contains
       end if
       call parse_int(self%buf(self%first(i):self%last(i)), value, ok)
       if (.not. ok) then
-         call self%fail(err, '"'//self%token(i)//'" is not an integer ('//what//')')
+         call self%fail(err, '"'//self%shown(i)//'" is not an integer ('//what//')')
       else if (value < lo .or. value > hi) then
-         call self%fail(err, what//' '//self%token(i)//' is out of range ['//str(lo)//', '// &
+         call self%fail(err, what//' '//self%shown(i)//' is out of range ['//str(lo)//', '// &
                         str(hi)//']')
       end if
    end subroutine get_int
@@ -307,9 +317,9 @@ contains
       call parse_real(self%buf(self%first(i):self%last(i)), value, status)
       select case (status)
       case (1)
-         call self%fail(err, '"'//self%token(i)//'" is not a number ('//what//')')
+         call self%fail(err, '"'//self%shown(i)//'" is not a number ('//what//')')
       case (2)
-         call self%fail(err, what//' "'//self%token(i)//'" is not finite (NaN, infinite or '// &
+         call self%fail(err, what//' "'//self%shown(i)//'" is not finite (NaN, infinite or '// &
                         'out of range)')
       end select
    end subroutine get_real

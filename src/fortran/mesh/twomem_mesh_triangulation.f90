@@ -379,7 +379,8 @@ contains
          s(k) = signed_area(self%vertices(:, self%edges(1, e)), self%vertices(:, self%edges(2, e)), &
                             self%vertices(:, apex(k)))
       end do
-      same_side = s(1)*s(2) > 0.0_dp
+      ! signs, not the product: two areas near the 1e150 coordinate limit multiply to overflow
+      same_side = (s(1) > 0.0_dp .and. s(2) > 0.0_dp) .or. (s(1) < 0.0_dp .and. s(2) < 0.0_dp)
    end function same_side
 
    real(dp) function boundary_diameter(self) result(d)
