@@ -20,9 +20,12 @@ the iterates carry a real algebraic residual, so σ_alg is far from zero.
 
 Tolerance: each value x (per history row: η, η_disc, η_lin, η_alg; per triangle: every field
 of `/estimators` and its total) must satisfy |x − x_ref| ≤ 1e-12 max(|x_ref|, scale), with
-scale the bound η of the same evaluation (per row, or per triangle η_K). The scale matters only
-for values that are themselves round-off, such as η_alg after an exact solve (1e-17 against
-η ≈ 1e-3) or η_C,K = 0 where there is no contact.
+scale the bound η of the same evaluation for the global values, and for a triangle's values
+the larger of its own η_K and the root mean square of η_K over the mesh. The scale matters
+only for values that are themselves round-off, such as η_alg after an exact solve (1e-17
+against η ≈ 1e-3), η_C,K = 0 where there is no contact, or η_F,K ≈ 1e-18 on triangles where
+the discrete solution is exactly linear (there the old and new code differ by 1e-19, a 10%
+"relative" change of a value that is zero to round-off).
 """
 from __future__ import annotations
 
@@ -101,8 +104,10 @@ def test_estimators_reproduce_the_previous_evaluation(case):
         assert ok.all(), (f"{key}: rows {np.flatnonzero(~ok)}: {history[key][~ok]} against "
                           f"{ref_history[key][~ok]}")
     assert set(fields) == set(ref_fields)
+    eta_k = ref_fields["eta_total"]
+    scale = np.maximum(eta_k, np.sqrt(np.mean(eta_k**2)))
     for name in ref_fields:
-        ok = close(fields[name], ref_fields[name], ref_fields["eta_total"])
+        ok = close(fields[name], ref_fields[name], scale)
         worst = np.argmax(np.abs(fields[name] - ref_fields[name]))
         assert ok.all(), (f"{name}: {np.count_nonzero(~ok)} triangles differ, worst {worst}: "
                           f"{fields[name][worst]!r} against {ref_fields[name][worst]!r}")

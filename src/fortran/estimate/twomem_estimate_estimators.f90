@@ -25,8 +25,10 @@ module twomem_estimate_estimators
    use twomem_linalg_dense, only: lu_factor, lu_solve
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, make_frame
    use twomem_estimate_lifting, only: algebraic_residuals, residual_lifting
-   use twomem_estimate_disc_flux, only: discretization_flux, load_moments, patch_integrals_t
+   use twomem_estimate_disc_flux, only: discretization_flux, load_moments
    use twomem_estimate_alg_flux, only: algebraic_flux_t, level_flux_t
+   use twomem_estimate_shapes, only: shape_classes_t
+   use twomem_estimate_coloring, only: coloring_t
    implicit none
    private
 
@@ -52,11 +54,16 @@ module twomem_estimate_estimators
    type :: estimator_t
       type(rt_space_t) :: space
       type(algebraic_flux_t) :: alg
-      type(patch_integrals_t) :: integrals
+      !> the triangle operators of every level, per shape class
+      type(shape_classes_t) :: shapes
+      !> the finest mesh's vertex colouring for the discretization-flux patches
+      type(coloring_t) :: colors
       !> (f_α ψ_i, q_k)_K and, for RT1, (h_K/π)‖f_α − Π_1 f_α‖_K (data only, fixed on the mesh)
       real(dp), allocatable :: moments(:, :, :, :), osc_data(:, :)
-      !> ancestors(j, t): the triangle of the j-th level of σ_alg containing finest triangle t
-      integer(ip), allocatable :: ancestors(:, :)
+      !> workspaces of `evaluate`, kept between evaluations: σ_disc (n_flux, nt, 2), nodal u, s_h,
+      !> residuals (nv, 2) and λ_h, ∇u_α and the residual lifting per triangle
+      real(dp), allocatable :: sigma(:, :, :), u(:, :), s(:, :), residual(:, :), lambda(:), grad_u(:, :, :), r(:, :, :)
+      real(dp), allocatable :: r1(:), r2(:)
       real(dp) :: mu(2) = 1, c_omega = 1
    contains
       procedure :: init
@@ -95,29 +102,20 @@ contains
       real(dp), intent(in) :: poincare
       type(error_t), allocatable, intent(out) :: err
 
-      integer :: j, l, n_levels, first
-      integer(ip) :: t
-
       associate (mesh => hierarchy%meshes(hierarchy%levels))
          call self%space%init(flux_order)
          self%mu = [data%mu1, data%mu2]
          self%c_omega = poincare*sqrt(1/data%mu1 + 1/data%mu2)
+         call self%shapes%init(self%space, hierarchy, err)
+         if (allocated(err)) return
+         call self%colors%init(mesh)
          allocate (self%moments(self%space%n_div, 3, mesh%nt, 2))
          call load_moments(self%space, mesh, data, self%moments)
-         call self%integrals%init(self%space, mesh)
          if (flux_order == 1) call data_oscillation(self%space, mesh, data, self%mu, self%osc_data)
          call self%alg%init(self%space, hierarchy, data, alg_meshes, err)
          if (allocated(err)) return
-         first = self%alg%first()
-         n_levels = self%alg%finest - first + 1
-         allocate (self%ancestors(n_levels, mesh%nt))
-         do t = 1, mesh%nt
-            self%ancestors(n_levels, t) = t
-            do j = n_levels - 1, 1, -1
-               l = first + j
-               self%ancestors(j, t) = hierarchy%maps(l)%triangle_parent(self%ancestors(j + 1, t))
-            end do
-         end do
+         allocate (self%sigma(self%space%n_flux, mesh%nt, 2), self%u(mesh%nv, 2), self%s(mesh%nv, 2), &
+                   self%residual(mesh%nv, 2), self%lambda(mesh%nv), self%grad_u(2, mesh%nt, 2), self%r(3, mesh%nt, 2))
       end associate
    end subroutine init
 
@@ -178,17 +176,14 @@ contains
       type(estimates_t), intent(out) :: est
       type(error_t), allocatable, intent(out) :: err
 
-      real(dp), allocatable :: u(:, :), lambda(:), s(:, :), grad_u(:, :, :), residual(:, :), r(:, :, :)
-      real(dp), allocatable :: sigma(:, :, :), r1(:), r2(:)
-      type(level_flux_t), allocatable :: levels(:)
       real(dp) :: positive_norm, lin_factor
-      integer(ip) :: n, t
+      integer(ip) :: n
       integer :: alpha
       logical :: ok
 
       n = p%n
-      associate (mesh => hierarchy%meshes(hierarchy%levels))
-         allocate (u(mesh%nv, 2), s(mesh%nv, 2), residual(mesh%nv, 2), grad_u(2, mesh%nt, 2), r(3, mesh%nt, 2))
+      associate (mesh => hierarchy%meshes(hierarchy%levels), u => self%u, s => self%s, lambda => self%lambda, &
+                 residual => self%residual, grad_u => self%grad_u, r => self%r)
          u(:, 1) = p%to_nodal(x(1:n), p%g)
          u(:, 2) = p%to_nodal(x(n + 1:2*n), 0.0_dp)
          lambda = p%to_nodal(x(2*n + 1:3*n), 0.0_dp)
@@ -198,33 +193,29 @@ contains
             s(:, 1) = 0.5_dp*(u(:, 1) + u(:, 2))
             s(:, 2) = s(:, 1)
          end where
-         do t = 1, mesh%nt
-            do alpha = 1, 2
-               grad_u(:, t, alpha) = matmul(p1_gradients(mesh, t), u(mesh%triangles(:, t), alpha))
-            end do
-         end do
-         allocate (r1(n), r2(n))
-         call algebraic_residuals(p, x, r1, r2)
-         residual(:, 1) = p%to_nodal(r1, 0.0_dp)
-         residual(:, 2) = p%to_nodal(r2, 0.0_dp)
+         call gradients(mesh, u, grad_u)
+         if (.not. allocated(self%r1)) allocate (self%r1(n), self%r2(n))
+         call algebraic_residuals(p, x, self%r1, self%r2)
+         residual(:, 1) = p%to_nodal(self%r1, 0.0_dp)
+         residual(:, 2) = p%to_nodal(self%r2, 0.0_dp)
          do alpha = 1, 2
             call residual_lifting(mesh, residual(:, alpha), r(:, :, alpha))
          end do
 
-         allocate (sigma(self%space%n_flux, mesh%nt, 2))
-         call discretization_flux(self%space, mesh, self%alg%matrices(self%alg%finest), self%integrals, self%mu, &
-                                  self%moments, grad_u, lambda, r, sigma, ok)
+         call discretization_flux(self%space, self%shapes, mesh, hierarchy%levels, self%colors, self%mu, self%moments, &
+                                  grad_u, lambda, r, self%sigma, ok)
          if (.not. ok) then
             call make_error(err, exit_io, 'discretization flux', 'a patch system is singular (degenerate triangles?)')
             return
          end if
-         call self%alg%compute(hierarchy, residual, r, levels, err)
+         call self%alg%compute(self%shapes, hierarchy, residual, r, err)
          if (allocated(err)) return
 
          allocate (est%disc_k(2, mesh%nt), est%alg_k(2, mesh%nt), est%flux_k(2, mesh%nt), est%osc_k(2, mesh%nt))
          allocate (est%contact_k(mesh%nt), est%nonc1_k(mesh%nt), est%nonc2_k(mesh%nt), est%nonc3_k(mesh%nt), &
                    est%lin_k(mesh%nt))
-         call element_estimators(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, positive_norm)
+         call element_estimators(self, hierarchy, data, u, lambda, s, grad_u, self%sigma, self%alg%levels, est, &
+                                 positive_norm)
       end associate
 
       est%nonc3_k = 2*self%c_omega*positive_norm*est%nonc1_k
@@ -245,6 +236,24 @@ contains
       est%lin_k = lin_factor*est%nonc1_k + est%nonc2_k
    end subroutine evaluate
 
+   !> grad_u(:, t, α) = ∇u_α on triangle t.
+   subroutine gradients(mesh, u, grad_u)
+      type(mesh_t), intent(in) :: mesh
+      real(dp), intent(in) :: u(:, :)
+      real(dp), intent(out) :: grad_u(:, :, :)
+
+      integer(ip) :: t
+      integer :: alpha
+
+      !$omp parallel do default(none) shared(mesh, grad_u, u) private(t, alpha) schedule(static)
+      do t = 1, mesh%nt
+         do alpha = 1, 2
+            grad_u(:, t, alpha) = matmul(p1_gradients(mesh, t), u(mesh%triangles(:, t), alpha))
+         end do
+      end do
+      !$omp end parallel do
+   end subroutine gradients
+
    !> The per-triangle parts; positive_norm returns ‖λ⁺‖_Ω.
    subroutine element_estimators(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, positive_norm)
       class(estimator_t), intent(in) :: self
@@ -261,7 +270,7 @@ contains
       !> f ∓ λ_h at the 7 points of the degree-5 rule (RT0 only)
       real(dp) :: osc_values(2, 7)
       real(dp), parameter :: lambda_sign(2) = [1.0_dp, -1.0_dp]
-      integer(ip) :: t, anc
+      integer(ip) :: t, anc, generations(size(levels))
       integer :: k, j, alpha
       integer(ip) :: v(3)
       integer :: finest
@@ -270,15 +279,19 @@ contains
       sum_pos = 0.0_dp
       finest = hierarchy%levels
       space = self%space
+      ! the ancestor of finest triangle t on level l is (t − 1)/4^(J−l) + 1 (children 4(t−1)+1..4t)
+      do j = 1, size(levels)
+         generations(j) = 4_ip**(finest - levels(j)%level)
+      end do
       !$omp parallel do default(none) &
-      !$omp shared(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, finest, space) &
+      !$omp shared(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, finest, space, generations) &
       !$omp private(t, anc, k, j, alpha, v, frame, level_frames, x, w, v_disc, v_alg, sq, f, lam_x, osc_mean, osc_sq) &
       !$omp private(osc_w, pos_lw, pos_ll, neg_lw, neg_ll, grad_s, osc_values) reduction(+:sum_pos) schedule(static)
       do t = 1, hierarchy%meshes(finest)%nt
          v = hierarchy%meshes(finest)%triangles(:, t)
          frame = make_frame(hierarchy%meshes(finest)%vertices(:, v))
          do j = 1, size(levels)
-            anc = self%ancestors(j, t)
+            anc = (t - 1)/generations(j) + 1
             associate (lm => hierarchy%meshes(levels(j)%level))
                level_frames(j) = make_frame(lm%vertices(:, lm%triangles(:, anc)))
             end associate
@@ -295,7 +308,7 @@ contains
             end do
             v_alg = 0.0_dp
             do j = 1, size(levels)
-               anc = self%ancestors(j, t)
+               anc = (t - 1)/generations(j) + 1
                do alpha = 1, 2
                   v_alg(:, alpha) = v_alg(:, alpha) + matmul(space%flux_values(level_frames(j), x), &
                                                              levels(j)%sigma(:, anc, alpha))
