@@ -151,7 +151,7 @@ contains
       real(dp), intent(in) :: residual(:, :)
       type(error_t), allocatable, intent(out) :: err
 
-      real(dp), allocatable :: fine(:), coarse(:), rho(:), nodal(:)
+      real(dp), allocatable :: fine(:), coarse(:), rho(:), nodal(:), interior(:)
       integer :: alpha, l
       integer(ip) :: v, t
 
@@ -170,7 +170,9 @@ contains
                end associate
                call move_alloc(coarse, fine)
             end do
-            call self%coarse_solver%solve(self%coarse%stiffness, fine(self%coarse%interior), rho, err)
+            ! an explicit copy: no mesh-sized temporary (this file's arrays live on the stack)
+            interior = fine(self%coarse%interior)
+            call self%coarse_solver%solve(self%coarse%stiffness, interior, rho, err)
             if (allocated(err)) return
             nodal = self%coarse%to_nodal(rho, 0.0_dp)
             do t = 1, base_mesh%nt
@@ -240,6 +242,18 @@ contains
             !$omp end parallel do
       end do
    end subroutine project_p2
+
+   !> The divergence test functions q_k(x) of rt_space_t (n_div = 1 or 3), without its
+   !> run-time-sized result, which the patch loops would allocate at every quadrature point.
+   pure function div_tests(n_div, frame, x) result(q)
+      integer, intent(in) :: n_div
+      type(rt_frame_t), intent(in) :: frame
+      real(dp), intent(in) :: x(2)
+      real(dp) :: q(n_div)
+
+      q(1) = 1.0_dp
+      if (n_div == 3) q(2:3) = (x - frame%centre)/frame%scale
+   end function div_tests
 
    pure function p2_monomials(frame, x) result(m)
       type(rt_frame_t), intent(in) :: frame
@@ -327,7 +341,7 @@ contains
       real(dp) :: rhs_flux(space%n_flux, size(children), 2), rhs_div(space%n_div, size(children), 2)
       real(dp) :: patch_sigma(space%n_flux, size(children), 2)
       real(dp) :: grad_psi(2), x(2), w, psi, q(space%n_div), value(2), coarse_part(space%n_div, 2)
-      real(dp) :: gram(space%n_div, space%n_div), smooth(2), hat_gradients(2, 3)
+      real(dp) :: gram(space%n_div, space%n_div), smooth(2), hat_gradients(2, 3), m6(n_p2), qc(space%n_div)
 
       n_coarse = coarse%patch_ptr(a + 1) - coarse%patch_ptr(a)
       ne = 0
@@ -358,8 +372,9 @@ contains
             do q_point = 1, space%rule%n
                x = matmul(coarse_frame%vertices, space%rule%bary(:, q_point))
                w = space%rule%weights(q_point)*coarse_frame%area
-               q = space%div_test_values(coarse_frame, x)
-               value = matmul(p2_monomials(coarse_frame, x), p2_coarse%c(:, t, :))
+               q = div_tests(space%n_div, coarse_frame, x)
+               m6 = p2_monomials(coarse_frame, x)
+               value = [dot_product(m6, p2_coarse%c(:, t, 1)), dot_product(m6, p2_coarse%c(:, t, 2))]
                do i = 1, space%n_div
                   gram(:, i) = gram(:, i) + w*q*q(i)
                end do
@@ -399,12 +414,14 @@ contains
                x = matmul(frame%vertices, space%rule%bary(:, q_point))
                w = space%rule%weights(q_point)*frame%area
                psi = 1.0_dp/3 + dot_product(grad_psi, x - coarse_frame%centre)
-               q = space%div_test_values(frame, x)
-               value = matmul(p2_monomials(frame, x), p2_fine%c(:, child, :))
+               q = div_tests(space%n_div, frame, x)
+               m6 = p2_monomials(frame, x)
+               value = [dot_product(m6, p2_fine%c(:, child, 1)), dot_product(m6, p2_fine%c(:, child, 2))]
                if (first) then
-                  smooth = matmul(grad_psi, grad_rho(:, t, :))
+                  smooth = [dot_product(grad_psi, grad_rho(:, t, 1)), dot_product(grad_psi, grad_rho(:, t, 2))]
                else
-                  smooth = matmul(space%div_test_values(coarse_frame, x), coarse_part)
+                  qc = div_tests(space%n_div, coarse_frame, x)
+                  smooth = [dot_product(qc, coarse_part(:, 1)), dot_product(qc, coarse_part(:, 2))]
                end if
                do alpha = 1, 2
                   rhs_div(:, ne, alpha) = rhs_div(:, ne, alpha) + w*(value(alpha)*psi - smooth(alpha))*q

@@ -27,7 +27,7 @@ module twomem_estimate_estimators
    use twomem_estimate_lifting, only: algebraic_residuals, residual_lifting
    use twomem_estimate_disc_flux, only: discretization_flux, load_moments
    use twomem_estimate_alg_flux, only: algebraic_flux_t, level_flux_t
-   use twomem_estimate_shapes, only: shape_classes_t
+   use twomem_estimate_shapes, only: shape_classes_t, triangle_class
    use twomem_estimate_coloring, only: coloring_t
    implicit none
    private
@@ -254,7 +254,10 @@ contains
       !$omp end parallel do
    end subroutine gradients
 
-   !> The per-triangle parts; positive_norm returns ‖λ⁺‖_Ω.
+   !> The per-triangle parts; positive_norm returns ‖λ⁺‖_Ω. The flux norms are exact quadratic
+   !> forms with the shape class's RT mass matrix: μ_α∇u_α is constant on K, so it is the
+   !> combination of the constant basis fields φ_1, φ_2, and each coarser level's σ_alg is
+   !> rewritten in K's own basis (`to_child_basis`), RT_p being closed under restriction.
    subroutine element_estimators(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, positive_norm)
       class(estimator_t), intent(in) :: self
       type(mesh_hierarchy_t), intent(in) :: hierarchy
@@ -264,78 +267,75 @@ contains
       type(estimates_t), intent(inout) :: est
       real(dp), intent(out) :: positive_norm
 
-      type(rt_frame_t) :: frame, level_frames(size(levels))
-      real(dp) :: x(2), w, v_disc(2, 2), v_alg(2, 2), sq(3, 2), f(2), lam_x, osc_mean(2), osc_sq(2), osc_w
+      type(rt_frame_t) :: frame, level_frame
+      real(dp) :: x(2), w, sq(3, 2), f(2), lam_x, osc_mean(2), osc_sq(2), osc_w, ratio
+      real(dp) :: c_disc(self%space%n_flux), c_alg(self%space%n_flux), c_sum(self%space%n_flux)
       real(dp) :: pos_lw, pos_ll, neg_lw, neg_ll, sum_pos, grad_s(2, 2)
       !> f ∓ λ_h at the 7 points of the degree-5 rule (RT0 only)
       real(dp) :: osc_values(2, 7)
       real(dp), parameter :: lambda_sign(2) = [1.0_dp, -1.0_dp]
       integer(ip) :: t, anc, generations(size(levels))
-      integer :: k, j, alpha
+      integer :: k, j, alpha, class
       integer(ip) :: v(3)
       integer :: finest
-      type(rt_space_t) :: space
 
       sum_pos = 0.0_dp
       finest = hierarchy%levels
-      space = self%space
       ! the ancestor of finest triangle t on level l is (t − 1)/4^(J−l) + 1 (children 4(t−1)+1..4t)
       do j = 1, size(levels)
          generations(j) = 4_ip**(finest - levels(j)%level)
       end do
       !$omp parallel do default(none) &
-      !$omp shared(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, finest, space, generations) &
-      !$omp private(t, anc, k, j, alpha, v, frame, level_frames, x, w, v_disc, v_alg, sq, f, lam_x, osc_mean, osc_sq) &
-      !$omp private(osc_w, pos_lw, pos_ll, neg_lw, neg_ll, grad_s, osc_values) reduction(+:sum_pos) schedule(static)
+      !$omp shared(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, finest, generations) &
+      !$omp private(t, anc, k, j, alpha, v, frame, level_frame, x, w, sq, f, lam_x, osc_mean, osc_sq, ratio, class) &
+      !$omp private(c_disc, c_alg, c_sum, osc_w, pos_lw, pos_ll, neg_lw, neg_ll, grad_s, osc_values) &
+      !$omp reduction(+:sum_pos) schedule(static)
       do t = 1, hierarchy%meshes(finest)%nt
          v = hierarchy%meshes(finest)%triangles(:, t)
          frame = make_frame(hierarchy%meshes(finest)%vertices(:, v))
-         do j = 1, size(levels)
-            anc = (t - 1)/generations(j) + 1
-            associate (lm => hierarchy%meshes(levels(j)%level))
-               level_frames(j) = make_frame(lm%vertices(:, lm%triangles(:, anc)))
-            end associate
-         end do
-         sq = 0.0_dp
-         osc_mean = 0.0_dp
-         osc_sq = 0.0_dp
-         do k = 1, space%rule%n
-            x = matmul(frame%vertices, space%rule%bary(:, k))
-            w = space%rule%weights(k)*frame%area
-            do alpha = 1, 2
-               v_disc(:, alpha) = self%mu(alpha)*grad_u(:, t, alpha) + &
-                                  matmul(space%flux_values(frame, x), sigma(:, t, alpha))
-            end do
-            v_alg = 0.0_dp
+         call triangle_class(finest, t, class, ratio)
+         do alpha = 1, 2
+            c_disc = sigma(:, t, alpha)
+            c_disc(1:2) = c_disc(1:2) + self%mu(alpha)*grad_u(:, t, alpha)
+            c_alg = 0.0_dp
             do j = 1, size(levels)
                anc = (t - 1)/generations(j) + 1
-               do alpha = 1, 2
-                  v_alg(:, alpha) = v_alg(:, alpha) + matmul(space%flux_values(level_frames(j), x), &
-                                                             levels(j)%sigma(:, anc, alpha))
-               end do
+               if (levels(j)%level == finest) then
+                  c_alg = c_alg + levels(j)%sigma(:, anc, alpha)
+               else
+                  associate (lm => hierarchy%meshes(levels(j)%level))
+                     level_frame = make_frame(lm%vertices(:, lm%triangles(:, anc)))
+                  end associate
+                  call to_child_basis(self%space%order, level_frame, frame, levels(j)%sigma(:, anc, alpha), c_sum)
+                  c_alg = c_alg + c_sum
+               end if
             end do
-            do alpha = 1, 2
-               sq(1, alpha) = sq(1, alpha) + w*sum(v_disc(:, alpha)**2)
-               sq(2, alpha) = sq(2, alpha) + w*sum(v_alg(:, alpha)**2)
-               sq(3, alpha) = sq(3, alpha) + w*sum((v_disc(:, alpha) + v_alg(:, alpha))**2)
-            end do
-            if (space%order == 0) then
-               ! RT0: the oscillation of f_α ∓ λ_h around its mean
-               lam_x = dot_product(lambda(v), space%rule%bary(:, k))
+            c_sum = c_disc + c_alg
+            ! the class mass matrix is that of the class size: K's is ρ⁻² times it
+            sq(1, alpha) = dot_product(c_disc, matmul(self%shapes%mass(:, :, class), c_disc))/ratio**2
+            sq(2, alpha) = dot_product(c_alg, matmul(self%shapes%mass(:, :, class), c_alg))/ratio**2
+            sq(3, alpha) = dot_product(c_sum, matmul(self%shapes%mass(:, :, class), c_sum))/ratio**2
+         end do
+         do alpha = 1, 2
+            est%disc_k(alpha, t) = sqrt(max(0.0_dp, sq(1, alpha))/self%mu(alpha))
+            est%alg_k(alpha, t) = sqrt(max(0.0_dp, sq(2, alpha))/self%mu(alpha))
+            est%flux_k(alpha, t) = sqrt(max(0.0_dp, sq(3, alpha))/self%mu(alpha))
+         end do
+         if (self%space%order == 0) then
+            ! RT0: the oscillation of f_α ∓ λ_h around its mean
+            osc_mean = 0.0_dp
+            osc_sq = 0.0_dp
+            do k = 1, self%space%rule%n
+               x = matmul(frame%vertices, self%space%rule%bary(:, k))
+               w = self%space%rule%weights(k)*frame%area
+               lam_x = dot_product(lambda(v), self%space%rule%bary(:, k))
                f = [data%load(1, x), data%load(2, x)] + lambda_sign*lam_x
                osc_values(:, k) = f
                osc_mean = osc_mean + w*f
-            end if
-         end do
-         do alpha = 1, 2
-            est%disc_k(alpha, t) = sqrt(sq(1, alpha)/self%mu(alpha))
-            est%alg_k(alpha, t) = sqrt(sq(2, alpha)/self%mu(alpha))
-            est%flux_k(alpha, t) = sqrt(sq(3, alpha)/self%mu(alpha))
-         end do
-         if (space%order == 0) then
+            end do
             osc_mean = osc_mean/frame%area
-            do k = 1, space%rule%n
-               osc_w = space%rule%weights(k)*frame%area
+            do k = 1, self%space%rule%n
+               osc_w = self%space%rule%weights(k)*frame%area
                osc_sq = osc_sq + osc_w*(osc_values(:, k) - osc_mean)**2
             end do
             est%osc_k(:, t) = hierarchy%meshes(finest)%h(t)/acos(-1.0_dp)*sqrt(osc_sq/self%mu)
@@ -356,6 +356,36 @@ contains
       !$omp end parallel do
       positive_norm = sqrt(sum_pos)
    end subroutine element_estimators
+
+   !> The coefficients in the basis of `child` of the RT_p field with coefficients c in the basis
+   !> of `parent` ⊃ child: with ξ_parent = d + κ ξ_child (d the child's barycentre in the
+   !> parent's scaled coordinates, κ the ratio of the scales), each monomial field expands
+   !> exactly, e.g. ξ1 ξ = d1 d + κ(2 d1 ξ1, d2 ξ1 + d1 ξ2) + κ² ξ1 ξ.
+   pure subroutine to_child_basis(order, parent, child, c, f)
+      integer, intent(in) :: order
+      type(rt_frame_t), intent(in) :: parent, child
+      real(dp), intent(in) :: c(:)
+      real(dp), intent(out) :: f(:)
+
+      real(dp) :: d(2), kappa
+
+      d = (child%centre - parent%centre)/parent%scale
+      kappa = child%scale/parent%scale
+      if (order == 0) then
+         f(1) = c(1) + d(1)*c(3)
+         f(2) = c(2) + d(2)*c(3)
+         f(3) = kappa*c(3)
+      else
+         f(1) = c(1) + d(1)*c(3) + d(2)*c(4) + d(1)**2*c(7) + d(1)*d(2)*c(8)
+         f(2) = c(2) + d(1)*c(5) + d(2)*c(6) + d(1)*d(2)*c(7) + d(2)**2*c(8)
+         f(3) = kappa*(c(3) + 2*d(1)*c(7) + d(2)*c(8))
+         f(4) = kappa*(c(4) + d(1)*c(8))
+         f(5) = kappa*(c(5) + d(2)*c(7))
+         f(6) = kappa*(c(6) + d(1)*c(7) + 2*d(2)*c(8))
+         f(7) = kappa**2*c(7)
+         f(8) = kappa**2*c(8)
+      end if
+   end subroutine to_child_basis
 
    !> Exact ∫_{l>0} l w and ∫_{l>0} l² over a triangle for linear l and w given at its vertices:
    !> clip at l = 0 and integrate the quadratics with the edge-midpoint rule on a fan.

@@ -66,20 +66,20 @@ contains
       real(dp), intent(out) :: sigma(:, :, :)
       logical, intent(out) :: ok
 
-      integer :: nt, ne, nr, n_theta, nc, nf
+      integer :: nt, ne, nr, n_theta, nc, nf, nd
       real(dp) :: h(space%n_trace*max(0, maxval(links)), space%n_trace*max(0, maxval(links)))
       real(dp) :: b(size(h, 1), size(rhs_flux, 3))
-      !> flux response to each trace row of each triangle, after its zero-flux edges are enforced
-      real(dp) :: response(space%n_flux, 3*space%n_trace, size(classes))
-      real(dp) :: c_response(3*space%n_trace, 3*space%n_trace), c_sigma(3*space%n_trace, size(rhs_flux, 3))
-      real(dp) :: schur(3*space%n_trace, 3*space%n_trace), rhs(3*space%n_trace, 3*space%n_trace + size(rhs_flux, 3))
+      !> the traces C σ of each triangle's particular solution (no edge multipliers)
+      real(dp) :: c_sigma(3*space%n_trace, size(rhs_flux, 3), size(classes))
+      real(dp) :: czc(3*space%n_trace, 3*space%n_trace), schur(3*space%n_trace, 3*space%n_trace)
+      real(dp) :: rhs(3*space%n_trace, 3*space%n_trace + size(rhs_flux, 3)), mu(3*space%n_trace, size(rhs_flux, 3))
       integer :: rows_n(3*space%n_trace), rows_i(3*space%n_trace), global_i(3*space%n_trace), piv(3*space%n_trace)
-      integer :: k, m, l, i, j, nn, ni, r, c
-      real(dp) :: rho, rho2, s(3*space%n_trace), zf(space%n_flux), czf(3*space%n_trace)
-      real(dp) :: zc_k(space%n_flux, 3*space%n_trace), czc_k(3*space%n_trace, 3*space%n_trace)
+      integer :: k, i, j, nn, ni, r, c, q
+      real(dp) :: rho, rho2, s(3*space%n_trace), acc
 
       nt = space%n_trace
       nf = space%n_flux
+      nd = space%n_div
       nc = 3*nt
       ne = size(classes)
       nr = size(rhs_flux, 3)
@@ -93,105 +93,177 @@ contains
          rho = ratios(k)
          rho2 = rho*rho
          s = signs(:, k)
-         nn = 0
-         ni = 0
-         do m = 1, 3
-            do l = 1, nt
-               if (links(m, k) == edge_neumann) then
-                  nn = nn + 1
-                  rows_n(nn) = (m - 1)*nt + l
-               else if (links(m, k) > 0) then
-                  ni = ni + 1
-                  rows_i(ni) = (m - 1)*nt + l
-                  global_i(ni) = (links(m, k) - 1)*nt + l
-               end if
-            end do
-         end do
+         call edge_rows(links(:, k), nt, nn, rows_n, ni, rows_i, global_i)
          ! the triangle alone: σ = z F + y G and its traces C σ, with the class operators
          ! z → ρ² z, y → ρ y, z Cᵀ → ρ z Cᵀ S, C z Cᵀ → S C z Cᵀ S, C y → S C y (S = signs)
          do r = 1, nr
             do i = 1, nf
-               sigma(i, k, r) = rho*dot_product(shapes%y(i, :, c), rhs_div(:, k, r))
+               acc = 0.0_dp
+               do q = 1, nd
+                  acc = acc + shapes%y(i, q, c)*rhs_div(q, k, r)
+               end do
+               sigma(i, k, r) = rho*acc
             end do
             do i = 1, nc
-               c_sigma(i, r) = s(i)*dot_product(shapes%cy(i, :, c), rhs_div(:, k, r))
+               acc = 0.0_dp
+               do q = 1, nd
+                  acc = acc + shapes%cy(i, q, c)*rhs_div(q, k, r)
+               end do
+               c_sigma(i, r, k) = s(i)*acc
             end do
             if (flux_data) then
                do i = 1, nf
-                  zf(i) = dot_product(shapes%z(i, :, c), rhs_flux(:, k, r))
+                  acc = 0.0_dp
+                  do q = 1, nf
+                     acc = acc + shapes%z(i, q, c)*rhs_flux(q, k, r)
+                  end do
+                  sigma(i, k, r) = sigma(i, k, r) + rho2*acc
                end do
-               sigma(:, k, r) = sigma(:, k, r) + rho2*zf
                do i = 1, nc
-                  czf(i) = dot_product(shapes%zc(:, i, c), rhs_flux(:, k, r))
+                  acc = 0.0_dp
+                  do q = 1, nf
+                     acc = acc + shapes%zc(q, i, c)*rhs_flux(q, k, r)
+                  end do
+                  c_sigma(i, r, k) = c_sigma(i, r, k) + rho*s(i)*acc
                end do
-               c_sigma(:, r) = c_sigma(:, r) + rho*s*czf
             end if
          end do
-         do i = 1, nc
-            zc_k(:, i) = (rho*s(i))*shapes%zc(:, i, c)
-            czc_k(:, i) = (s*s(i))*shapes%czc(:, i, c)
-         end do
-         response(:, :, k) = zc_k
-         c_response = czc_k
-         if (nn > 0) then
-            ! zero flux through the patch boundary: a Schur complement on its trace rows
-            do j = 1, nn
-               do i = 1, nn
-                  schur(i, j) = czc_k(rows_n(i), rows_n(j))
-               end do
-               rhs(j, 1:nc) = czc_k(rows_n(j), :)
-               rhs(j, nc + 1:nc + nr) = c_sigma(rows_n(j), :)
+         do j = 1, nc
+            do i = 1, nc
+               czc(i, j) = s(i)*s(j)*shapes%czc(i, j, c)
             end do
-            call lu_factor(schur(1:nn, 1:nn), piv, ok)
+         end do
+         if (nn > 0) then
+            ! zero flux through the patch boundary: eliminate its trace rows by a Schur complement
+            ! on the inner rows (schur⁻¹ [czc(n, inner) | C σ(n)])
+            call neumann_factor(czc, nn, rows_n, schur, piv, ok)
             if (.not. ok) return
-            call lu_solve(schur(1:nn, 1:nn), piv, rhs(1:nn, 1:nc + nr))
-            do j = 1, nn
-               do r = 1, nr
-                  sigma(:, k, r) = sigma(:, k, r) - zc_k(:, rows_n(j))*rhs(j, nc + r)
-                  c_sigma(:, r) = c_sigma(:, r) - czc_k(:, rows_n(j))*rhs(j, nc + r)
+            do j = 1, ni
+               rhs(1:nn, j) = czc(rows_n(1:nn), rows_i(j))
+            end do
+            rhs(1:nn, ni + 1:ni + nr) = c_sigma(rows_n(1:nn), :, k)
+            call lu_solve(schur(1:nn, 1:nn), piv, rhs(1:nn, 1:ni + nr))
+            do j = 1, ni
+               do i = 1, ni
+                  h(global_i(i), global_i(j)) = h(global_i(i), global_i(j)) + czc(rows_i(i), rows_i(j)) &
+                                                - dot_product(czc(rows_i(i), rows_n(1:nn)), rhs(1:nn, j))
                end do
-               do i = 1, nc
-                  response(:, i, k) = response(:, i, k) - zc_k(:, rows_n(j))*rhs(j, i)
-                  c_response(:, i) = c_response(:, i) - czc_k(:, rows_n(j))*rhs(j, i)
+            end do
+            do r = 1, nr
+               do i = 1, ni
+                  b(global_i(i), r) = b(global_i(i), r) + c_sigma(rows_i(i), r, k) &
+                                      - dot_product(czc(rows_i(i), rows_n(1:nn)), rhs(1:nn, ni + r))
+               end do
+            end do
+         else
+            do j = 1, ni
+               do i = 1, ni
+                  h(global_i(i), global_i(j)) = h(global_i(i), global_i(j)) + czc(rows_i(i), rows_i(j))
+               end do
+            end do
+            do r = 1, nr
+               do i = 1, ni
+                  b(global_i(i), r) = b(global_i(i), r) + c_sigma(rows_i(i), r, k)
                end do
             end do
          end if
-         ! σ_K = particular − Σ response θ; continuity Σ_K C_K σ_K = 0 on inner edges gives H θ = b
-         do i = 1, ni
-            do j = 1, ni
-               h(global_i(i), global_i(j)) = h(global_i(i), global_i(j)) + c_response(rows_i(i), rows_i(j))
-            end do
-            b(global_i(i), :) = b(global_i(i), :) + c_sigma(rows_i(i), :)
-         end do
       end do
-      if (n_theta == 0) return
+      if (n_theta == 0 .and. all(links /= edge_neumann)) return
 
-      if (.not. any(links == edge_free)) then
-         ! only zero-flux boundary: θ is defined up to a constant, pin the first multiplier
-         h(1, :) = 0.0_dp
-         h(:, 1) = 0.0_dp
-         h(1, 1) = 1.0_dp
-         b(1, :) = 0.0_dp
+      if (n_theta > 0) then
+         if (.not. any(links == edge_free)) then
+            ! only zero-flux boundary: θ is defined up to a constant, pin the first multiplier
+            h(1, :) = 0.0_dp
+            h(:, 1) = 0.0_dp
+            h(1, 1) = 1.0_dp
+            b(1, :) = 0.0_dp
+         end if
+         if (n_blocks > 0) then
+            call block_solve(h, b, n_blocks, nc, ok)
+         else
+            call cholesky_factor(h, ok)
+            if (ok) call cholesky_solve(h, b)
+         end if
+         if (.not. ok) return
       end if
-      if (n_blocks > 0) then
-         call block_solve(h, b, n_blocks, nc, ok)
-      else
-         call cholesky_factor(h, ok)
-         if (ok) call cholesky_solve(h, b)
-      end if
-      if (.not. ok) return
+      ! σ_K = particular − ρ z Cᵀ S μ with μ the multipliers of all trace rows of K: θ on inner
+      ! edges, the solved Neumann multipliers on patch-boundary edges, zero on free edges
       do k = 1, ne
-         do m = 1, 3
-            if (links(m, k) <= 0) cycle
-            do l = 1, nt
-               i = (links(m, k) - 1)*nt + l
-               do r = 1, nr
-                  sigma(:, k, r) = sigma(:, k, r) - b(i, r)*response(:, (m - 1)*nt + l, k)
+         c = classes(k)
+         rho = ratios(k)
+         s = signs(:, k)
+         call edge_rows(links(:, k), nt, nn, rows_n, ni, rows_i, global_i)
+         mu = 0.0_dp
+         do i = 1, ni
+            mu(rows_i(i), :) = b(global_i(i), :)
+         end do
+         if (nn > 0) then
+            do j = 1, nc
+               do i = 1, nc
+                  czc(i, j) = s(i)*s(j)*shapes%czc(i, j, c)
                end do
+            end do
+            call neumann_factor(czc, nn, rows_n, schur, piv, ok)
+            do r = 1, nr
+               do i = 1, nn
+                  rhs(i, r) = c_sigma(rows_n(i), r, k) - dot_product(czc(rows_n(i), rows_i(1:ni)), mu(rows_i(1:ni), r))
+               end do
+            end do
+            call lu_solve(schur(1:nn, 1:nn), piv, rhs(1:nn, 1:nr))
+            do i = 1, nn
+               mu(rows_n(i), :) = rhs(i, 1:nr)
+            end do
+         end if
+         do r = 1, nr
+            do j = 1, nc
+               if (mu(j, r) == 0.0_dp) cycle
+               sigma(:, k, r) = sigma(:, k, r) - (rho*s(j)*mu(j, r))*shapes%zc(:, j, c)
             end do
          end do
       end do
    end subroutine solve_patch
+
+   !> The trace rows of one patch triangle: nn on zero-flux edges, ni on inner edges with their
+   !> patch unknowns global_i.
+   pure subroutine edge_rows(links, nt, nn, rows_n, ni, rows_i, global_i)
+      integer, intent(in) :: links(3), nt
+      integer, intent(out) :: nn, rows_n(:), ni, rows_i(:), global_i(:)
+
+      integer :: m, l
+
+      nn = 0
+      ni = 0
+      do m = 1, 3
+         do l = 1, nt
+            if (links(m) == edge_neumann) then
+               nn = nn + 1
+               rows_n(nn) = (m - 1)*nt + l
+            else if (links(m) > 0) then
+               ni = ni + 1
+               rows_i(ni) = (m - 1)*nt + l
+               global_i(ni) = (links(m) - 1)*nt + l
+            end if
+         end do
+      end do
+   end subroutine edge_rows
+
+   !> LU factors of czc restricted to the zero-flux rows.
+   pure subroutine neumann_factor(czc, nn, rows_n, schur, piv, ok)
+      real(dp), intent(in) :: czc(:, :)
+      integer, intent(in) :: nn, rows_n(:)
+      real(dp), intent(out) :: schur(:, :)
+      integer, intent(out) :: piv(:)
+      logical, intent(out) :: ok
+
+      integer :: i, j
+
+      do j = 1, nn
+         do i = 1, nn
+            schur(i, j) = czc(rows_n(i), rows_n(j))
+         end do
+      end do
+      call lu_factor(schur(1:nn, 1:nn), piv, ok)
+   end subroutine neumann_factor
 
    !> H θ = b for symmetric positive definite H whose first n_blocks diagonal blocks of size g
    !> couple only with the unknowns after them (the tail): eliminate each block (Cholesky), the
@@ -231,8 +303,10 @@ contains
                h(cpl(i), cpl(j)) = h(cpl(i), cpl(j)) - dot_product(h(r0 + 1:r0 + g, cpl(i)), x(:, j, ib))
             end do
          end do
-         do i = 1, n_cpl
-            b(cpl(i), :) = b(cpl(i), :) - matmul(h(r0 + 1:r0 + g, cpl(i)), y(:, :, ib))
+         do j = 1, size(b, 2)
+            do i = 1, n_cpl
+               b(cpl(i), j) = b(cpl(i), j) - dot_product(h(r0 + 1:r0 + g, cpl(i)), y(:, j, ib))
+            end do
          end do
          cols(1:n_cpl, ib) = cpl(1:n_cpl)
          n_cols(ib) = n_cpl
@@ -244,7 +318,12 @@ contains
       end if
       do ib = 1, n_blocks
          r0 = (ib - 1)*g
-         b(r0 + 1:r0 + g, :) = y(:, :, ib) - matmul(x(:, 1:n_cols(ib), ib), b(cols(1:n_cols(ib), ib), :))
+         do j = 1, size(b, 2)
+            b(r0 + 1:r0 + g, j) = y(:, j, ib)
+            do i = 1, n_cols(ib)
+               b(r0 + 1:r0 + g, j) = b(r0 + 1:r0 + g, j) - x(:, i, ib)*b(cols(i, ib), j)
+            end do
+         end do
       end do
    end subroutine block_solve
 end module twomem_estimate_patch
