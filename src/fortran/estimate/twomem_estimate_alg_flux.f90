@@ -24,7 +24,7 @@ module twomem_estimate_alg_flux
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, make_frame
    use twomem_estimate_shapes, only: shape_classes_t, triangle_class, trace_signs
    use twomem_estimate_coloring, only: coloring_t
-   use twomem_estimate_patch, only: solve_patch, inner_edge, edge_free, edge_neumann
+   use twomem_estimate_patch, only: solve_patch, solve_condensed_patch, inner_edge, edge_free, edge_neumann
    implicit none
    private
 
@@ -336,7 +336,7 @@ contains
       integer(ip) :: inner(max_inner_per_triangle*(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a)))
       type(rt_frame_t) :: frame, coarse_frame
       logical :: opposite, gram_ok
-      integer :: links(3, size(children)), classes(size(children))
+      integer :: links(3, size(children)), classes(size(children)), neumann(size(children))
       real(dp) :: ratios(size(children)), signs(3*space%n_trace, size(children))
       real(dp) :: rhs_flux(space%n_flux, size(children), 2), rhs_div(space%n_div, size(children), 2)
       real(dp) :: patch_sigma(space%n_flux, size(children), 2)
@@ -429,7 +429,17 @@ contains
             end do
          end do
       end do
-      call solve_patch(space, shapes, classes, ratios, signs, links, rhs_flux, rhs_div, .false., n_blocks, patch_sigma, ok)
+      if (coarse%boundary_vertex(a)) then
+         call solve_patch(space, shapes, classes, ratios, signs, links, rhs_flux, rhs_div, .false., n_blocks, &
+                          patch_sigma, ok)
+      else
+         ! an interior vertex: only the far edges carry zero flux, at most one per triangle
+         do k = 1, ne
+            neumann(k) = findloc(links(:, k), edge_neumann, dim=1)
+         end do
+         call solve_condensed_patch(space, shapes, classes, ratios, signs, neumann, links, rhs_flux(1:2, :, :), rhs_div, &
+                                    .false., n_blocks, patch_sigma, ok)
+      end if
       do k = 1, ne
          sigma(:, children(k), :) = sigma(:, children(k), :) + patch_sigma(:, k, :)
       end do

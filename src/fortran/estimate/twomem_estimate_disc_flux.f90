@@ -14,7 +14,7 @@ module twomem_estimate_disc_flux
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, make_frame
    use twomem_estimate_shapes, only: shape_classes_t, triangle_class, trace_signs
    use twomem_estimate_coloring, only: coloring_t
-   use twomem_estimate_patch, only: solve_patch, inner_edge, edge_free, edge_neumann
+   use twomem_estimate_patch, only: solve_patch, solve_condensed_patch, inner_edge, edge_free, edge_neumann
    implicit none
    private
 
@@ -104,10 +104,10 @@ contains
       integer :: ne, k, m, i, n_inner, alpha, c
       integer(ip) :: t, e, inner(2*(mesh%patch_ptr(a + 1) - mesh%patch_ptr(a))), elements(size(inner)/2)
       integer(ip) :: v(3)
-      integer :: links(3, size(elements)), classes(size(elements))
+      integer :: links(3, size(elements)), classes(size(elements)), neumann(size(elements))
       real(dp) :: ratios(size(elements)), signs(3*space%n_trace, size(elements)), area_factor
       real(dp) :: rhs_flux(space%n_flux, size(elements), 2), rhs_div(space%n_div, size(elements), 2)
-      real(dp) :: patch_sigma(space%n_flux, size(elements), 2)
+      real(dp) :: patch_sigma(space%n_flux, size(elements), 2), fgrad(2, size(elements), 2)
       real(dp) :: grad_psi(2), hat_gradients(2, 3)
       real(dp), parameter :: lambda_sign(2) = [1.0_dp, -1.0_dp]
 
@@ -122,6 +122,7 @@ contains
          c = classes(k)
          hat_gradients = p1_gradients(mesh, t)
          i = findloc(v, a, dim=1)
+         neumann(k) = i
          do m = 1, 3
             e = mesh%triangle_edges(m, t)
             if (m == i) then
@@ -139,7 +140,9 @@ contains
          area_factor = 1/ratios(k)**2
          grad_psi = hat_gradients(:, i)
          do alpha = 1, 2
-            rhs_flux(:, k, alpha) = -mu(alpha)*area_factor*matmul(grad_u(:, t, alpha), shapes%psi_phi(:, :, i, c))
+            fgrad(:, k, alpha) = -mu(alpha)*grad_u(:, t, alpha)
+            if (mesh%boundary_vertex(a)) rhs_flux(:, k, alpha) = area_factor*matmul(fgrad(:, k, alpha), &
+                                                                                     shapes%psi_phi(:, :, i, c))
             rhs_div(:, k, alpha) = moments(:, i, t, alpha) + area_factor*( &
                                    lambda_sign(alpha)*lambda_a*shapes%psi_q(:, i, c) &
                                    - matmul(shapes%bary_psi_q(:, :, i, c), r(:, t, alpha)) &
@@ -147,7 +150,13 @@ contains
          end do
       end do
 
-      call solve_patch(space, shapes, classes, ratios, signs, links, rhs_flux, rhs_div, .true., 0, patch_sigma, ok)
+      if (mesh%boundary_vertex(a)) then
+         call solve_patch(space, shapes, classes, ratios, signs, links, rhs_flux, rhs_div, .true., 0, patch_sigma, ok)
+      else
+         ! an interior vertex: every triangle has zero flux on the edge opposite a
+         call solve_condensed_patch(space, shapes, classes, ratios, signs, neumann, links, fgrad, rhs_div, .true., 0, &
+                                    patch_sigma, ok)
+      end if
       do k = 1, ne
          sigma(:, elements(k), :) = sigma(:, elements(k), :) + patch_sigma(:, k, :)
       end do

@@ -16,13 +16,13 @@
 !> compatibility of the data makes any choice work): the first one is pinned to zero.
 module twomem_estimate_patch
    use twomem_base_kinds, only: dp, ip
-   use twomem_linalg_dense, only: lu_factor, lu_solve, cholesky_factor, cholesky_solve
+   use twomem_linalg_dense, only: lu_factor, lu_solve
    use twomem_estimate_raviart_thomas, only: rt_space_t
    use twomem_estimate_shapes, only: shape_classes_t
    implicit none
    private
 
-   public :: solve_patch, inner_edge, edge_free, edge_neumann
+   public :: solve_patch, solve_condensed_patch, inner_edge, edge_free, edge_neumann
 
    !> edge kinds in `links`: a positive value numbers an inner edge of the patch
    integer, parameter :: edge_free = 0, edge_neumann = -1
@@ -181,8 +181,8 @@ contains
          if (n_blocks > 0) then
             call block_solve(h, b, n_blocks, nc, ok)
          else
-            call cholesky_factor(h, ok)
-            if (ok) call cholesky_solve(h, b)
+            call chol_factor(n_theta, h, ok)
+            if (ok) call chol_solve(n_theta, h, nr, b)
          end if
          if (.not. ok) return
       end if
@@ -222,6 +222,203 @@ contains
          end do
       end do
    end subroutine solve_patch
+
+   !> solve_patch for a patch without edges on ∂Ω (an interior vertex's patch), with the
+   !> triangles condensed by their class (twomem_estimate_shapes, cond_*): neumann(k) is the
+   !> edge of triangle k that carries zero flux, or 0 when all three are inner edges (then
+   !> flux_data must be .false.); links(m, k) numbers every other edge. The flux datum of
+   !> triangle k is (σ_0, φ_j)_K = ρ⁻² Φ_i fgrad(:, k, r) with Φ_i = psi_phi(:, :, neumann(k)) of
+   !> the class, i.e. σ_0 = fgrad ψ_i for the vertex opposite the zero-flux edge. The
+   !> multipliers are defined up to a constant: the first one is pinned.
+   pure subroutine solve_condensed_patch(space, shapes, classes, ratios, signs, neumann, links, fgrad, rhs_div, &
+                                         flux_data, n_blocks, sigma, ok)
+      type(rt_space_t), intent(in) :: space
+      type(shape_classes_t), intent(in) :: shapes
+      integer, intent(in) :: classes(:), neumann(:), links(:, :)
+      real(dp), intent(in) :: ratios(:), signs(:, :), fgrad(:, :, :), rhs_div(:, :, :)
+      logical, intent(in) :: flux_data
+      integer, intent(in) :: n_blocks
+      real(dp), intent(out) :: sigma(:, :, :)
+      logical, intent(out) :: ok
+
+      integer :: nt, nf, nd, nc, ne, nr, n_theta, k, c, i, a, q, r, n_rows, rows(3*space%n_trace), glob(3*space%n_trace)
+      real(dp) :: h(space%n_trace*maxval(links), space%n_trace*maxval(links)), b(size(h, 1), size(rhs_div, 3))
+      real(dp) :: rho, sg(3*space%n_trace), t1(3*space%n_trace), theta(3*space%n_trace), g(space%n_div)
+      real(dp) :: f(space%n_flux), a_k(3*space%n_trace, 3*space%n_trace)
+
+      nt = space%n_trace
+      nf = space%n_flux
+      nd = space%n_div
+      nc = 3*nt
+      ne = size(classes)
+      nr = size(rhs_div, 3)
+      n_theta = size(h, 1)
+      h = 0.0_dp
+      b = 0.0_dp
+      do k = 1, ne
+         c = classes(k)
+         rho = ratios(k)
+         call inner_rows(nt, neumann(k), links(:, k), n_rows, rows, glob)
+         sg(1:n_rows) = signs(rows(1:n_rows), k)
+         i = neumann(k)
+         if (i > 0) then
+            a_k(1:n_rows, 1:n_rows) = shapes%cond_a(:, :, i, c)
+         else
+            a_k(1:n_rows, 1:n_rows) = shapes%czc(:, :, c)
+         end if
+         do a = 1, n_rows
+            do q = 1, n_rows
+               h(glob(q), glob(a)) = h(glob(q), glob(a)) + sg(q)*sg(a)*a_k(q, a)
+            end do
+         end do
+         do r = 1, nr
+            g = rhs_div(:, k, r)
+            if (i > 0) then
+               call mat_vec(n_rows, nd, shapes%cond_qg(:, :, i, c), g, t1)
+               if (flux_data) call mat_vec_add(n_rows, 2, shapes%cond_qf(:, :, i, c), fgrad(:, k, r), 1/rho, t1)
+            else
+               call mat_vec(n_rows, nd, shapes%cy(:, :, c), g, t1)
+            end if
+            do a = 1, n_rows
+               b(glob(a), r) = b(glob(a), r) + sg(a)*t1(a)
+            end do
+         end do
+      end do
+      h(1, :) = 0.0_dp
+      h(:, 1) = 0.0_dp
+      h(1, 1) = 1.0_dp
+      b(1, :) = 0.0_dp
+      if (n_blocks > 0) then
+         call block_solve(h, b, n_blocks, nc, ok)
+      else
+         call chol_factor(n_theta, h, ok)
+         if (ok) call chol_solve(n_theta, h, nr, b)
+      end if
+      if (.not. ok) return
+      do k = 1, ne
+         c = classes(k)
+         rho = ratios(k)
+         call inner_rows(nt, neumann(k), links(:, k), n_rows, rows, glob)
+         i = neumann(k)
+         do r = 1, nr
+            do a = 1, n_rows
+               theta(a) = -rho*signs(rows(a), k)*b(glob(a), r)
+            end do
+            g = rho*rhs_div(:, k, r)
+            if (i > 0) then
+               call mat_vec(nf, nd, shapes%cond_rg(:, :, i, c), g, f)
+               call mat_vec_add(nf, n_rows, shapes%cond_rt(:, :, i, c), theta, 1.0_dp, f)
+               if (flux_data) call mat_vec_add(nf, 2, shapes%cond_rf(:, :, i, c), fgrad(:, k, r), 1.0_dp, f)
+            else
+               call mat_vec(nf, nd, shapes%y(:, :, c), g, f)
+               call mat_vec_add(nf, nc, shapes%zc(:, :, c), theta, 1.0_dp, f)
+            end if
+            sigma(:, k, r) = f
+         end do
+      end do
+   end subroutine solve_condensed_patch
+
+   !> y = A x for a contiguous m×n matrix.
+   pure subroutine mat_vec(m, n, a, x, y)
+      integer, intent(in) :: m, n
+      real(dp), intent(in) :: a(m, n), x(n)
+      real(dp), intent(out) :: y(m)
+
+      integer :: j
+
+      y = a(:, 1)*x(1)
+      do j = 2, n
+         y = y + a(:, j)*x(j)
+      end do
+   end subroutine mat_vec
+
+   !> y = y + s A x for a contiguous m×n matrix.
+   pure subroutine mat_vec_add(m, n, a, x, s, y)
+      integer, intent(in) :: m, n
+      real(dp), intent(in) :: a(m, n), x(n), s
+      real(dp), intent(inout) :: y(m)
+
+      integer :: j
+
+      do j = 1, n
+         y = y + a(:, j)*(s*x(j))
+      end do
+   end subroutine mat_vec_add
+
+   !> In place, lower triangle of a contiguous n×n matrix: a = L Lᵀ; ok is .false. if a is not
+   !> positive definite.
+   pure subroutine chol_factor(n, a, ok)
+      integer, intent(in) :: n
+      real(dp), intent(inout) :: a(n, n)
+      logical, intent(out) :: ok
+
+      integer :: i, j, k
+      real(dp) :: d
+
+      ok = .true.
+      do j = 1, n
+         do k = 1, j - 1
+            do i = j, n
+               a(i, j) = a(i, j) - a(i, k)*a(j, k)
+            end do
+         end do
+         if (.not. a(j, j) > 0.0_dp) then
+            ok = .false.
+            return
+         end if
+         d = 1/sqrt(a(j, j))
+         do i = j, n
+            a(i, j) = a(i, j)*d
+         end do
+      end do
+   end subroutine chol_factor
+
+   !> b = (L Lᵀ)⁻¹ b for the m columns of b, with the factor of chol_factor.
+   pure subroutine chol_solve(n, a, m, b)
+      integer, intent(in) :: n, m
+      real(dp), intent(in) :: a(n, n)
+      real(dp), intent(inout) :: b(:, :)
+
+      integer :: i, j, k
+      real(dp) :: x
+
+      do j = 1, m
+         do k = 1, n
+            x = b(k, j)/a(k, k)
+            b(k, j) = x
+            do i = k + 1, n
+               b(i, j) = b(i, j) - a(i, k)*x
+            end do
+         end do
+         do k = n, 1, -1
+            x = b(k, j)
+            do i = k + 1, n
+               x = x - a(i, k)*b(i, j)
+            end do
+            b(k, j) = x/a(k, k)
+         end do
+      end do
+   end subroutine chol_solve
+
+   !> The inner trace rows of a patch triangle whose edge `neumann` (0: none) carries zero flux:
+   !> in the order of the class's condensed operators (edges neumann+1, neumann+2), with their
+   !> patch unknowns glob.
+   pure subroutine inner_rows(nt, neumann, links, n_rows, rows, glob)
+      integer, intent(in) :: nt, neumann, links(3)
+      integer, intent(out) :: n_rows, rows(:), glob(:)
+
+      integer :: m, l, e
+
+      n_rows = 0
+      do m = 1, merge(2, 3, neumann > 0)
+         e = merge(modulo(neumann + m - 1, 3) + 1, m, neumann > 0)
+         do l = 1, nt
+            n_rows = n_rows + 1
+            rows(n_rows) = (e - 1)*nt + l
+            glob(n_rows) = (links(e) - 1)*nt + l
+         end do
+      end do
+   end subroutine inner_rows
 
    !> The trace rows of one patch triangle: nn on zero-flux edges, ni on inner edges with their
    !> patch unknowns global_i.
@@ -267,61 +464,76 @@ contains
 
    !> H θ = b for symmetric positive definite H whose first n_blocks diagonal blocks of size g
    !> couple only with the unknowns after them (the tail): eliminate each block (Cholesky), the
-   !> tail's Schur complement by Cholesky, then back-substitute. b returns θ; h is destroyed.
+   !> tail's Schur complement by Cholesky, then back-substitute. b returns θ.
    pure subroutine block_solve(h, b, n_blocks, g, ok)
-      real(dp), intent(inout) :: h(:, :), b(:, :)
+      real(dp), intent(in) :: h(:, :)
+      real(dp), intent(inout) :: b(:, :)
       integer, intent(in) :: n_blocks, g
       logical, intent(out) :: ok
 
-      integer :: nb, ns, ib, r0, i, j, n_cpl, cpl(size(h, 1))
-      real(dp) :: d(g, g), x(g, size(h, 1), n_blocks), y(g, size(b, 2), n_blocks)
-      integer :: cols(size(h, 1), n_blocks), n_cols(n_blocks)
+      integer :: nb, ns, nr, ib, r0, i, j, q, r, n_cpl
+      real(dp) :: d(g, g), x(g, size(h, 1) - n_blocks*g, n_blocks), y(g, size(b, 2), n_blocks)
+      real(dp) :: s(size(h, 1) - n_blocks*g, size(h, 1) - n_blocks*g), bt(size(h, 1) - n_blocks*g, size(b, 2))
+      real(dp) :: acc, hc(g, size(h, 1) - n_blocks*g)
+      integer :: cols(size(h, 1) - n_blocks*g, n_blocks), n_cols(n_blocks)
 
       nb = n_blocks*g
       ns = size(h, 1) - nb
+      nr = size(b, 2)
+      s = h(nb + 1:, nb + 1:)
+      bt = b(nb + 1:, :)
       ok = .true.
       do ib = 1, n_blocks
          r0 = (ib - 1)*g
          d = h(r0 + 1:r0 + g, r0 + 1:r0 + g)
-         call cholesky_factor(d, ok)
+         call chol_factor(g, d, ok)
          if (.not. ok) return
          ! the tail unknowns this block touches
          n_cpl = 0
-         do j = nb + 1, nb + ns
-            if (any(h(r0 + 1:r0 + g, j) /= 0.0_dp)) then
+         do j = 1, ns
+            if (any(h(r0 + 1:r0 + g, nb + j) /= 0.0_dp)) then
                n_cpl = n_cpl + 1
-               cpl(n_cpl) = j
+               cols(n_cpl, ib) = j
+               hc(:, n_cpl) = h(r0 + 1:r0 + g, nb + j)
             end if
          end do
-         x(:, 1:n_cpl, ib) = h(r0 + 1:r0 + g, cpl(1:n_cpl))
+         n_cols(ib) = n_cpl
+         x(:, 1:n_cpl, ib) = hc(:, 1:n_cpl)
          y(:, :, ib) = b(r0 + 1:r0 + g, :)
-         call cholesky_solve(d, x(:, 1:n_cpl, ib))
-         call cholesky_solve(d, y(:, :, ib))
+         call chol_solve(g, d, n_cpl, x(:, :, ib))
+         call chol_solve(g, d, nr, y(:, :, ib))
          ! S = H_tt − H_tb D⁻¹ H_bt and b_t − H_tb D⁻¹ b_b on the touched tail entries
          do j = 1, n_cpl
             do i = 1, n_cpl
-               h(cpl(i), cpl(j)) = h(cpl(i), cpl(j)) - dot_product(h(r0 + 1:r0 + g, cpl(i)), x(:, j, ib))
+               acc = 0.0_dp
+               do q = 1, g
+                  acc = acc + hc(q, i)*x(q, j, ib)
+               end do
+               s(cols(i, ib), cols(j, ib)) = s(cols(i, ib), cols(j, ib)) - acc
             end do
          end do
-         do j = 1, size(b, 2)
+         do r = 1, nr
             do i = 1, n_cpl
-               b(cpl(i), j) = b(cpl(i), j) - dot_product(h(r0 + 1:r0 + g, cpl(i)), y(:, j, ib))
+               acc = 0.0_dp
+               do q = 1, g
+                  acc = acc + hc(q, i)*y(q, r, ib)
+               end do
+               bt(cols(i, ib), r) = bt(cols(i, ib), r) - acc
             end do
          end do
-         cols(1:n_cpl, ib) = cpl(1:n_cpl)
-         n_cols(ib) = n_cpl
       end do
       if (ns > 0) then
-         call cholesky_factor(h(nb + 1:, nb + 1:), ok)
+         call chol_factor(ns, s, ok)
          if (.not. ok) return
-         call cholesky_solve(h(nb + 1:, nb + 1:), b(nb + 1:, :))
+         call chol_solve(ns, s, nr, bt)
       end if
+      b(nb + 1:, :) = bt
       do ib = 1, n_blocks
          r0 = (ib - 1)*g
-         do j = 1, size(b, 2)
-            b(r0 + 1:r0 + g, j) = y(:, j, ib)
+         do r = 1, nr
+            b(r0 + 1:r0 + g, r) = y(:, r, ib)
             do i = 1, n_cols(ib)
-               b(r0 + 1:r0 + g, j) = b(r0 + 1:r0 + g, j) - x(:, i, ib)*b(cols(i, ib), j)
+               b(r0 + 1:r0 + g, r) = b(r0 + 1:r0 + g, r) - x(:, i, ib)*bt(cols(i, ib), r)
             end do
          end do
       end do

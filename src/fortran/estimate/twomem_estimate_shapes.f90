@@ -33,6 +33,19 @@ module twomem_estimate_shapes
       !> patch integrals for the local vertex i of ψ_i: psi_phi(:, j, i) = ∫ ψ_i φ_j,
       !> psi_q(k, i) = ∫ ψ_i q_k, bary_psi_q(k, j, i) = ∫ λ_j ψ_i q_k, q_int(k) = ∫ q_k
       real(dp), allocatable :: psi_phi(:, :, :, :), psi_q(:, :, :), bary_psi_q(:, :, :, :), q_int(:, :)
+      !> the triangle condensed for a patch in which its edge i carries zero flux and the other
+      !> two are inner edges (every triangle of an interior vertex's patch, with i the local
+      !> index of the vertex; the children on the far edge of a refined patch): with N the trace
+      !> rows of edge i, I those of the other two (edge i+1 first) and Z = zc(:, N) (C z Cᵀ)_NN⁻¹,
+      !> cond_a = (C z Cᵀ)_II − (C z Cᵀ)_IN (C z Cᵀ)_NN⁻¹ (C z Cᵀ)_NI    (2 n_trace)²
+      !> cond_qg = (C y)_I − (C z Cᵀ)_IN (C z Cᵀ)_NN⁻¹ (C y)_N       (2 n_trace, nd)
+      !> cond_rg = y − Z (C y)_N                                      (nf, nd)
+      !> cond_rt = zc(:, I) − Z (C z Cᵀ)_NI                           (nf, 2 n_trace)
+      !> cond_qf = [zc(:, I)ᵀ − (C z Cᵀ)_IN (C z Cᵀ)_NN⁻¹ zc(:, N)ᵀ] Φ_iᵀ  (2 n_trace, 2)
+      !> cond_rf = [z − Z zc(:, N)ᵀ] Φ_iᵀ                              (nf, 2)
+      !> where Φ_i = psi_phi(:, :, i): the last two take a flux datum −μ ψ_i ∇u directly.
+      real(dp), allocatable :: cond_a(:, :, :, :), cond_qg(:, :, :, :), cond_rg(:, :, :, :), cond_rt(:, :, :, :)
+      real(dp), allocatable :: cond_qf(:, :, :, :), cond_rf(:, :, :, :)
    contains
       procedure :: init
       procedure :: free
@@ -103,6 +116,10 @@ contains
                    self%czc(nc, nc, n_classes), self%cy(nc, nd, n_classes), self%mass(nf, nf, n_classes))
          allocate (self%psi_phi(2, nf, 3, n_classes), self%psi_q(nd, 3, n_classes), &
                    self%bary_psi_q(nd, 3, 3, n_classes), self%q_int(nd, n_classes))
+         allocate (self%cond_a(nc - space%n_trace, nc - space%n_trace, 3, n_classes), &
+                   self%cond_qg(nc - space%n_trace, nd, 3, n_classes), self%cond_rg(nf, nd, 3, n_classes), &
+                   self%cond_rt(nf, nc - space%n_trace, 3, n_classes), self%cond_qf(nc - space%n_trace, 2, 3, n_classes), &
+                   self%cond_rf(nf, 2, 3, n_classes))
          all_ok = .true.
          !$omp parallel do default(none) shared(self, space, hierarchy, nf, nd, nc, n_classes) &
          !$omp private(c, t0, v0, centre, frame, mass, div, trace, c_rows, mixed, inverse, piv, ok, i, l) &
@@ -142,6 +159,10 @@ contains
             self%cy(:, :, c) = matmul(c_rows, inverse(1:nf, nf + 1:))
             call class_integrals(space, frame, self%psi_phi(:, :, :, c), self%psi_q(:, :, c), &
                                  self%bary_psi_q(:, :, :, c), self%q_int(:, c))
+            do i = 1, 3
+               call condense(self, space, c, i, ok)
+               all_ok = all_ok .and. ok
+            end do
          end do
          !$omp end parallel do
       end block
@@ -156,6 +177,46 @@ contains
          end if
       end do
    end subroutine init
+
+   !> The condensed operators cond_* of class c with zero flux on its edge i (see the type).
+   pure subroutine condense(self, space, c, i, ok)
+      type(shape_classes_t), intent(inout) :: self
+      type(rt_space_t), intent(in) :: space
+      integer, intent(in) :: c, i
+      logical, intent(out) :: ok
+
+      integer :: nt, nn, ni, l, m, rows_n(space%n_trace), rows_i(2*space%n_trace), piv(space%n_trace)
+      real(dp) :: schur(space%n_trace, space%n_trace), z_n(space%n_flux, space%n_trace)
+      real(dp) :: x_ni(space%n_trace, 2*space%n_trace), x_ny(space%n_trace, space%n_div)
+      real(dp) :: x_nf(space%n_trace, space%n_flux), phi(space%n_flux, 2)
+
+      nt = space%n_trace
+      nn = nt
+      ni = 2*nt
+      rows_n = [((i - 1)*nt + l, l=1, nt)]
+      rows_i = [(((modulo(i + m - 1, 3))*nt + l, l=1, nt), m=1, 2)]
+      associate (czc => self%czc(:, :, c), zc => self%zc(:, :, c), cy => self%cy(:, :, c), z => self%z(:, :, c), &
+                 y => self%y(:, :, c))
+         schur = czc(rows_n, rows_n)
+         call lu_factor(schur, piv, ok)
+         if (.not. ok) return
+         ! (C z Cᵀ)_NN⁻¹ times the rows N of czc (inner columns), of cy and of zcᵀ
+         x_ni = czc(rows_n, rows_i)
+         x_ny = cy(rows_n, :)
+         x_nf = transpose(zc(:, rows_n))
+         call lu_solve(schur, piv, x_ni)
+         call lu_solve(schur, piv, x_ny)
+         call lu_solve(schur, piv, x_nf)
+         z_n = zc(:, rows_n)
+         phi = transpose(self%psi_phi(:, :, i, c))
+         self%cond_a(:, :, i, c) = czc(rows_i, rows_i) - matmul(czc(rows_i, rows_n), x_ni)
+         self%cond_qg(:, :, i, c) = cy(rows_i, :) - matmul(czc(rows_i, rows_n), x_ny)
+         self%cond_rg(:, :, i, c) = y - matmul(z_n, x_ny)
+         self%cond_rt(:, :, i, c) = zc(:, rows_i) - matmul(z_n, x_ni)
+         self%cond_qf(:, :, i, c) = matmul(transpose(zc(:, rows_i)) - matmul(czc(rows_i, rows_n), x_nf), phi)
+         self%cond_rf(:, :, i, c) = matmul(z - matmul(z_n, x_nf), phi)
+      end associate
+   end subroutine condense
 
    !> The integrals of psi_phi etc. (see the type) on one triangle, by the degree-5 rule.
    pure subroutine class_integrals(space, frame, psi_phi, psi_q, bary_psi_q, q_int)
@@ -220,5 +281,7 @@ contains
 
       if (allocated(self%z)) deallocate (self%z, self%y, self%zc, self%czc, self%cy, self%mass)
       if (allocated(self%psi_phi)) deallocate (self%psi_phi, self%psi_q, self%bary_psi_q, self%q_int)
+      if (allocated(self%cond_a)) deallocate (self%cond_a, self%cond_qg, self%cond_rg, self%cond_rt, self%cond_qf, &
+                                              self%cond_rf)
    end subroutine free
 end module twomem_estimate_shapes
