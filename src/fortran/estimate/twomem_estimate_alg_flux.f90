@@ -86,7 +86,8 @@ contains
          call self%colors(j)%init(hierarchy%meshes(merge(j, j - 1, j == self%base)))
          self%levels(j - first + 1)%level = j
          allocate (self%levels(j - first + 1)%sigma(space%n_flux, hierarchy%meshes(j)%nt, 2))
-         allocate (self%p2(j)%c(n_p2, hierarchy%meshes(j)%nt, 2))
+         ! on T_J itself r is P1: its P2 projection is r, never stored
+         if (j < self%finest) allocate (self%p2(j)%c(n_p2, hierarchy%meshes(j)%nt, 2))
       end do
       allocate (self%grad_rho(2, hierarchy%meshes(self%base)%nt, 2))
       call self%coarse%init(hierarchy%meshes(self%base), data, err)
@@ -117,14 +118,14 @@ contains
             if (j == self%base) then
                ! a single mesh: patches and triangles of T_J
                call level_patches(self%space, shapes, hierarchy%meshes(j), hierarchy%meshes(j), j, self%colors(j), .true., &
-                                  self%grad_rho, self%p2(j), self%p2(j), lev%sigma, ok, no_parents)
+                                  self%grad_rho, self%p2(j), self%p2(j), r, lev%sigma, ok, no_parents)
             else if (j == first) then
                call level_patches(self%space, shapes, hierarchy%meshes(j - 1), hierarchy%meshes(j), j, self%colors(j), &
-                                  .true., self%grad_rho, self%p2(j), self%p2(j), lev%sigma, ok, &
+                                  .true., self%grad_rho, self%p2(j), self%p2(j), r, lev%sigma, ok, &
                                   hierarchy%maps(j)%vertex_parents)
             else
                call level_patches(self%space, shapes, hierarchy%meshes(j - 1), hierarchy%meshes(j), j, self%colors(j), &
-                                  .false., self%grad_rho, self%p2(j - 1), self%p2(j), lev%sigma, ok, &
+                                  .false., self%grad_rho, self%p2(j - 1), self%p2(j), r, lev%sigma, ok, &
                                   hierarchy%maps(j)%vertex_parents)
             end if
          end associate
@@ -182,9 +183,9 @@ contains
       end associate
    end subroutine coarse_representer
 
-   !> r_α's L² projection onto P2 of every triangle of T_first..T_J, coarsest last: the moments
-   !> of a coarse triangle are those of its four children's projections (exact, P2·P2 being
-   !> degree 4 and the rule degree 5).
+   !> r_α's L² projection onto P2 of every triangle of T_first..T_{J−1}, coarsest last: the
+   !> moments of a coarse triangle are those of its four children's projections (exact, P2·P2
+   !> being degree 4 and the rule degree 5), on T_J those of r itself (P1).
    subroutine project_p2(hierarchy, first, r, p2)
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       integer, intent(in) :: first
@@ -199,7 +200,7 @@ contains
       logical :: ok
 
       call space%init(1)
-      do l = ubound(p2, 1), first, -1
+      do l = ubound(p2, 1) - 1, first, -1
             !$omp parallel do default(none) shared(space, hierarchy, p2, r, l) &
             !$omp private(t, frame, child_frame, gram, b, m, x, w, value, k, c, alpha, piv, child, ok) &
             !$omp schedule(static)
@@ -214,27 +215,26 @@ contains
                   do c = 1, n_p2
                      gram(:, c) = gram(:, c) + w*m*m(c)
                   end do
-                  if (l == ubound(p2, 1)) then
-                     do alpha = 1, 2
-                        b(:, alpha) = b(:, alpha) + w*dot_product(r(:, t, alpha), space%rule%bary(:, k))*m
-                     end do
-                  end if
                end do
-               if (l < ubound(p2, 1)) then
-                  do c = 1, 4
+               do c = 1, 4
                      child = 4*(t - 1) + c
                      child_frame = make_frame(hierarchy%meshes(l + 1)%vertices(:, hierarchy%meshes(l + 1)%triangles(:, child)))
                      do k = 1, space%rule%n
                         x = matmul(child_frame%vertices, space%rule%bary(:, k))
                         w = space%rule%weights(k)*child_frame%area
-                        value = matmul(p2_monomials(child_frame, x), p2(l + 1)%c(:, child, :))
+                        if (l + 1 == ubound(p2, 1)) then
+                           value = [dot_product(r(:, child, 1), space%rule%bary(:, k)), &
+                                    dot_product(r(:, child, 2), space%rule%bary(:, k))]
+                        else
+                           m = p2_monomials(child_frame, x)
+                           value = [dot_product(m, p2(l + 1)%c(:, child, 1)), dot_product(m, p2(l + 1)%c(:, child, 2))]
+                        end if
                         m = p2_monomials(frame, x)
                         do alpha = 1, 2
                            b(:, alpha) = b(:, alpha) + w*value(alpha)*m
                         end do
                      end do
-                  end do
-               end if
+               end do
                call lu_factor(gram, piv, ok)
                call lu_solve(gram, piv, b)
                p2(l)%c(:, t, :) = b
@@ -270,7 +270,7 @@ contains
    !> `colors`), triangles of `fine`, level `level` of the hierarchy (its red refinement, or the
    !> same mesh when `parents` is empty). `first`: the data are r ψ_a − ∇ρ·∇ψ_a (grad_rho on the
    !> coarse triangles), otherwise (I − Π_coarse)(r ψ_a).
-   subroutine level_patches(space, shapes, coarse, fine, level, colors, first, grad_rho, p2_coarse, p2_fine, sigma, ok, &
+   subroutine level_patches(space, shapes, coarse, fine, level, colors, first, grad_rho, p2_coarse, p2_fine, r, sigma, ok, &
                             parents)
       type(rt_space_t), intent(in) :: space
       type(shape_classes_t), intent(in) :: shapes
@@ -280,6 +280,8 @@ contains
       logical, intent(in) :: first
       real(dp), intent(in) :: grad_rho(:, :, :)
       type(p2_field_t), intent(in) :: p2_coarse, p2_fine
+      !> the residual lifting on T_J: r's values where p2_fine is not stored (the finest level)
+      real(dp), intent(in) :: r(:, :, :)
       real(dp), intent(inout) :: sigma(:, :, :)
       logical, intent(out) :: ok
       integer(ip), intent(in) :: parents(:, :)
@@ -291,7 +293,7 @@ contains
       refined = size(parents, 2) > 0
       ok = .true.
       !$omp parallel default(none) &
-      !$omp shared(space, shapes, coarse, fine, level, colors, first, grad_rho, p2_coarse, p2_fine, sigma, parents, refined) &
+      !$omp shared(space, shapes, coarse, fine, level, colors, first, grad_rho, p2_coarse, p2_fine, r, sigma, parents, refined) &
       !$omp private(a, m, c, patch_ok) reduction(.and.:ok)
       !$omp workshare
       sigma = 0.0_dp
@@ -301,10 +303,10 @@ contains
          do m = colors%ptr(c), colors%ptr(c + 1) - 1
             a = colors%vertices(m)
             if (refined) then
-               call coarse_patch(space, shapes, coarse, fine, level, a, 4, first, grad_rho, p2_coarse, p2_fine, sigma, &
+               call coarse_patch(space, shapes, coarse, fine, level, a, 4, first, grad_rho, p2_coarse, p2_fine, r, sigma, &
                                  patch_ok, parents)
             else
-               call coarse_patch(space, shapes, coarse, fine, level, a, 1, first, grad_rho, p2_coarse, p2_fine, sigma, &
+               call coarse_patch(space, shapes, coarse, fine, level, a, 1, first, grad_rho, p2_coarse, p2_fine, r, sigma, &
                                  patch_ok, parents)
             end if
             ok = ok .and. patch_ok
@@ -315,7 +317,7 @@ contains
    end subroutine level_patches
 
    subroutine coarse_patch(space, shapes, coarse, fine, level, a, n_children, first, grad_rho, p2_coarse, p2_fine, &
-                           sigma, ok, parents)
+                           r, sigma, ok, parents)
       type(rt_space_t), intent(in) :: space
       type(shape_classes_t), intent(in) :: shapes
       type(mesh_t), intent(in) :: coarse, fine
@@ -325,6 +327,8 @@ contains
       logical, intent(in) :: first
       real(dp), intent(in) :: grad_rho(:, :, :)
       type(p2_field_t), intent(in) :: p2_coarse, p2_fine
+      !> the residual lifting on T_J: r's values where p2_fine is not stored (the finest level)
+      real(dp), intent(in) :: r(:, :, :)
       real(dp), intent(inout) :: sigma(:, :, :)
       logical, intent(out) :: ok
       !> vertex_parents of the refinement (unused for a single mesh)
@@ -415,8 +419,14 @@ contains
                w = space%rule%weights(q_point)*frame%area
                psi = 1.0_dp/3 + dot_product(grad_psi, x - coarse_frame%centre)
                q = div_tests(space%n_div, frame, x)
-               m6 = p2_monomials(frame, x)
-               value = [dot_product(m6, p2_fine%c(:, child, 1)), dot_product(m6, p2_fine%c(:, child, 2))]
+               if (allocated(p2_fine%c)) then
+                  m6 = p2_monomials(frame, x)
+                  value = [dot_product(m6, p2_fine%c(:, child, 1)), dot_product(m6, p2_fine%c(:, child, 2))]
+               else
+                  ! the finest level: r itself
+                  value = [dot_product(r(:, child, 1), space%rule%bary(:, q_point)), &
+                           dot_product(r(:, child, 2), space%rule%bary(:, q_point))]
+               end if
                if (first) then
                   smooth = [dot_product(grad_psi, grad_rho(:, t, 1)), dot_product(grad_psi, grad_rho(:, t, 2))]
                else
