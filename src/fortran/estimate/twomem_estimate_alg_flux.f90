@@ -41,6 +41,10 @@ module twomem_estimate_alg_flux
       real(dp), allocatable :: c(:, :, :)
    end type p2_field_t
 
+   type :: vector_t
+      real(dp), allocatable :: v(:)
+   end type vector_t
+
    type :: algebraic_flux_t
       !> the coarsest level used (b) and the finest (J)
       integer :: base = 0, finest = 0
@@ -53,6 +57,10 @@ module twomem_estimate_alg_flux
       type(level_flux_t), allocatable :: levels(:)
       type(p2_field_t), allocatable :: p2(:)
       real(dp), allocatable :: grad_rho(:, :, :)
+      !> workspaces of the coarse Riesz representer: R_α restricted to T_l (l = b..J−1), the
+      !> coarse right-hand side and solution, ρ_α at the vertices of T_b
+      type(vector_t), allocatable :: restricted(:)
+      real(dp), allocatable :: coarse_rhs(:), rho(:), nodal(:)
    contains
       procedure :: init
       procedure :: compute
@@ -92,6 +100,11 @@ contains
       allocate (self%grad_rho(2, hierarchy%meshes(self%base)%nt, 2))
       call self%coarse%init(hierarchy%meshes(self%base), data, err)
       if (allocated(err)) return
+      allocate (self%restricted(self%base:self%finest - 1))
+      do j = self%base, self%finest - 1
+         allocate (self%restricted(j)%v(hierarchy%meshes(j)%nv))
+      end do
+      allocate (self%coarse_rhs(self%coarse%n), self%rho(self%coarse%n), self%nodal(hierarchy%meshes(self%base)%nv))
       call self%coarse_solver%factor(self%coarse%stiffness, err)
    end subroutine init
 
@@ -152,32 +165,41 @@ contains
       real(dp), intent(in) :: residual(:, :)
       type(error_t), allocatable, intent(out) :: err
 
-      real(dp), allocatable :: fine(:), coarse(:), rho(:), nodal(:), interior(:)
       integer :: alpha, l
-      integer(ip) :: v, t
+      integer(ip) :: v, t, i
 
       associate (base_mesh => hierarchy%meshes(self%base))
-         allocate (rho(self%coarse%n))
          do alpha = 1, 2
-            fine = residual(:, alpha)
-            do l = self%finest, self%base + 1, -1
-               associate (parents => hierarchy%maps(l)%vertex_parents)
-                  allocate (coarse(hierarchy%meshes(l - 1)%nv))
+            ! R_α restricted level by level into the kept workspaces (restricted(l) on T_l)
+            do l = self%finest - 1, self%base, -1
+               associate (parents => hierarchy%maps(l + 1)%vertex_parents, coarse => self%restricted(l)%v)
                   coarse = 0.0_dp
-                  do v = 1, size(fine, kind=ip)
-                     coarse(parents(1, v)) = coarse(parents(1, v)) + 0.5_dp*fine(v)
-                     coarse(parents(2, v)) = coarse(parents(2, v)) + 0.5_dp*fine(v)
-                  end do
+                  if (l == self%finest - 1) then
+                     do v = 1, hierarchy%meshes(l + 1)%nv
+                        coarse(parents(1, v)) = coarse(parents(1, v)) + 0.5_dp*residual(v, alpha)
+                        coarse(parents(2, v)) = coarse(parents(2, v)) + 0.5_dp*residual(v, alpha)
+                     end do
+                  else
+                     do v = 1, hierarchy%meshes(l + 1)%nv
+                        coarse(parents(1, v)) = coarse(parents(1, v)) + 0.5_dp*self%restricted(l + 1)%v(v)
+                        coarse(parents(2, v)) = coarse(parents(2, v)) + 0.5_dp*self%restricted(l + 1)%v(v)
+                     end do
+                  end if
                end associate
-               call move_alloc(coarse, fine)
             end do
-            ! an explicit copy: no mesh-sized temporary (this file's arrays live on the stack)
-            interior = fine(self%coarse%interior)
-            call self%coarse_solver%solve(self%coarse%stiffness, interior, rho, err)
+            do i = 1, self%coarse%n
+               if (self%base == self%finest) then
+                  self%coarse_rhs(i) = residual(self%coarse%interior(i), alpha)
+               else
+                  self%coarse_rhs(i) = self%restricted(self%base)%v(self%coarse%interior(i))
+               end if
+            end do
+            call self%coarse_solver%solve(self%coarse%stiffness, self%coarse_rhs, self%rho, err)
             if (allocated(err)) return
-            nodal = self%coarse%to_nodal(rho, 0.0_dp)
+            self%nodal = 0.0_dp
+            self%nodal(self%coarse%interior) = self%rho
             do t = 1, base_mesh%nt
-               self%grad_rho(:, t, alpha) = matmul(p1_gradients(base_mesh, t), nodal(base_mesh%triangles(:, t)))
+               self%grad_rho(:, t, alpha) = matmul(p1_gradients(base_mesh, t), self%nodal(base_mesh%triangles(:, t)))
             end do
          end do
       end associate

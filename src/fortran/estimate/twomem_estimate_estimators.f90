@@ -49,6 +49,7 @@ module twomem_estimate_estimators
    contains
       procedure :: local_criteria
       procedure :: field
+      procedure :: ensure
    end type estimates_t
 
    type :: estimator_t
@@ -173,7 +174,8 @@ contains
       class(problem_data_t), intent(in) :: data
       type(discrete_problem_t), intent(in) :: p
       real(dp), intent(in) :: x(:)
-      type(estimates_t), intent(out) :: est
+      !> its per-triangle arrays are reused when they have the mesh's size
+      type(estimates_t), intent(inout) :: est
       type(error_t), allocatable, intent(out) :: err
 
       real(dp) :: positive_norm, lin_factor
@@ -184,9 +186,9 @@ contains
       n = p%n
       associate (mesh => hierarchy%meshes(hierarchy%levels), u => self%u, s => self%s, lambda => self%lambda, &
                  residual => self%residual, grad_u => self%grad_u, r => self%r)
-         u(:, 1) = p%to_nodal(x(1:n), p%g)
-         u(:, 2) = p%to_nodal(x(n + 1:2*n), 0.0_dp)
-         lambda = p%to_nodal(x(2*n + 1:3*n), 0.0_dp)
+         call scatter(p, x(1:n), p%g, u(:, 1))
+         call scatter(p, x(n + 1:2*n), 0.0_dp, u(:, 2))
+         call scatter(p, x(2*n + 1:3*n), 0.0_dp, lambda)
          ! s_h: where u1 < u2 both take the mean
          s = u
          where (u(:, 1) < u(:, 2))
@@ -196,8 +198,8 @@ contains
          call gradients(mesh, u, grad_u)
          if (.not. allocated(self%r1)) allocate (self%r1(n), self%r2(n))
          call algebraic_residuals(p, x, self%r1, self%r2)
-         residual(:, 1) = p%to_nodal(self%r1, 0.0_dp)
-         residual(:, 2) = p%to_nodal(self%r2, 0.0_dp)
+         call scatter(p, self%r1, 0.0_dp, residual(:, 1))
+         call scatter(p, self%r2, 0.0_dp, residual(:, 2))
          do alpha = 1, 2
             call residual_lifting(mesh, residual(:, alpha), r(:, :, alpha))
          end do
@@ -211,9 +213,7 @@ contains
          call self%alg%compute(self%shapes, hierarchy, residual, r, err)
          if (allocated(err)) return
 
-         allocate (est%disc_k(2, mesh%nt), est%alg_k(2, mesh%nt), est%flux_k(2, mesh%nt), est%osc_k(2, mesh%nt))
-         allocate (est%contact_k(mesh%nt), est%nonc1_k(mesh%nt), est%nonc2_k(mesh%nt), est%nonc3_k(mesh%nt), &
-                   est%lin_k(mesh%nt))
+         call est%ensure(mesh%nt)
          call element_estimators(self, hierarchy, data, u, lambda, s, grad_u, self%sigma, self%alg%levels, est, &
                                  positive_norm)
       end associate
@@ -235,6 +235,20 @@ contains
       if (est%nonc1 > 0.0_dp) lin_factor = 1 + sqrt(2*self%c_omega*positive_norm/est%nonc1)
       est%lin_k = lin_factor*est%nonc1_k + est%nonc2_k
    end subroutine evaluate
+
+   !> The nodal field of the interior values x (discrete_problem_t%to_nodal into a kept array).
+   subroutine scatter(p, x, boundary_value, u)
+      type(discrete_problem_t), intent(in) :: p
+      real(dp), intent(in) :: x(:), boundary_value
+      real(dp), intent(out) :: u(:)
+
+      integer(ip) :: i
+
+      u = boundary_value
+      do i = 1, p%n
+         u(p%interior(i)) = x(i)
+      end do
+   end subroutine scatter
 
    !> grad_u(:, t, α) = ∇u_α on triangle t.
    subroutine gradients(mesh, u, grad_u)
@@ -461,6 +475,20 @@ contains
          end do
       end do
    end subroutine local_criteria
+
+   !> Per-triangle arrays for nt triangles, kept when they are already of that size.
+   subroutine ensure(self, nt)
+      class(estimates_t), intent(inout) :: self
+      integer(ip), intent(in) :: nt
+
+      if (allocated(self%lin_k)) then
+         if (size(self%lin_k, kind=ip) == nt) return
+         deallocate (self%disc_k, self%alg_k, self%flux_k, self%osc_k, self%contact_k, self%nonc1_k, self%nonc2_k, &
+                     self%nonc3_k, self%lin_k)
+      end if
+      allocate (self%disc_k(2, nt), self%alg_k(2, nt), self%flux_k(2, nt), self%osc_k(2, nt))
+      allocate (self%contact_k(nt), self%nonc1_k(nt), self%nonc2_k(nt), self%nonc3_k(nt), self%lin_k(nt))
+   end subroutine ensure
 
    !> The per-triangle field `name` of `/estimators` and its global value (docs/output.md).
    subroutine field(self, name, values, total)
