@@ -60,6 +60,11 @@ CASES = {
 HISTORY = ("eta_total", "eta_disc", "eta_lin", "eta_alg")
 
 
+def reference(case: str, build_type: str) -> Path:
+    suffix = ".debug" if build_type.lower() == "debug" else ""
+    return REFERENCES / f"estimators_{case}{suffix}.h5"
+
+
 def run_case(exe: str, source: Path, case: str, out: Path) -> None:
     cmd = [exe, "run", str(source / "input" / "default.nml"), *CASES[case], f"output.file={out}",
            "output.fields=.false.", "output.xdmf=.false.", "newton.max_it=200"]
@@ -92,7 +97,7 @@ def test_estimators_reproduce_the_previous_evaluation(case):
     path = out_file(f"estimator-values-{case}.h5")
     run_case(EXE, SOURCE, case, path)
     history, fields, totals = read(path)
-    ref_history, ref_fields, ref_totals = read(REFERENCES / f"estimators_{case}.h5")
+    ref_history, ref_fields, ref_totals = read(reference(case, os.environ.get("TWOMEM_BUILD_TYPE", "Release")))
 
     # the same iterates were recorded (same Newton and GMRES counts)
     for key in ("newton_it", "inner", "gmres_it"):
@@ -115,10 +120,10 @@ def test_estimators_reproduce_the_previous_evaluation(case):
             f"{name} total: {totals[name]!r} against {ref_totals[name]!r}"
 
 
-def regenerate(exe: str) -> None:
+def regenerate(exe: str, build_type: str) -> None:
     source = HERE.parents[1]
     for case in CASES:
-        out = REFERENCES / f"estimators_{case}.h5"
+        out = reference(case, build_type)
         full = out.with_suffix(".full.h5")
         run_case(str(Path(exe).resolve()), source, case, full)
         # only what the test compares: the history and /estimators
@@ -130,6 +135,6 @@ def regenerate(exe: str) -> None:
 
 
 if __name__ == "__main__":
-    if len(sys.argv) != 3 or sys.argv[1] != "--regenerate":
-        sys.exit("usage: test_estimator_values.py --regenerate TWOMEM_EXE")
-    regenerate(sys.argv[2])
+    if len(sys.argv) not in (3, 4) or sys.argv[1] != "--regenerate":
+        sys.exit("usage: test_estimator_values.py --regenerate TWOMEM_EXE [debug|release]")
+    regenerate(sys.argv[2], sys.argv[3] if len(sys.argv) == 4 else "release")
