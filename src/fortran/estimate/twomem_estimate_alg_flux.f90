@@ -368,6 +368,8 @@ contains
       real(dp) :: patch_sigma(space%n_flux, size(children), 2)
       real(dp) :: grad_psi(2), x(2), w, psi, q(space%n_div), value(2), coarse_part(space%n_div, 2)
       real(dp) :: gram(space%n_div, space%n_div), smooth(2), hat_gradients(2, 3), m6(n_p2), qc(space%n_div)
+      real(dp) :: psi_v(3), smooth_v(3, 2), area_factor
+      integer :: cls
 
       n_coarse = coarse%patch_ptr(a + 1) - coarse%patch_ptr(a)
       ne = 0
@@ -436,22 +438,42 @@ contains
                end if
             end do
             rhs_div(:, ne, :) = 0.0_dp
+            if (first) smooth = [dot_product(grad_psi, grad_rho(:, t, 1)), dot_product(grad_psi, grad_rho(:, t, 2))]
+            if (.not. allocated(p2_fine%c)) then
+               ! the finest level: r, ψ_a and the smooth part are linear on the child, so the
+               ! class integrals ∫ λ_j λ_i q_k, ∫ λ_i q_k and ∫ q_k (scaled by the area) are exact
+               area_factor = 1/ratios(ne)**2
+               cls = classes(ne)
+               do i = 1, 3
+                  psi_v(i) = 1.0_dp/3 + dot_product(grad_psi, fine%vertices(:, v(i)) - coarse_frame%centre)
+                  if (.not. first) then
+                     qc = div_tests(space%n_div, coarse_frame, fine%vertices(:, v(i)))
+                     smooth_v(i, :) = [dot_product(qc, coarse_part(:, 1)), dot_product(qc, coarse_part(:, 2))]
+                  end if
+               end do
+               do alpha = 1, 2
+                  do i = 1, 3
+                     do k = 1, space%n_div
+                        rhs_div(k, ne, alpha) = rhs_div(k, ne, alpha) + area_factor*psi_v(i)* &
+                                                (shapes%bary_psi_q(k, 1, i, cls)*r(1, child, alpha) + &
+                                                 shapes%bary_psi_q(k, 2, i, cls)*r(2, child, alpha) + &
+                                                 shapes%bary_psi_q(k, 3, i, cls)*r(3, child, alpha))
+                     end do
+                     if (.not. first) rhs_div(:, ne, alpha) = rhs_div(:, ne, alpha) &
+                                                              - area_factor*smooth_v(i, alpha)*shapes%psi_q(:, i, cls)
+                  end do
+                  if (first) rhs_div(:, ne, alpha) = rhs_div(:, ne, alpha) - area_factor*smooth(alpha)*shapes%q_int(:, cls)
+               end do
+               cycle
+            end if
             do q_point = 1, space%rule%n
                x = matmul(frame%vertices, space%rule%bary(:, q_point))
                w = space%rule%weights(q_point)*frame%area
                psi = 1.0_dp/3 + dot_product(grad_psi, x - coarse_frame%centre)
                q = div_tests(space%n_div, frame, x)
-               if (allocated(p2_fine%c)) then
-                  m6 = p2_monomials(frame, x)
-                  value = [dot_product(m6, p2_fine%c(:, child, 1)), dot_product(m6, p2_fine%c(:, child, 2))]
-               else
-                  ! the finest level: r itself
-                  value = [dot_product(r(:, child, 1), space%rule%bary(:, q_point)), &
-                           dot_product(r(:, child, 2), space%rule%bary(:, q_point))]
-               end if
-               if (first) then
-                  smooth = [dot_product(grad_psi, grad_rho(:, t, 1)), dot_product(grad_psi, grad_rho(:, t, 2))]
-               else
+               m6 = p2_monomials(frame, x)
+               value = [dot_product(m6, p2_fine%c(:, child, 1)), dot_product(m6, p2_fine%c(:, child, 2))]
+               if (.not. first) then
                   qc = div_tests(space%n_div, coarse_frame, x)
                   smooth = [dot_product(qc, coarse_part(:, 1)), dot_product(qc, coarse_part(:, 2))]
                end if

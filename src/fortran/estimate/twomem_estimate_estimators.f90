@@ -258,11 +258,14 @@ contains
 
       integer(ip) :: t
       integer :: alpha
+      real(dp) :: g(2, 3)
 
-      !$omp parallel do default(none) shared(mesh, grad_u, u) private(t, alpha) schedule(static)
+      !$omp parallel do default(none) shared(mesh, grad_u, u) private(t, alpha, g) schedule(static)
       do t = 1, mesh%nt
          do alpha = 1, 2
-            grad_u(:, t, alpha) = matmul(p1_gradients(mesh, t), u(mesh%triangles(:, t), alpha))
+            g = p1_gradients(mesh, t)
+            grad_u(:, t, alpha) = g(:, 1)*u(mesh%triangles(1, t), alpha) + g(:, 2)*u(mesh%triangles(2, t), alpha) + &
+                                  g(:, 3)*u(mesh%triangles(3, t), alpha)
          end do
       end do
       !$omp end parallel do
@@ -326,9 +329,9 @@ contains
             end do
             c_sum = c_disc + c_alg
             ! the class mass matrix is that of the class size: K's is ρ⁻² times it
-            sq(1, alpha) = dot_product(c_disc, matmul(self%shapes%mass(:, :, class), c_disc))/ratio**2
-            sq(2, alpha) = dot_product(c_alg, matmul(self%shapes%mass(:, :, class), c_alg))/ratio**2
-            sq(3, alpha) = dot_product(c_sum, matmul(self%shapes%mass(:, :, class), c_sum))/ratio**2
+            sq(1, alpha) = quadratic_form(self%space%n_flux, self%shapes%mass(:, :, class), c_disc)/ratio**2
+            sq(2, alpha) = quadratic_form(self%space%n_flux, self%shapes%mass(:, :, class), c_alg)/ratio**2
+            sq(3, alpha) = quadratic_form(self%space%n_flux, self%shapes%mass(:, :, class), c_sum)/ratio**2
          end do
          do alpha = 1, 2
             est%disc_k(alpha, t) = sqrt(max(0.0_dp, sq(1, alpha))/self%mu(alpha))
@@ -370,6 +373,24 @@ contains
       !$omp end parallel do
       positive_norm = sqrt(sum_pos)
    end subroutine element_estimators
+
+   !> cᵀ M c for a contiguous n×n matrix M.
+   pure real(dp) function quadratic_form(n, m, c) result(q)
+      integer, intent(in) :: n
+      real(dp), intent(in) :: m(n, n), c(n)
+
+      integer :: i, j
+      real(dp) :: row
+
+      q = 0.0_dp
+      do j = 1, n
+         row = 0.0_dp
+         do i = 1, n
+            row = row + m(i, j)*c(i)
+         end do
+         q = q + c(j)*row
+      end do
+   end function quadratic_form
 
    !> The coefficients in the basis of `child` of the RT_p field with coefficients c in the basis
    !> of `parent` ⊃ child: with ξ_parent = d + κ ξ_child (d the child's barycentre in the
