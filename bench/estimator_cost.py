@@ -116,7 +116,8 @@ def plot(rows: list[dict], threads: list[int], path: Path) -> None:
             continue
         n = [r["nv"] for r in sel]
         for t, style in zip(threads, ("--", "-")):
-            ax_t.loglog(n, [r["us_per_vertex"][t] for r in sel], style, marker=marker,
+            have = [r for r in sel if t in r["us_per_vertex"]]
+            ax_t.loglog([r["nv"] for r in have], [r["us_per_vertex"][t] for r in have], style, marker=marker,
                         label=f"{flux.upper()}, {t} thread{'s' if t > 1 else ''}")
         ax_m.loglog(n, [r["peak_kb_per_vertex"] for r in sel], "-", marker=marker, label=f"{flux.upper()}: whole run")
         ax_m.loglog(n, [max(r["estimators_kb_per_vertex"], 1e-3) for r in sel], ":", marker=marker,
