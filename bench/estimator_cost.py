@@ -1,22 +1,32 @@
 #!/usr/bin/env python3
-"""What one evaluation of the a posteriori estimators costs: against the number of vertices
-(linear growth expected: O(1) work per patch), against one GMRES iteration on the same mesh,
-and with 1 and 2 OpenMP threads.
+"""What one evaluation of the a posteriori estimators costs, and the memory of the run around
+it, against the number of vertices N: time per vertex per evaluation with RT1 and RT0 on 1 and
+2 OpenMP threads, the speed-up, and the peak memory per vertex; a markdown table and a log–log
+plot.
 
-    .venv/bin/python bench/estimator_cost.py [--exe build/release/twomem] [--levels 1,2,3,4] [--flux rt1]
+    .venv/bin/python bench/estimator_cost.py [--exe build/release/twomem] [--sizes 0.25:3,0.25:4,0.25:5,0.075:5]
+                                             [--flux rt1,rt0] [--threads 1,2] [--repeat 1] [-o results/estimator_cost]
 
-Per mesh (input/default.nml, the radial case without its exact error, refined `levels` times):
-- the estimators are evaluated at every Newton step of a direct solve (newton.linear=direct);
-  s/eval = /summary estimator_time / estimator_evaluations, once with OMP_NUM_THREADS=1 and
-  once with 2;
-- one GMRES iteration: the finest level's solve time of newton.linear=gmres (ILU(0), paper
-  forcing, estimate.enabled=.false.) over its GMRES iterations, ILU set-up and residuals
-  included, with 2 threads.
+Each size COARSE_H:LEVELS is input/default.nml (radial on the disk, its exact error switched
+off) with mesh.coarse_h and mesh.levels set; the default sizes have 2.2e4, 1.5e5, 1.0e6 and
+4.1e6 vertices. One run per size, flux and thread count: the adaptive method (the estimators
+drive its GMRES stopping test, every 10 iterations) for one Newton step from (g, 0, 0), with
+the fields, /estimators and the history written, as a real run writes them. From the result:
+- s/eval = /summary estimator_time / estimator_evaluations: the evaluations alone (residual
+  lifting, both flux reconstructions, every element estimator), not the set-up (init);
+- µs/vertex = s/eval / N · 1e6;
+- peak KB/vertex = the whole run's peak resident memory (/performance: the largest phase peak)
+  over N, in KiB; `est. KB/vertex` the same for the peak up to the estimator phase minus the
+  peak before it (the mesh and the linear system), i.e. what the estimators add.
+With --repeat R each run is repeated and the median taken. The machine is shared: times are
+noisy, compare medians; instruction counts (valgrind --tool=callgrind) are the stable measure.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -27,41 +37,104 @@ import h5py
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def run(exe: str, overrides: list[str], out: Path, threads: int) -> tuple[dict, float]:
-    cmd = [exe, "run", str(ROOT / "input" / "default.nml"), *overrides, "output.fields=.false.",
-           "output.xdmf=.false.", f"output.file={out}"]
+def run(exe: str, coarse_h: str, levels: str, flux: str, threads: int, out: Path) -> dict:
+    cmd = [exe, "run", str(ROOT / "input" / "default.nml"), f"mesh.coarse_h={coarse_h}", f"mesh.levels={levels}",
+           "problem.exact=none", f"estimate.flux={flux}", "newton.linear=adaptive", "newton.initial=paper",
+           "newton.max_it=1", "output.xdmf=.false.", f"output.file={out}"]
     env = dict(os.environ, OMP_NUM_THREADS=str(threads))
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
-    if proc.returncode != 0:
-        sys.exit(f"{' '.join(cmd)} failed:\n{proc.stderr}")
+    # exit 1: not converged within newton.max_it = 1, which is what we ask for
+    if proc.returncode not in (0, 1):
+        sys.exit(f"{' '.join(cmd)} failed ({proc.returncode}):\n{proc.stderr}")
     with h5py.File(out) as f:
-        return dict(f["summary"].attrs), float(f["history/wall_time"][-1])
+        s = dict(f["summary"].attrs)
+        perf = dict(f["performance"].attrs)
+    peaks = {k[:-len("_peak_mib")]: float(v) for k, v in perf.items() if k.endswith("_peak_mib")}
+    before = max(peaks.get("mesh", 0.0), peaks.get("assembly", 0.0))
+    return {"nv": int(s["nv"]), "evaluations": int(s["estimator_evaluations"]),
+            "s_per_eval": float(s["estimator_time"]) / max(1, int(s["estimator_evaluations"])),
+            "peak_mib": max(peaks.values()), "estimators_mib": peaks.get("estimators", 0.0) - before}
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--exe", default=str(ROOT / "build" / "release" / "twomem"))
-    ap.add_argument("--levels", default="1,2,3,4")
-    ap.add_argument("--flux", default="rt1", choices=["rt1", "rt0"])
+    ap.add_argument("--sizes", default="0.25:3,0.25:4,0.25:5,0.075:5")
+    ap.add_argument("--flux", default="rt1,rt0")
+    ap.add_argument("--threads", default="1,2")
+    ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("-o", "--output", default=str(ROOT / "results" / "estimator_cost"))
     args = ap.parse_args()
-    print(f"estimator: {args.flux}, algebraic flux on the 3 finest meshes")
-    print("| vertices | triangles | s/eval, 1 thread | s/eval, 2 threads | speed-up | µs/vertex (1 thread) "
-          "| s/GMRES it | GMRES its per eval |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+    threads = [int(t) for t in args.threads.split(",")]
+    fluxes = args.flux.split(",")
+    out_dir = Path(args.output)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rows = []
+    head = ("| flux | vertices | evaluations | " + " | ".join(f"s/eval, {t} thr | µs/vertex, {t} thr" for t in threads)
+            + (" | speed-up" if len(threads) > 1 else "") + " | peak KB/vertex | est. KB/vertex |")
+    print(head)
+    print("|" + " --- |" * (head.count("|") - 1))
     with tempfile.TemporaryDirectory() as tmp:
-        for level in (int(x) for x in args.levels.split(",")):
-            common = [f"mesh.levels={level}", f"estimate.flux={args.flux}", "problem.exact=none"]
-            per_eval = {}
-            for threads in (1, 2):
-                s, _ = run(args.exe, common + ["newton.linear=direct"], Path(tmp) / f"e{level}_{threads}.h5", threads)
-                per_eval[threads] = s["estimator_time"] / s["estimator_evaluations"]
-            g, solve = run(args.exe, common + ["newton.linear=gmres", "estimate.enabled=.false."],
-                           Path(tmp) / f"g{level}.h5", 2)
-            per_it = solve / max(1, g["gmres_iterations"])
-            print(f"| {s['nv']} | {s['nt']} | {per_eval[1]:.4f} | {per_eval[2]:.4f} | "
-                  f"{per_eval[1] / per_eval[2]:.2f} | {1e6 * per_eval[1] / s['nv']:.1f} | {per_it:.2e} | "
-                  f"{per_eval[2] / per_it:.0f} |", flush=True)
+        for size in args.sizes.split(","):
+            coarse_h, levels = size.split(":")
+            for flux in fluxes:
+                per = {}
+                for t in threads:
+                    results = [run(args.exe, coarse_h, levels, flux, t, Path(tmp) / "r.h5") for _ in range(args.repeat)]
+                    per[t] = {"s_per_eval": statistics.median(r["s_per_eval"] for r in results),
+                              "peak_mib": statistics.median(r["peak_mib"] for r in results),
+                              "estimators_mib": statistics.median(r["estimators_mib"] for r in results),
+                              "nv": results[0]["nv"], "evaluations": results[0]["evaluations"]}
+                nv = per[threads[0]]["nv"]
+                row = {"flux": flux, "coarse_h": float(coarse_h), "levels": int(levels), "nv": nv,
+                       "evaluations": per[threads[-1]]["evaluations"],
+                       "s_per_eval": {t: per[t]["s_per_eval"] for t in threads},
+                       "us_per_vertex": {t: 1e6 * per[t]["s_per_eval"] / nv for t in threads},
+                       "peak_kb_per_vertex": 1024 * per[threads[-1]]["peak_mib"] / nv,
+                       "estimators_kb_per_vertex": 1024 * per[threads[-1]]["estimators_mib"] / nv}
+                rows.append(row)
+                cells = " | ".join(f"{row['s_per_eval'][t]:.4g} | {row['us_per_vertex'][t]:.2f}" for t in threads)
+                speed = (f" | {row['s_per_eval'][threads[0]] / row['s_per_eval'][threads[-1]]:.2f}"
+                         if len(threads) > 1 else "")
+                print(f"| {flux} | {nv} | {row['evaluations']} | {cells}{speed} | {row['peak_kb_per_vertex']:.2f} | "
+                      f"{row['estimators_kb_per_vertex']:.2f} |", flush=True)
+    (out_dir / "estimator_cost.json").write_text(json.dumps(rows, indent=1))
+    plot(rows, threads, out_dir / "estimator_cost.png")
+    print(f"wrote {out_dir / 'estimator_cost.json'} and {out_dir / 'estimator_cost.png'}")
     return 0
+
+
+def plot(rows: list[dict], threads: list[int], path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax_t, ax_m) = plt.subplots(1, 2, figsize=(11, 4.2))
+    for flux, marker in (("rt1", "o"), ("rt0", "s")):
+        sel = [r for r in rows if r["flux"] == flux]
+        if not sel:
+            continue
+        n = [r["nv"] for r in sel]
+        for t, style in zip(threads, ("--", "-")):
+            have = [r for r in sel if t in r["us_per_vertex"]]
+            ax_t.loglog([r["nv"] for r in have], [r["us_per_vertex"][t] for r in have], style, marker=marker,
+                        label=f"{flux.upper()}, {t} thread{'s' if t > 1 else ''}")
+        ax_m.loglog(n, [r["peak_kb_per_vertex"] for r in sel], "-", marker=marker, label=f"{flux.upper()}: whole run")
+        ax_m.loglog(n, [max(r["estimators_kb_per_vertex"], 1e-3) for r in sel], ":", marker=marker,
+                    label=f"{flux.upper()}: added by the estimators")
+    ax_t.axhline(2.0, color="grey", lw=0.8)
+    ax_t.axhline(1.0, color="grey", lw=0.8, ls=":")
+    ax_t.set_xlabel("vertices N")
+    ax_t.set_ylabel("µs per vertex per evaluation")
+    ax_t.set_title("one estimator evaluation (targets: RT1 2 µs, RT0 1 µs, 2 threads)", fontsize=9)
+    ax_t.legend(fontsize=8)
+    ax_m.axhline(1.5, color="grey", lw=0.8)
+    ax_m.set_xlabel("vertices N")
+    ax_m.set_ylabel("peak KiB per vertex")
+    ax_m.set_title("memory (target: 1.5 KB per vertex at 1e6)", fontsize=9)
+    ax_m.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
 
 
 if __name__ == "__main__":

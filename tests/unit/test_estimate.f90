@@ -14,9 +14,11 @@ module test_estimate
    use twomem_fem_error, only: energy_error_per_element
    use twomem_linalg_dense, only: cholesky_factor
    use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_solve, method_direct
-   use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, rt_matrices_t, make_frame, edge_gauss
+   use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, make_frame, edge_gauss
    use twomem_estimate_lifting, only: algebraic_residuals, residual_lifting
-   use twomem_estimate_disc_flux, only: discretization_flux, load_moments, patch_integrals_t
+   use twomem_estimate_disc_flux, only: discretization_flux, load_moments
+   use twomem_estimate_shapes, only: shape_classes_t
+   use twomem_estimate_coloring, only: coloring_t
    use twomem_estimate_alg_flux, only: algebraic_flux_t, level_flux_t
    use twomem_estimate_estimators, only: estimator_t, estimates_t, poincare_constant
    use twomem_testing, only: unittest_t, new_unittest, check, check_close, error_t
@@ -188,8 +190,8 @@ contains
       type(poly_data_t) :: data
       type(discrete_problem_t) :: p
       type(rt_space_t) :: space
-      type(rt_matrices_t) :: matrices
-      type(patch_integrals_t) :: integrals
+      type(shape_classes_t) :: shapes
+      type(coloring_t) :: colors
       type(level_flux_t) :: levels(1)
       type(rt_frame_t) :: frame
       real(dp), allocatable :: lambda(:), grad_u(:, :, :), residual(:, :), r(:, :, :), moments(:, :, :, :), lhs(:), rhs(:)
@@ -209,14 +211,14 @@ contains
          associate (mesh => h%meshes(0))
             do order = 0, 1
                call space%init(order)
-               call space%mesh_matrices(mesh, matrices, ok)
-               call check(err, ok, 'element matrices regular')
+               call shapes%init(space, h, err)
+               if (allocated(err)) return
+               call colors%init(mesh)
                if (allocated(moments)) deallocate (moments, lhs, rhs, levels(1)%sigma)
                allocate (moments(space%n_div, 3, mesh%nt, 2), lhs(space%n_div), rhs(space%n_div), &
                          levels(1)%sigma(space%n_flux, mesh%nt, 2))
                call load_moments(space, mesh, data, moments)
-               call integrals%init(space, mesh)
-               call discretization_flux(space, mesh, matrices, integrals, mu, moments, grad_u, lambda, r, &
+               call discretization_flux(space, shapes, mesh, 0, colors, mu, moments, grad_u, lambda, r, &
                                         levels(1)%sigma, ok)
                call check(err, ok, 'patch systems regular')
                dev = 0.0_dp
@@ -274,7 +276,7 @@ contains
       type(discrete_problem_t) :: p
       type(rt_space_t) :: space
       type(algebraic_flux_t) :: alg
-      type(level_flux_t), allocatable :: levels(:)
+      type(shape_classes_t) :: shapes
       real(dp), allocatable :: lambda(:), grad_u(:, :, :), residual(:, :), r(:, :, :)
       real(dp) :: x(2), value(2), div, r_x, dev
       integer(ip) :: t
@@ -291,9 +293,11 @@ contains
                write (what, '("RT",i0,", ",i0," meshes")') order, n_meshes
                call alg%init(space, h, data, n_meshes, err)
                if (allocated(err)) return
-               call alg%compute(h, residual, r, levels, err)
+               call shapes%init(space, h, err)
                if (allocated(err)) return
-               call check(err, size(levels) == max(1, n_meshes - 1), 'one flux part per level with patches')
+               call alg%compute(shapes, h, residual, r, err)
+               if (allocated(err)) return
+               call check(err, size(alg%levels) == max(1, n_meshes - 1), 'one flux part per level with patches')
                dev = 0.0_dp
                do t = 1, mesh%nt
                   do k = 1, merge(1, space%rule%n, order == 0)
@@ -301,14 +305,14 @@ contains
                      x = matmul(mesh%vertices(:, mesh%triangles(:, t)), merge(spread(1.0_dp/3, 1, 3), space%rule%bary(:, k), &
                                                                               order == 0))
                      do alpha = 1, 2
-                        call flux_sum(space, h, levels, t, x, alpha, value, div)
+                        call flux_sum(space, h, alg%levels, t, x, alpha, value, div)
                         r_x = merge(sum(r(:, t, alpha))/3, dot_product(r(:, t, alpha), space%rule%bary(:, k)), order == 0)
                         dev = max(dev, abs(div - r_x))
                      end do
                   end do
                end do
                call check(err, dev <= 1.0e-11_dp*maxval(abs(r)), 'sum of level divergences = r, '//trim(what))
-               call check_normal_continuity(err, space, h, levels, 1.0e-11_dp, 'sigma_alg, '//trim(what))
+               call check_normal_continuity(err, space, h, alg%levels, 1.0e-11_dp, 'sigma_alg, '//trim(what))
             end do
          end do
       end associate

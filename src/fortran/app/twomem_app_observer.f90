@@ -37,6 +37,7 @@ module twomem_app_observer
    contains
       procedure :: observe
       procedure :: estimate
+      procedure, private :: refresh
    end type run_observer_t
 
 contains
@@ -46,20 +47,19 @@ contains
       real(dp), intent(in) :: x(:)
       type(history_row_t), intent(inout) :: row
 
-      type(estimates_t) :: est
       integer(ip) :: n
       real(dp) :: t0
       real(dp), allocatable :: energy(:)
 
       if (self%with_estimates .and. .not. allocated(self%err)) then
-         call self%estimate(x, est)
+         call self%refresh(x)
          if (.not. allocated(self%err)) then
-            row%eta_disc = est%disc
-            row%eta_lin = est%lin
-            row%eta_alg = est%alg
-            row%eta_total = est%total
-            call est%local_criteria(self%hierarchy%meshes(self%hierarchy%levels), self%gamma_alg, self%gamma_lin, &
-                                    row%local_alg_ok, row%local_lin_ok)
+            row%eta_disc = self%last%disc
+            row%eta_lin = self%last%lin
+            row%eta_alg = self%last%alg
+            row%eta_total = self%last%total
+            call self%last%local_criteria(self%hierarchy%meshes(self%hierarchy%levels), self%gamma_alg, self%gamma_lin, &
+                                          row%local_alg_ok, row%local_lin_ok)
          end if
       end if
       if (self%with_error) then
@@ -81,20 +81,29 @@ contains
       real(dp), intent(in) :: x(:)
       type(estimates_t), intent(out) :: est
 
+      call self%refresh(x)
+      if (.not. allocated(self%err)) est = self%last
+   end subroutine estimate
+
+   !> self%last at x, evaluated into the arrays of the previous evaluation (no new mesh-sized
+   !> allocations in the Newton loop), unless it already is at x.
+   subroutine refresh(self, x)
+      class(run_observer_t), intent(inout) :: self
+      real(dp), intent(in) :: x(:)
+
       real(dp) :: t0
 
       if (allocated(self%last_x)) then
-         if (all(self%last_x == x)) then
-            est = self%last
-            return
-         end if
+         if (all(self%last_x == x)) return
       end if
       t0 = wall_time()
-      call self%estimator%evaluate(self%hierarchy, self%data, self%p, x, est, self%err)
+      call self%estimator%evaluate(self%hierarchy, self%data, self%p, x, self%last, self%err)
       self%estimator_time = self%estimator_time + (wall_time() - t0)
       self%evaluations = self%evaluations + 1
-      if (allocated(self%err)) return
+      if (allocated(self%err)) then
+         if (allocated(self%last_x)) deallocate (self%last_x)
+         return
+      end if
       self%last_x = x
-      self%last = est
-   end subroutine estimate
+   end subroutine refresh
 end module twomem_app_observer

@@ -8,6 +8,9 @@
 !> in total to r_α. With a single mesh (b = J) the patches are those of T_J itself, which gives
 !> ∇·σ = Π_p r_α. Integrals of r_α over coarser triangles go through its L² projection onto
 !> P2 of each triangle, which is exact against the quadratic ψ_a q of the patch data.
+!> The patch problems use the operators of the shape classes (twomem_estimate_shapes); a refined
+!> patch's multipliers are numbered so that those inside each coarse triangle form a block
+!> (twomem_estimate_patch). The level parts and the P2 fields are kept between evaluations.
 module twomem_estimate_alg_flux
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_io
@@ -18,8 +21,10 @@ module twomem_estimate_alg_flux
    use twomem_fem_assembly, only: p1_gradients
    use twomem_linalg_dense, only: lu_factor, lu_solve
    use twomem_linalg_umfpack, only: umfpack_solver_t
-   use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, rt_matrices_t, make_frame
-   use twomem_estimate_patch, only: solve_patch, inner_edge, edge_free, edge_neumann
+   use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, make_frame
+   use twomem_estimate_shapes, only: shape_classes_t, triangle_class, trace_signs
+   use twomem_estimate_coloring, only: coloring_t
+   use twomem_estimate_patch, only: solve_patch, solve_condensed_patch, inner_edge, edge_free, edge_neumann
    implicit none
    private
 
@@ -31,14 +36,31 @@ module twomem_estimate_alg_flux
       real(dp), allocatable :: sigma(:, :, :)
    end type level_flux_t
 
+   !> A broken P2 field for both membranes: coefficients (n_p2, nt, 2) in each triangle's monomials.
+   type :: p2_field_t
+      real(dp), allocatable :: c(:, :, :)
+   end type p2_field_t
+
+   type :: vector_t
+      real(dp), allocatable :: v(:)
+   end type vector_t
+
    type :: algebraic_flux_t
       !> the coarsest level used (b) and the finest (J)
       integer :: base = 0, finest = 0
       type(rt_space_t) :: space
       type(discrete_problem_t) :: coarse
       type(umfpack_solver_t) :: coarse_solver
-      !> element matrices of the levels whose triangles carry patch problems (first..finest)
-      type(rt_matrices_t), allocatable :: matrices(:)
+      !> vertex colourings of the meshes whose vertices carry patches (first−1..finest−1, or J)
+      type(coloring_t), allocatable :: colors(:)
+      !> the result of the last `compute`, level by level (first..finest), and its workspaces
+      type(level_flux_t), allocatable :: levels(:)
+      type(p2_field_t), allocatable :: p2(:)
+      real(dp), allocatable :: grad_rho(:, :, :)
+      !> workspaces of the coarse Riesz representer: R_α restricted to T_l (l = b..J−1), the
+      !> coarse right-hand side and solution, ρ_α at the vertices of T_b
+      type(vector_t), allocatable :: restricted(:)
+      real(dp), allocatable :: coarse_rhs(:), rho(:), nodal(:)
    contains
       procedure :: init
       procedure :: compute
@@ -48,15 +70,10 @@ module twomem_estimate_alg_flux
    !> Scaled monomials of P2 on a triangle: 1, ξ1, ξ2, ξ1², ξ1ξ2, ξ2².
    integer, parameter :: n_p2 = 6
 
-   !> A broken P2 field for both membranes: coefficients (n_p2, nt, 2) in each triangle's monomials.
-   type :: p2_field_t
-      real(dp), allocatable :: c(:, :, :)
-   end type p2_field_t
-
 contains
 
    !> Use the last `n_meshes` meshes of the hierarchy (all when fewer); factorize the coarse
-   !> Laplacian.
+   !> Laplacian, colour the patch meshes, allocate the level parts.
    subroutine init(self, space, hierarchy, data, n_meshes, err)
       class(algebraic_flux_t), intent(out) :: self
       type(rt_space_t), intent(in) :: space
@@ -65,60 +82,64 @@ contains
       integer, intent(in) :: n_meshes
       type(error_t), allocatable, intent(out) :: err
 
-      integer :: j
-      logical :: ok
+      integer :: j, first
 
       self%space = space
       self%finest = hierarchy%levels
       self%base = max(0, self%finest - n_meshes + 1)
-      allocate (self%matrices(self%first():self%finest))
-      do j = self%first(), self%finest
-         call space%mesh_matrices(hierarchy%meshes(j), self%matrices(j), ok)
-         if (.not. ok) then
-            call make_error(err, exit_io, 'estimators', 'a triangle''s mixed finite element matrix is singular')
-            return
-         end if
+      first = self%first()
+      allocate (self%colors(first:self%finest), self%levels(self%finest - first + 1), self%p2(first:self%finest))
+      do j = first, self%finest
+         ! the patches of level j live on the vertices of level j − 1 (of J itself for one mesh)
+         call self%colors(j)%init(hierarchy%meshes(merge(j, j - 1, j == self%base)))
+         self%levels(j - first + 1)%level = j
+         allocate (self%levels(j - first + 1)%sigma(space%n_flux, hierarchy%meshes(j)%nt, 2))
+         ! on T_J itself r is P1: its P2 projection is r, never stored
+         if (j < self%finest) allocate (self%p2(j)%c(n_p2, hierarchy%meshes(j)%nt, 2))
       end do
+      allocate (self%grad_rho(2, hierarchy%meshes(self%base)%nt, 2))
       call self%coarse%init(hierarchy%meshes(self%base), data, err)
       if (allocated(err)) return
+      allocate (self%restricted(self%base:self%finest - 1))
+      do j = self%base, self%finest - 1
+         allocate (self%restricted(j)%v(hierarchy%meshes(j)%nv))
+      end do
+      allocate (self%coarse_rhs(self%coarse%n), self%rho(self%coarse%n), self%nodal(hierarchy%meshes(self%base)%nv))
       call self%coarse_solver%factor(self%coarse%stiffness, err)
    end subroutine init
 
-   !> levels(:) returns σ_alg level by level (levels b+1..J, or J alone with a single mesh) from
-   !> the nodal algebraic residuals (nv_J, 2), zero at boundary vertices, and the lifting r
-   !> (3, nt_J, 2).
-   subroutine compute(self, hierarchy, residual, r, levels, err)
+   !> self%levels returns σ_alg level by level (levels b+1..J, or J alone with a single mesh)
+   !> from the nodal algebraic residuals (nv_J, 2), zero at boundary vertices, and the lifting
+   !> r (3, nt_J, 2).
+   subroutine compute(self, shapes, hierarchy, residual, r, err)
       class(algebraic_flux_t), intent(inout) :: self
+      type(shape_classes_t), intent(in) :: shapes
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       real(dp), intent(in) :: residual(:, :), r(:, :, :)
-      type(level_flux_t), allocatable, intent(out) :: levels(:)
       type(error_t), allocatable, intent(out) :: err
 
-      real(dp), allocatable :: grad_rho(:, :, :)
-      type(p2_field_t), allocatable :: p2(:)
-      integer :: j, first, n_levels
+      integer :: j, first
       logical :: ok
+      integer(ip) :: no_parents(2, 0)
 
-      call coarse_representer(self, hierarchy, residual, grad_rho, err)
+      call coarse_representer(self, hierarchy, residual, err)
       if (allocated(err)) return
       first = self%first()
-      n_levels = self%finest - first + 1
-      allocate (levels(n_levels), p2(first:self%finest))
-      call project_p2(hierarchy, first, r, p2)
+      call project_p2(hierarchy, first, r, self%p2)
       do j = first, self%finest
-         associate (lev => levels(j - first + 1))
-            lev%level = j
-            allocate (lev%sigma(self%space%n_flux, hierarchy%meshes(j)%nt, 2))
+         associate (lev => self%levels(j - first + 1))
             if (j == self%base) then
                ! a single mesh: patches and triangles of T_J
-               call level_patches(self%space, hierarchy%meshes(j), hierarchy%meshes(j), self%matrices(j), .true., &
-                                  grad_rho, p2(j), p2(j), lev%sigma, ok)
+               call level_patches(self%space, shapes, hierarchy%meshes(j), hierarchy%meshes(j), j, self%colors(j), .true., &
+                                  self%grad_rho, self%p2(j), self%p2(j), r, lev%sigma, ok, no_parents)
             else if (j == first) then
-               call level_patches(self%space, hierarchy%meshes(j - 1), hierarchy%meshes(j), self%matrices(j), .true., &
-                                  grad_rho, p2(j), p2(j), lev%sigma, ok, hierarchy%maps(j)%vertex_parents)
+               call level_patches(self%space, shapes, hierarchy%meshes(j - 1), hierarchy%meshes(j), j, self%colors(j), &
+                                  .true., self%grad_rho, self%p2(j), self%p2(j), r, lev%sigma, ok, &
+                                  hierarchy%maps(j)%vertex_parents)
             else
-               call level_patches(self%space, hierarchy%meshes(j - 1), hierarchy%meshes(j), self%matrices(j), .false., &
-                                  grad_rho, p2(j - 1), p2(j), lev%sigma, ok, hierarchy%maps(j)%vertex_parents)
+               call level_patches(self%space, shapes, hierarchy%meshes(j - 1), hierarchy%meshes(j), j, self%colors(j), &
+                                  .false., self%grad_rho, self%p2(j - 1), self%p2(j), r, lev%sigma, ok, &
+                                  hierarchy%maps(j)%vertex_parents)
             end if
          end associate
          if (.not. ok) then
@@ -138,45 +159,55 @@ contains
    !> ∇ρ_α on the triangles of T_b: (∇ρ_α, ∇v) = (r_α, v) for the P1 functions v of T_b vanishing
    !> on ∂Ω. Since (r_α, ψ_{J,l}) = R_α(l), the right-hand side is R_α restricted level by level
    !> (the transpose of prolongation).
-   subroutine coarse_representer(self, hierarchy, residual, grad_rho, err)
+   subroutine coarse_representer(self, hierarchy, residual, err)
       class(algebraic_flux_t), intent(inout) :: self
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       real(dp), intent(in) :: residual(:, :)
-      real(dp), allocatable, intent(out) :: grad_rho(:, :, :)
       type(error_t), allocatable, intent(out) :: err
 
-      real(dp), allocatable :: fine(:), coarse(:), rho(:), nodal(:)
       integer :: alpha, l
-      integer(ip) :: v, t
+      integer(ip) :: v, t, i
 
       associate (base_mesh => hierarchy%meshes(self%base))
-         allocate (grad_rho(2, base_mesh%nt, 2), rho(self%coarse%n))
          do alpha = 1, 2
-            fine = residual(:, alpha)
-            do l = self%finest, self%base + 1, -1
-               associate (parents => hierarchy%maps(l)%vertex_parents)
-                  allocate (coarse(hierarchy%meshes(l - 1)%nv))
+            ! R_α restricted level by level into the kept workspaces (restricted(l) on T_l)
+            do l = self%finest - 1, self%base, -1
+               associate (parents => hierarchy%maps(l + 1)%vertex_parents, coarse => self%restricted(l)%v)
                   coarse = 0.0_dp
-                  do v = 1, size(fine, kind=ip)
-                     coarse(parents(1, v)) = coarse(parents(1, v)) + 0.5_dp*fine(v)
-                     coarse(parents(2, v)) = coarse(parents(2, v)) + 0.5_dp*fine(v)
-                  end do
+                  if (l == self%finest - 1) then
+                     do v = 1, hierarchy%meshes(l + 1)%nv
+                        coarse(parents(1, v)) = coarse(parents(1, v)) + 0.5_dp*residual(v, alpha)
+                        coarse(parents(2, v)) = coarse(parents(2, v)) + 0.5_dp*residual(v, alpha)
+                     end do
+                  else
+                     do v = 1, hierarchy%meshes(l + 1)%nv
+                        coarse(parents(1, v)) = coarse(parents(1, v)) + 0.5_dp*self%restricted(l + 1)%v(v)
+                        coarse(parents(2, v)) = coarse(parents(2, v)) + 0.5_dp*self%restricted(l + 1)%v(v)
+                     end do
+                  end if
                end associate
-               call move_alloc(coarse, fine)
             end do
-            call self%coarse_solver%solve(self%coarse%stiffness, fine(self%coarse%interior), rho, err)
+            do i = 1, self%coarse%n
+               if (self%base == self%finest) then
+                  self%coarse_rhs(i) = residual(self%coarse%interior(i), alpha)
+               else
+                  self%coarse_rhs(i) = self%restricted(self%base)%v(self%coarse%interior(i))
+               end if
+            end do
+            call self%coarse_solver%solve(self%coarse%stiffness, self%coarse_rhs, self%rho, err)
             if (allocated(err)) return
-            nodal = self%coarse%to_nodal(rho, 0.0_dp)
+            self%nodal = 0.0_dp
+            self%nodal(self%coarse%interior) = self%rho
             do t = 1, base_mesh%nt
-               grad_rho(:, t, alpha) = matmul(p1_gradients(base_mesh, t), nodal(base_mesh%triangles(:, t)))
+               self%grad_rho(:, t, alpha) = matmul(p1_gradients(base_mesh, t), self%nodal(base_mesh%triangles(:, t)))
             end do
          end do
       end associate
    end subroutine coarse_representer
 
-   !> r_α's L² projection onto P2 of every triangle of T_first..T_J, coarsest last: the moments
-   !> of a coarse triangle are those of its four children's projections (exact, P2·P2 being
-   !> degree 4 and the rule degree 5).
+   !> r_α's L² projection onto P2 of every triangle of T_first..T_{J−1}, coarsest last: the
+   !> moments of a coarse triangle are those of its four children's projections (exact, P2·P2
+   !> being degree 4 and the rule degree 5), on T_J those of r itself (P1).
    subroutine project_p2(hierarchy, first, r, p2)
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       integer, intent(in) :: first
@@ -191,8 +222,7 @@ contains
       logical :: ok
 
       call space%init(1)
-      do l = ubound(p2, 1), first, -1
-            allocate (p2(l)%c(n_p2, hierarchy%meshes(l)%nt, 2))
+      do l = ubound(p2, 1) - 1, first, -1
             !$omp parallel do default(none) shared(space, hierarchy, p2, r, l) &
             !$omp private(t, frame, child_frame, gram, b, m, x, w, value, k, c, alpha, piv, child, ok) &
             !$omp schedule(static)
@@ -207,27 +237,26 @@ contains
                   do c = 1, n_p2
                      gram(:, c) = gram(:, c) + w*m*m(c)
                   end do
-                  if (l == ubound(p2, 1)) then
-                     do alpha = 1, 2
-                        b(:, alpha) = b(:, alpha) + w*dot_product(r(:, t, alpha), space%rule%bary(:, k))*m
-                     end do
-                  end if
                end do
-               if (l < ubound(p2, 1)) then
-                  do c = 1, 4
+               do c = 1, 4
                      child = 4*(t - 1) + c
                      child_frame = make_frame(hierarchy%meshes(l + 1)%vertices(:, hierarchy%meshes(l + 1)%triangles(:, child)))
                      do k = 1, space%rule%n
                         x = matmul(child_frame%vertices, space%rule%bary(:, k))
                         w = space%rule%weights(k)*child_frame%area
-                        value = matmul(p2_monomials(child_frame, x), p2(l + 1)%c(:, child, :))
+                        if (l + 1 == ubound(p2, 1)) then
+                           value = [dot_product(r(:, child, 1), space%rule%bary(:, k)), &
+                                    dot_product(r(:, child, 2), space%rule%bary(:, k))]
+                        else
+                           m = p2_monomials(child_frame, x)
+                           value = [dot_product(m, p2(l + 1)%c(:, child, 1)), dot_product(m, p2(l + 1)%c(:, child, 2))]
+                        end if
                         m = p2_monomials(frame, x)
                         do alpha = 1, 2
                            b(:, alpha) = b(:, alpha) + w*value(alpha)*m
                         end do
                      end do
-                  end do
-               end if
+               end do
                call lu_factor(gram, piv, ok)
                call lu_solve(gram, piv, b)
                p2(l)%c(:, t, :) = b
@@ -235,6 +264,18 @@ contains
             !$omp end parallel do
       end do
    end subroutine project_p2
+
+   !> The divergence test functions q_k(x) of rt_space_t (n_div = 1 or 3), without its
+   !> run-time-sized result, which the patch loops would allocate at every quadrature point.
+   pure function div_tests(n_div, frame, x) result(q)
+      integer, intent(in) :: n_div
+      type(rt_frame_t), intent(in) :: frame
+      real(dp), intent(in) :: x(2)
+      real(dp) :: q(n_div)
+
+      q(1) = 1.0_dp
+      if (n_div == 3) q(2:3) = (x - frame%centre)/frame%scale
+   end function div_tests
 
    pure function p2_monomials(frame, x) result(m)
       type(rt_frame_t), intent(in) :: frame
@@ -247,76 +288,104 @@ contains
       m = [1.0_dp, xi(1), xi(2), xi(1)**2, xi(1)*xi(2), xi(2)**2]
    end function p2_monomials
 
-   !> The patch problems of one level: patches of the vertices of `coarse`, triangles of `fine`
-   !> (its red refinement, or the same mesh when `parents` is absent). `first`: the data are
-   !> r ψ_a − ∇ρ·∇ψ_a (grad_rho on the coarse triangles), otherwise (I − Π_coarse)(r ψ_a).
-   subroutine level_patches(space, coarse, fine, matrices, first, grad_rho, p2_coarse, p2_fine, sigma, ok, parents)
+   !> The patch problems of one level: patches of the vertices of `coarse` (coloured by
+   !> `colors`), triangles of `fine`, level `level` of the hierarchy (its red refinement, or the
+   !> same mesh when `parents` is empty). `first`: the data are r ψ_a − ∇ρ·∇ψ_a (grad_rho on the
+   !> coarse triangles), otherwise (I − Π_coarse)(r ψ_a).
+   subroutine level_patches(space, shapes, coarse, fine, level, colors, first, grad_rho, p2_coarse, p2_fine, r, sigma, ok, &
+                            parents)
       type(rt_space_t), intent(in) :: space
+      type(shape_classes_t), intent(in) :: shapes
       type(mesh_t), intent(in) :: coarse, fine
-      type(rt_matrices_t), intent(in) :: matrices
+      integer, intent(in) :: level
+      type(coloring_t), intent(in) :: colors
       logical, intent(in) :: first
       real(dp), intent(in) :: grad_rho(:, :, :)
       type(p2_field_t), intent(in) :: p2_coarse, p2_fine
-      real(dp), intent(out) :: sigma(:, :, :)
+      !> the residual lifting on T_J: r's values where p2_fine is not stored (the finest level)
+      real(dp), intent(in) :: r(:, :, :)
+      real(dp), intent(inout) :: sigma(:, :, :)
       logical, intent(out) :: ok
-      integer(ip), intent(in), optional :: parents(:, :)
+      integer(ip), intent(in) :: parents(:, :)
 
-      real(dp), allocatable :: slots(:, :, :, :)
-      integer(ip), allocatable :: vertex_parents(:, :)
-      integer(ip) :: a
-      integer :: n_children
-      logical :: patch_ok
+      integer(ip) :: a, m
+      integer :: c
+      logical :: patch_ok, refined
 
-      if (present(parents)) then
-         vertex_parents = parents
-         n_children = 4
-      else
-         vertex_parents = spread([(a, a=1, fine%nv)], 1, 2)
-         n_children = 1
-      end if
-      allocate (slots(space%n_flux, 3, fine%nt, 2))
+      refined = size(parents, 2) > 0
       ok = .true.
-      !$omp parallel do default(none) &
-      !$omp shared(space, coarse, fine, matrices, first, grad_rho, p2_coarse, p2_fine, slots, vertex_parents, n_children) &
-      !$omp private(a, patch_ok) reduction(.and.:ok) schedule(dynamic, 64)
-      do a = 1, coarse%nv
-         call coarse_patch(space, coarse, fine, matrices, a, n_children, vertex_parents, first, grad_rho, p2_coarse, &
-                           p2_fine, slots, patch_ok)
-         ok = ok .and. patch_ok
+      !$omp parallel default(none) &
+      !$omp shared(space, shapes, coarse, fine, level, colors, first, grad_rho, p2_coarse, p2_fine, r, sigma, parents, refined) &
+      !$omp private(a, m, c, patch_ok) reduction(.and.:ok)
+      !$omp workshare
+      sigma = 0.0_dp
+      !$omp end workshare
+      do c = 1, colors%n_colors
+         !$omp do schedule(dynamic, 64)
+         do m = colors%ptr(c), colors%ptr(c + 1) - 1
+            a = colors%vertices(m)
+            if (refined) then
+               call coarse_patch(space, shapes, coarse, fine, level, a, 4, first, grad_rho, p2_coarse, p2_fine, r, sigma, &
+                                 patch_ok, parents)
+            else
+               call coarse_patch(space, shapes, coarse, fine, level, a, 1, first, grad_rho, p2_coarse, p2_fine, r, sigma, &
+                                 patch_ok, parents)
+            end if
+            ok = ok .and. patch_ok
+         end do
+         !$omp end do
       end do
-      !$omp end parallel do
-      sigma = sum(slots, dim=2)
+      !$omp end parallel
    end subroutine level_patches
 
-   subroutine coarse_patch(space, coarse, fine, matrices, a, n_children, parents, first, grad_rho, p2_coarse, p2_fine, &
-                           slots, ok)
+   subroutine coarse_patch(space, shapes, coarse, fine, level, a, n_children, first, grad_rho, p2_coarse, p2_fine, &
+                           r, sigma, ok, parents)
       type(rt_space_t), intent(in) :: space
+      type(shape_classes_t), intent(in) :: shapes
       type(mesh_t), intent(in) :: coarse, fine
-      type(rt_matrices_t), intent(in) :: matrices
+      integer, intent(in) :: level
       integer(ip), intent(in) :: a
       integer, intent(in) :: n_children
-      integer(ip), intent(in) :: parents(:, :)
       logical, intent(in) :: first
       real(dp), intent(in) :: grad_rho(:, :, :)
       type(p2_field_t), intent(in) :: p2_coarse, p2_fine
-      real(dp), intent(inout) :: slots(:, :, :, :)
+      !> the residual lifting on T_J: r's values where p2_fine is not stored (the finest level)
+      real(dp), intent(in) :: r(:, :, :)
+      real(dp), intent(inout) :: sigma(:, :, :)
       logical, intent(out) :: ok
+      !> vertex_parents of the refinement (unused for a single mesh)
+      integer(ip), intent(in) :: parents(:, :)
 
       integer, parameter :: max_inner_per_triangle = 9
-      integer :: n_coarse, ne, k, kc, c, m, i, q_point, alpha, local_a, n_inner, piv(space%n_div)
+      integer :: n_coarse, ne, k, kc, c, m, i, q_point, alpha, local_a, n_inner, piv(space%n_div), n_blocks
       integer(ip) :: t, child, e, v(3), children(n_children*(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a)))
       integer(ip) :: inner(max_inner_per_triangle*(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a)))
-      type(rt_frame_t) :: frames(size(children)), coarse_frame
+      type(rt_frame_t) :: frame, coarse_frame
       logical :: opposite, gram_ok
-      integer :: links(3, size(children)), slot(size(children))
+      integer :: links(3, size(children)), classes(size(children)), neumann(size(children))
+      real(dp) :: ratios(size(children)), signs(3*space%n_trace, size(children))
       real(dp) :: rhs_flux(space%n_flux, size(children), 2), rhs_div(space%n_div, size(children), 2)
-      real(dp) :: sigma(space%n_flux, size(children), 2)
+      real(dp) :: patch_sigma(space%n_flux, size(children), 2)
       real(dp) :: grad_psi(2), x(2), w, psi, q(space%n_div), value(2), coarse_part(space%n_div, 2)
-      real(dp) :: gram(space%n_div, space%n_div), smooth(2), hat_gradients(2, 3)
+      real(dp) :: gram(space%n_div, space%n_div), smooth(2), hat_gradients(2, 3), m6(n_p2), qc(space%n_div)
+      real(dp) :: psi_v(3), smooth_v(3, 2), area_factor
+      integer :: cls
 
       n_coarse = coarse%patch_ptr(a + 1) - coarse%patch_ptr(a)
       ne = 0
       n_inner = 0
+      n_blocks = 0
+      if (n_children == 4) then
+         ! the inner edges of each coarse triangle (its middle child's edges) first, one block each
+         n_blocks = n_coarse
+         do kc = 1, n_coarse
+            t = coarse%patch_triangles(coarse%patch_ptr(a) + kc - 1)
+            do m = 1, 3
+               n_inner = n_inner + 1
+               inner(n_inner) = fine%triangle_edges(m, 4*t)
+            end do
+         end do
+      end if
       rhs_flux = 0.0_dp
       do kc = 1, n_coarse
          t = coarse%patch_triangles(coarse%patch_ptr(a) + kc - 1)
@@ -331,8 +400,9 @@ contains
             do q_point = 1, space%rule%n
                x = matmul(coarse_frame%vertices, space%rule%bary(:, q_point))
                w = space%rule%weights(q_point)*coarse_frame%area
-               q = space%div_test_values(coarse_frame, x)
-               value = matmul(p2_monomials(coarse_frame, x), p2_coarse%c(:, t, :))
+               q = div_tests(space%n_div, coarse_frame, x)
+               m6 = p2_monomials(coarse_frame, x)
+               value = [dot_product(m6, p2_coarse%c(:, t, 1)), dot_product(m6, p2_coarse%c(:, t, 2))]
                do i = 1, space%n_div
                   gram(:, i) = gram(:, i) + w*q*q(i)
                end do
@@ -347,13 +417,18 @@ contains
             ne = ne + 1
             child = merge(4*(t - 1) + c, t, n_children == 4)
             children(ne) = child
-            slot(ne) = local_a
             v = fine%triangles(:, child)
-            frames(ne) = make_frame(fine%vertices(:, v))
+            call triangle_class(level, child, classes(ne), ratios(ne))
+            signs(:, ne) = trace_signs(space, v)
+            frame = make_frame(fine%vertices(:, v))
             do m = 1, 3
                e = fine%triangle_edges(m, child)
                ! on the coarse edge opposite a: neither end point descends from a
-               opposite = all(parents(:, fine%edges(1, e)) /= a) .and. all(parents(:, fine%edges(2, e)) /= a)
+               if (n_children == 4) then
+                  opposite = all(parents(:, fine%edges(1, e)) /= a) .and. all(parents(:, fine%edges(2, e)) /= a)
+               else
+                  opposite = fine%edges(1, e) /= a .and. fine%edges(2, e) /= a
+               end if
                if (fine%boundary_edge(e)) then
                   links(m, ne) = merge(edge_neumann, edge_free, opposite .and. .not. coarse%boundary_vertex(a))
                else if (opposite) then
@@ -363,16 +438,44 @@ contains
                end if
             end do
             rhs_div(:, ne, :) = 0.0_dp
+            if (first) smooth = [dot_product(grad_psi, grad_rho(:, t, 1)), dot_product(grad_psi, grad_rho(:, t, 2))]
+            if (.not. allocated(p2_fine%c)) then
+               ! the finest level: r, ψ_a and the smooth part are linear on the child, so the
+               ! class integrals ∫ λ_j λ_i q_k, ∫ λ_i q_k and ∫ q_k (scaled by the area) are exact
+               area_factor = 1/ratios(ne)**2
+               cls = classes(ne)
+               do i = 1, 3
+                  psi_v(i) = 1.0_dp/3 + dot_product(grad_psi, fine%vertices(:, v(i)) - coarse_frame%centre)
+                  if (.not. first) then
+                     qc = div_tests(space%n_div, coarse_frame, fine%vertices(:, v(i)))
+                     smooth_v(i, :) = [dot_product(qc, coarse_part(:, 1)), dot_product(qc, coarse_part(:, 2))]
+                  end if
+               end do
+               do alpha = 1, 2
+                  do i = 1, 3
+                     do k = 1, space%n_div
+                        rhs_div(k, ne, alpha) = rhs_div(k, ne, alpha) + area_factor*psi_v(i)* &
+                                                (shapes%bary_psi_q(k, 1, i, cls)*r(1, child, alpha) + &
+                                                 shapes%bary_psi_q(k, 2, i, cls)*r(2, child, alpha) + &
+                                                 shapes%bary_psi_q(k, 3, i, cls)*r(3, child, alpha))
+                     end do
+                     if (.not. first) rhs_div(:, ne, alpha) = rhs_div(:, ne, alpha) &
+                                                              - area_factor*smooth_v(i, alpha)*shapes%psi_q(:, i, cls)
+                  end do
+                  if (first) rhs_div(:, ne, alpha) = rhs_div(:, ne, alpha) - area_factor*smooth(alpha)*shapes%q_int(:, cls)
+               end do
+               cycle
+            end if
             do q_point = 1, space%rule%n
-               x = matmul(frames(ne)%vertices, space%rule%bary(:, q_point))
-               w = space%rule%weights(q_point)*frames(ne)%area
+               x = matmul(frame%vertices, space%rule%bary(:, q_point))
+               w = space%rule%weights(q_point)*frame%area
                psi = 1.0_dp/3 + dot_product(grad_psi, x - coarse_frame%centre)
-               q = space%div_test_values(frames(ne), x)
-               value = matmul(p2_monomials(frames(ne), x), p2_fine%c(:, child, :))
-               if (first) then
-                  smooth = matmul(grad_psi, grad_rho(:, t, :))
-               else
-                  smooth = matmul(space%div_test_values(coarse_frame, x), coarse_part)
+               q = div_tests(space%n_div, frame, x)
+               m6 = p2_monomials(frame, x)
+               value = [dot_product(m6, p2_fine%c(:, child, 1)), dot_product(m6, p2_fine%c(:, child, 2))]
+               if (.not. first) then
+                  qc = div_tests(space%n_div, coarse_frame, x)
+                  smooth = [dot_product(qc, coarse_part(:, 1)), dot_product(qc, coarse_part(:, 2))]
                end if
                do alpha = 1, 2
                   rhs_div(:, ne, alpha) = rhs_div(:, ne, alpha) + w*(value(alpha)*psi - smooth(alpha))*q
@@ -380,9 +483,19 @@ contains
             end do
          end do
       end do
-      call solve_patch(space, matrices, children, links, rhs_flux, rhs_div, sigma, ok)
+      if (coarse%boundary_vertex(a)) then
+         call solve_patch(space, shapes, classes, ratios, signs, links, rhs_flux, rhs_div, .false., n_blocks, &
+                          patch_sigma, ok)
+      else
+         ! an interior vertex: only the far edges carry zero flux, at most one per triangle
+         do k = 1, ne
+            neumann(k) = findloc(links(:, k), edge_neumann, dim=1)
+         end do
+         call solve_condensed_patch(space, shapes, classes, ratios, signs, neumann, links, rhs_flux(1:2, :, :), rhs_div, &
+                                    .false., n_blocks, patch_sigma, ok)
+      end if
       do k = 1, ne
-         slots(:, slot(k), children(k), :) = sigma(:, k, :)
+         sigma(:, children(k), :) = sigma(:, children(k), :) + patch_sigma(:, k, :)
       end do
    end subroutine coarse_patch
 end module twomem_estimate_alg_flux

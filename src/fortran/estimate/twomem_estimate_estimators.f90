@@ -25,8 +25,10 @@ module twomem_estimate_estimators
    use twomem_linalg_dense, only: lu_factor, lu_solve
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, make_frame
    use twomem_estimate_lifting, only: algebraic_residuals, residual_lifting
-   use twomem_estimate_disc_flux, only: discretization_flux, load_moments, patch_integrals_t
+   use twomem_estimate_disc_flux, only: discretization_flux, load_moments
    use twomem_estimate_alg_flux, only: algebraic_flux_t, level_flux_t
+   use twomem_estimate_shapes, only: shape_classes_t, triangle_class
+   use twomem_estimate_coloring, only: coloring_t
    implicit none
    private
 
@@ -47,16 +49,22 @@ module twomem_estimate_estimators
    contains
       procedure :: local_criteria
       procedure :: field
+      procedure :: ensure
    end type estimates_t
 
    type :: estimator_t
       type(rt_space_t) :: space
       type(algebraic_flux_t) :: alg
-      type(patch_integrals_t) :: integrals
+      !> the triangle operators of every level, per shape class
+      type(shape_classes_t) :: shapes
+      !> the finest mesh's vertex colouring for the discretization-flux patches
+      type(coloring_t) :: colors
       !> (f_α ψ_i, q_k)_K and, for RT1, (h_K/π)‖f_α − Π_1 f_α‖_K (data only, fixed on the mesh)
       real(dp), allocatable :: moments(:, :, :, :), osc_data(:, :)
-      !> ancestors(j, t): the triangle of the j-th level of σ_alg containing finest triangle t
-      integer(ip), allocatable :: ancestors(:, :)
+      !> workspaces of `evaluate`, kept between evaluations: σ_disc (n_flux, nt, 2), nodal u, s_h,
+      !> residuals (nv, 2) and λ_h, ∇u_α and the residual lifting per triangle
+      real(dp), allocatable :: sigma(:, :, :), u(:, :), s(:, :), residual(:, :), lambda(:), grad_u(:, :, :), r(:, :, :)
+      real(dp), allocatable :: r1(:), r2(:)
       real(dp) :: mu(2) = 1, c_omega = 1
    contains
       procedure :: init
@@ -95,29 +103,20 @@ contains
       real(dp), intent(in) :: poincare
       type(error_t), allocatable, intent(out) :: err
 
-      integer :: j, l, n_levels, first
-      integer(ip) :: t
-
       associate (mesh => hierarchy%meshes(hierarchy%levels))
          call self%space%init(flux_order)
          self%mu = [data%mu1, data%mu2]
          self%c_omega = poincare*sqrt(1/data%mu1 + 1/data%mu2)
+         call self%shapes%init(self%space, hierarchy, err)
+         if (allocated(err)) return
+         call self%colors%init(mesh)
          allocate (self%moments(self%space%n_div, 3, mesh%nt, 2))
          call load_moments(self%space, mesh, data, self%moments)
-         call self%integrals%init(self%space, mesh)
          if (flux_order == 1) call data_oscillation(self%space, mesh, data, self%mu, self%osc_data)
          call self%alg%init(self%space, hierarchy, data, alg_meshes, err)
          if (allocated(err)) return
-         first = self%alg%first()
-         n_levels = self%alg%finest - first + 1
-         allocate (self%ancestors(n_levels, mesh%nt))
-         do t = 1, mesh%nt
-            self%ancestors(n_levels, t) = t
-            do j = n_levels - 1, 1, -1
-               l = first + j
-               self%ancestors(j, t) = hierarchy%maps(l)%triangle_parent(self%ancestors(j + 1, t))
-            end do
-         end do
+         allocate (self%sigma(self%space%n_flux, mesh%nt, 2), self%u(mesh%nv, 2), self%s(mesh%nv, 2), &
+                   self%residual(mesh%nv, 2), self%lambda(mesh%nv), self%grad_u(2, mesh%nt, 2), self%r(3, mesh%nt, 2))
       end associate
    end subroutine init
 
@@ -175,56 +174,48 @@ contains
       class(problem_data_t), intent(in) :: data
       type(discrete_problem_t), intent(in) :: p
       real(dp), intent(in) :: x(:)
-      type(estimates_t), intent(out) :: est
+      !> its per-triangle arrays are reused when they have the mesh's size
+      type(estimates_t), intent(inout) :: est
       type(error_t), allocatable, intent(out) :: err
 
-      real(dp), allocatable :: u(:, :), lambda(:), s(:, :), grad_u(:, :, :), residual(:, :), r(:, :, :)
-      real(dp), allocatable :: sigma(:, :, :), r1(:), r2(:)
-      type(level_flux_t), allocatable :: levels(:)
       real(dp) :: positive_norm, lin_factor
-      integer(ip) :: n, t
+      integer(ip) :: n
       integer :: alpha
       logical :: ok
 
       n = p%n
-      associate (mesh => hierarchy%meshes(hierarchy%levels))
-         allocate (u(mesh%nv, 2), s(mesh%nv, 2), residual(mesh%nv, 2), grad_u(2, mesh%nt, 2), r(3, mesh%nt, 2))
-         u(:, 1) = p%to_nodal(x(1:n), p%g)
-         u(:, 2) = p%to_nodal(x(n + 1:2*n), 0.0_dp)
-         lambda = p%to_nodal(x(2*n + 1:3*n), 0.0_dp)
+      associate (mesh => hierarchy%meshes(hierarchy%levels), u => self%u, s => self%s, lambda => self%lambda, &
+                 residual => self%residual, grad_u => self%grad_u, r => self%r)
+         call scatter(p, x(1:n), p%g, u(:, 1))
+         call scatter(p, x(n + 1:2*n), 0.0_dp, u(:, 2))
+         call scatter(p, x(2*n + 1:3*n), 0.0_dp, lambda)
          ! s_h: where u1 < u2 both take the mean
          s = u
          where (u(:, 1) < u(:, 2))
             s(:, 1) = 0.5_dp*(u(:, 1) + u(:, 2))
             s(:, 2) = s(:, 1)
          end where
-         do t = 1, mesh%nt
-            do alpha = 1, 2
-               grad_u(:, t, alpha) = matmul(p1_gradients(mesh, t), u(mesh%triangles(:, t), alpha))
-            end do
-         end do
-         allocate (r1(n), r2(n))
-         call algebraic_residuals(p, x, r1, r2)
-         residual(:, 1) = p%to_nodal(r1, 0.0_dp)
-         residual(:, 2) = p%to_nodal(r2, 0.0_dp)
+         call gradients(mesh, u, grad_u)
+         if (.not. allocated(self%r1)) allocate (self%r1(n), self%r2(n))
+         call algebraic_residuals(p, x, self%r1, self%r2)
+         call scatter(p, self%r1, 0.0_dp, residual(:, 1))
+         call scatter(p, self%r2, 0.0_dp, residual(:, 2))
          do alpha = 1, 2
             call residual_lifting(mesh, residual(:, alpha), r(:, :, alpha))
          end do
 
-         allocate (sigma(self%space%n_flux, mesh%nt, 2))
-         call discretization_flux(self%space, mesh, self%alg%matrices(self%alg%finest), self%integrals, self%mu, &
-                                  self%moments, grad_u, lambda, r, sigma, ok)
+         call discretization_flux(self%space, self%shapes, mesh, hierarchy%levels, self%colors, self%mu, self%moments, &
+                                  grad_u, lambda, r, self%sigma, ok)
          if (.not. ok) then
             call make_error(err, exit_io, 'discretization flux', 'a patch system is singular (degenerate triangles?)')
             return
          end if
-         call self%alg%compute(hierarchy, residual, r, levels, err)
+         call self%alg%compute(self%shapes, hierarchy, residual, r, err)
          if (allocated(err)) return
 
-         allocate (est%disc_k(2, mesh%nt), est%alg_k(2, mesh%nt), est%flux_k(2, mesh%nt), est%osc_k(2, mesh%nt))
-         allocate (est%contact_k(mesh%nt), est%nonc1_k(mesh%nt), est%nonc2_k(mesh%nt), est%nonc3_k(mesh%nt), &
-                   est%lin_k(mesh%nt))
-         call element_estimators(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, positive_norm)
+         call est%ensure(mesh%nt)
+         call element_estimators(self, hierarchy, data, u, lambda, s, grad_u, self%sigma, self%alg%levels, est, &
+                                 positive_norm)
       end associate
 
       est%nonc3_k = 2*self%c_omega*positive_norm*est%nonc1_k
@@ -245,7 +236,44 @@ contains
       est%lin_k = lin_factor*est%nonc1_k + est%nonc2_k
    end subroutine evaluate
 
-   !> The per-triangle parts; positive_norm returns ‖λ⁺‖_Ω.
+   !> The nodal field of the interior values x (discrete_problem_t%to_nodal into a kept array).
+   subroutine scatter(p, x, boundary_value, u)
+      type(discrete_problem_t), intent(in) :: p
+      real(dp), intent(in) :: x(:), boundary_value
+      real(dp), intent(out) :: u(:)
+
+      integer(ip) :: i
+
+      u = boundary_value
+      do i = 1, p%n
+         u(p%interior(i)) = x(i)
+      end do
+   end subroutine scatter
+
+   !> grad_u(:, t, α) = ∇u_α on triangle t.
+   subroutine gradients(mesh, u, grad_u)
+      type(mesh_t), intent(in) :: mesh
+      real(dp), intent(in) :: u(:, :)
+      real(dp), intent(out) :: grad_u(:, :, :)
+
+      integer(ip) :: t
+      integer :: alpha
+
+      !$omp parallel do default(none) shared(mesh, grad_u, u) private(t, alpha) schedule(static)
+      do t = 1, mesh%nt
+         do alpha = 1, 2
+            ! the same expression as for ∇s_h in element_estimators: ∇(s_h − u_h) is then exactly
+            ! zero where s_h = u_h in every build (η_nonc,3 takes a square root of it)
+            grad_u(:, t, alpha) = matmul(p1_gradients(mesh, t), u(mesh%triangles(:, t), alpha))
+         end do
+      end do
+      !$omp end parallel do
+   end subroutine gradients
+
+   !> The per-triangle parts; positive_norm returns ‖λ⁺‖_Ω. The flux norms are exact quadratic
+   !> forms with the shape class's RT mass matrix: μ_α∇u_α is constant on K, so it is the
+   !> combination of the constant basis fields φ_1, φ_2, and each coarser level's σ_alg is
+   !> rewritten in K's own basis (`to_child_basis`), RT_p being closed under restriction.
    subroutine element_estimators(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, positive_norm)
       class(estimator_t), intent(in) :: self
       type(mesh_hierarchy_t), intent(in) :: hierarchy
@@ -255,74 +283,75 @@ contains
       type(estimates_t), intent(inout) :: est
       real(dp), intent(out) :: positive_norm
 
-      type(rt_frame_t) :: frame, level_frames(size(levels))
-      real(dp) :: x(2), w, v_disc(2, 2), v_alg(2, 2), sq(3, 2), f(2), lam_x, osc_mean(2), osc_sq(2), osc_w
+      type(rt_frame_t) :: frame, level_frame
+      real(dp) :: x(2), w, sq(3, 2), f(2), lam_x, osc_mean(2), osc_sq(2), osc_w, ratio
+      real(dp) :: c_disc(self%space%n_flux), c_alg(self%space%n_flux), c_sum(self%space%n_flux)
       real(dp) :: pos_lw, pos_ll, neg_lw, neg_ll, sum_pos, grad_s(2, 2)
       !> f ∓ λ_h at the 7 points of the degree-5 rule (RT0 only)
       real(dp) :: osc_values(2, 7)
       real(dp), parameter :: lambda_sign(2) = [1.0_dp, -1.0_dp]
-      integer(ip) :: t, anc
-      integer :: k, j, alpha
+      integer(ip) :: t, anc, generations(size(levels))
+      integer :: k, j, alpha, class
       integer(ip) :: v(3)
       integer :: finest
-      type(rt_space_t) :: space
 
       sum_pos = 0.0_dp
       finest = hierarchy%levels
-      space = self%space
+      ! the ancestor of finest triangle t on level l is (t − 1)/4^(J−l) + 1 (children 4(t−1)+1..4t)
+      do j = 1, size(levels)
+         generations(j) = 4_ip**(finest - levels(j)%level)
+      end do
       !$omp parallel do default(none) &
-      !$omp shared(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, finest, space) &
-      !$omp private(t, anc, k, j, alpha, v, frame, level_frames, x, w, v_disc, v_alg, sq, f, lam_x, osc_mean, osc_sq) &
-      !$omp private(osc_w, pos_lw, pos_ll, neg_lw, neg_ll, grad_s, osc_values) reduction(+:sum_pos) schedule(static)
+      !$omp shared(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, finest, generations) &
+      !$omp private(t, anc, k, j, alpha, v, frame, level_frame, x, w, sq, f, lam_x, osc_mean, osc_sq, ratio, class) &
+      !$omp private(c_disc, c_alg, c_sum, osc_w, pos_lw, pos_ll, neg_lw, neg_ll, grad_s, osc_values) &
+      !$omp reduction(+:sum_pos) schedule(static)
       do t = 1, hierarchy%meshes(finest)%nt
          v = hierarchy%meshes(finest)%triangles(:, t)
          frame = make_frame(hierarchy%meshes(finest)%vertices(:, v))
-         do j = 1, size(levels)
-            anc = self%ancestors(j, t)
-            associate (lm => hierarchy%meshes(levels(j)%level))
-               level_frames(j) = make_frame(lm%vertices(:, lm%triangles(:, anc)))
-            end associate
-         end do
-         sq = 0.0_dp
-         osc_mean = 0.0_dp
-         osc_sq = 0.0_dp
-         do k = 1, space%rule%n
-            x = matmul(frame%vertices, space%rule%bary(:, k))
-            w = space%rule%weights(k)*frame%area
-            do alpha = 1, 2
-               v_disc(:, alpha) = self%mu(alpha)*grad_u(:, t, alpha) + &
-                                  matmul(space%flux_values(frame, x), sigma(:, t, alpha))
-            end do
-            v_alg = 0.0_dp
+         call triangle_class(finest, t, class, ratio)
+         do alpha = 1, 2
+            c_disc = sigma(:, t, alpha)
+            c_disc(1:2) = c_disc(1:2) + self%mu(alpha)*grad_u(:, t, alpha)
+            c_alg = 0.0_dp
             do j = 1, size(levels)
-               anc = self%ancestors(j, t)
-               do alpha = 1, 2
-                  v_alg(:, alpha) = v_alg(:, alpha) + matmul(space%flux_values(level_frames(j), x), &
-                                                             levels(j)%sigma(:, anc, alpha))
-               end do
+               anc = (t - 1)/generations(j) + 1
+               if (levels(j)%level == finest) then
+                  c_alg = c_alg + levels(j)%sigma(:, anc, alpha)
+               else
+                  associate (lm => hierarchy%meshes(levels(j)%level))
+                     level_frame = make_frame(lm%vertices(:, lm%triangles(:, anc)))
+                  end associate
+                  call to_child_basis(self%space%order, level_frame, frame, levels(j)%sigma(:, anc, alpha), c_sum)
+                  c_alg = c_alg + c_sum
+               end if
             end do
-            do alpha = 1, 2
-               sq(1, alpha) = sq(1, alpha) + w*sum(v_disc(:, alpha)**2)
-               sq(2, alpha) = sq(2, alpha) + w*sum(v_alg(:, alpha)**2)
-               sq(3, alpha) = sq(3, alpha) + w*sum((v_disc(:, alpha) + v_alg(:, alpha))**2)
-            end do
-            if (space%order == 0) then
-               ! RT0: the oscillation of f_α ∓ λ_h around its mean
-               lam_x = dot_product(lambda(v), space%rule%bary(:, k))
+            c_sum = c_disc + c_alg
+            ! the class mass matrix is that of the class size: K's is ρ⁻² times it
+            sq(1, alpha) = quadratic_form(self%space%n_flux, self%shapes%mass(:, :, class), c_disc)/ratio**2
+            sq(2, alpha) = quadratic_form(self%space%n_flux, self%shapes%mass(:, :, class), c_alg)/ratio**2
+            sq(3, alpha) = quadratic_form(self%space%n_flux, self%shapes%mass(:, :, class), c_sum)/ratio**2
+         end do
+         do alpha = 1, 2
+            est%disc_k(alpha, t) = sqrt(max(0.0_dp, sq(1, alpha))/self%mu(alpha))
+            est%alg_k(alpha, t) = sqrt(max(0.0_dp, sq(2, alpha))/self%mu(alpha))
+            est%flux_k(alpha, t) = sqrt(max(0.0_dp, sq(3, alpha))/self%mu(alpha))
+         end do
+         if (self%space%order == 0) then
+            ! RT0: the oscillation of f_α ∓ λ_h around its mean
+            osc_mean = 0.0_dp
+            osc_sq = 0.0_dp
+            do k = 1, self%space%rule%n
+               x = matmul(frame%vertices, self%space%rule%bary(:, k))
+               w = self%space%rule%weights(k)*frame%area
+               lam_x = dot_product(lambda(v), self%space%rule%bary(:, k))
                f = [data%load(1, x), data%load(2, x)] + lambda_sign*lam_x
                osc_values(:, k) = f
                osc_mean = osc_mean + w*f
-            end if
-         end do
-         do alpha = 1, 2
-            est%disc_k(alpha, t) = sqrt(sq(1, alpha)/self%mu(alpha))
-            est%alg_k(alpha, t) = sqrt(sq(2, alpha)/self%mu(alpha))
-            est%flux_k(alpha, t) = sqrt(sq(3, alpha)/self%mu(alpha))
-         end do
-         if (space%order == 0) then
+            end do
             osc_mean = osc_mean/frame%area
-            do k = 1, space%rule%n
-               osc_w = space%rule%weights(k)*frame%area
+            do k = 1, self%space%rule%n
+               osc_w = self%space%rule%weights(k)*frame%area
                osc_sq = osc_sq + osc_w*(osc_values(:, k) - osc_mean)**2
             end do
             est%osc_k(:, t) = hierarchy%meshes(finest)%h(t)/acos(-1.0_dp)*sqrt(osc_sq/self%mu)
@@ -343,6 +372,54 @@ contains
       !$omp end parallel do
       positive_norm = sqrt(sum_pos)
    end subroutine element_estimators
+
+   !> cᵀ M c for a contiguous n×n matrix M.
+   pure real(dp) function quadratic_form(n, m, c) result(q)
+      integer, intent(in) :: n
+      real(dp), intent(in) :: m(n, n), c(n)
+
+      integer :: i, j
+      real(dp) :: row
+
+      q = 0.0_dp
+      do j = 1, n
+         row = 0.0_dp
+         do i = 1, n
+            row = row + m(i, j)*c(i)
+         end do
+         q = q + c(j)*row
+      end do
+   end function quadratic_form
+
+   !> The coefficients in the basis of `child` of the RT_p field with coefficients c in the basis
+   !> of `parent` ⊃ child: with ξ_parent = d + κ ξ_child (d the child's barycentre in the
+   !> parent's scaled coordinates, κ the ratio of the scales), each monomial field expands
+   !> exactly, e.g. ξ1 ξ = d1 d + κ(2 d1 ξ1, d2 ξ1 + d1 ξ2) + κ² ξ1 ξ.
+   pure subroutine to_child_basis(order, parent, child, c, f)
+      integer, intent(in) :: order
+      type(rt_frame_t), intent(in) :: parent, child
+      real(dp), intent(in) :: c(:)
+      real(dp), intent(out) :: f(:)
+
+      real(dp) :: d(2), kappa
+
+      d = (child%centre - parent%centre)/parent%scale
+      kappa = child%scale/parent%scale
+      if (order == 0) then
+         f(1) = c(1) + d(1)*c(3)
+         f(2) = c(2) + d(2)*c(3)
+         f(3) = kappa*c(3)
+      else
+         f(1) = c(1) + d(1)*c(3) + d(2)*c(4) + d(1)**2*c(7) + d(1)*d(2)*c(8)
+         f(2) = c(2) + d(1)*c(5) + d(2)*c(6) + d(1)*d(2)*c(7) + d(2)**2*c(8)
+         f(3) = kappa*(c(3) + 2*d(1)*c(7) + d(2)*c(8))
+         f(4) = kappa*(c(4) + d(1)*c(8))
+         f(5) = kappa*(c(5) + d(2)*c(7))
+         f(6) = kappa*(c(6) + d(1)*c(7) + 2*d(2)*c(8))
+         f(7) = kappa**2*c(7)
+         f(8) = kappa**2*c(8)
+      end if
+   end subroutine to_child_basis
 
    !> Exact ∫_{l>0} l w and ∫_{l>0} l² over a triangle for linear l and w given at its vertices:
    !> clip at l = 0 and integrate the quadratics with the edge-midpoint rule on a fan.
@@ -418,6 +495,20 @@ contains
          end do
       end do
    end subroutine local_criteria
+
+   !> Per-triangle arrays for nt triangles, kept when they are already of that size.
+   subroutine ensure(self, nt)
+      class(estimates_t), intent(inout) :: self
+      integer(ip), intent(in) :: nt
+
+      if (allocated(self%lin_k)) then
+         if (size(self%lin_k, kind=ip) == nt) return
+         deallocate (self%disc_k, self%alg_k, self%flux_k, self%osc_k, self%contact_k, self%nonc1_k, self%nonc2_k, &
+                     self%nonc3_k, self%lin_k)
+      end if
+      allocate (self%disc_k(2, nt), self%alg_k(2, nt), self%flux_k(2, nt), self%osc_k(2, nt))
+      allocate (self%contact_k(nt), self%nonc1_k(nt), self%nonc2_k(nt), self%nonc3_k(nt), self%lin_k(nt))
+   end subroutine ensure
 
    !> The per-triangle field `name` of `/estimators` and its global value (docs/output.md).
    subroutine field(self, name, values, total)

@@ -20,15 +20,14 @@ contains
       real(dp), intent(in) :: x(:)
       real(dp), intent(out) :: r1(:), r2(:)
 
-      real(dp), allocatable :: s(:)
       integer(ip) :: n
 
+      ! S X_α into r_α first: no work vector of the mesh's size
       n = p%n
-      allocate (s(n))
-      call p%stiffness%matvec(x(1:n), s)
-      r1 = p%f1 - p%mu1*s + p%mass*x(2*n + 1:3*n)
-      call p%stiffness%matvec(x(n + 1:2*n), s)
-      r2 = p%f2 - p%mu2*s - p%mass*x(2*n + 1:3*n)
+      call p%stiffness%matvec(x(1:n), r1)
+      r1 = p%f1 - p%mu1*r1 + p%mass*x(2*n + 1:3*n)
+      call p%stiffness%matvec(x(n + 1:2*n), r2)
+      r2 = p%f2 - p%mu2*r2 - p%mass*x(2*n + 1:3*n)
    end subroutine algebraic_residuals
 
    !> r(:, t) = values of r at the three vertices of triangle t, from nodal residuals

@@ -2,22 +2,27 @@
 !> prescribed divergence moments, normal flux continuous inside the patch, zero normal flux on
 !> the patch boundary (except on ∂Ω where the patch touches it), minimizing ‖σ − σ_0‖ in the
 !> mixed sense (paper eqs. (36) and (1.80) of the thesis). Solved by hybridization: each
-!> triangle's own mixed system is eliminated locally with its inverse, precomputed once per mesh
-!> (rt_matrices_t), the zero-flux constraints of its patch-boundary edge by a 2×2 Schur
-!> complement, leaving a small symmetric positive (semi)definite system for the multipliers of
-!> normal continuity on the patch's inner edges. For a vertex patch of RT1 that
-!> is 2 unknowns per inner edge (12 for six triangles) instead of a ~40-unknown indefinite
-!> system, and for the refined patches of the multilevel algebraic flux 60 instead of ~180.
+!> triangle's own mixed system is eliminated locally with the inverse of its shape class
+!> (twomem_estimate_shapes), scaled to the triangle and signed to its edge orientations, the
+!> zero-flux constraints of its patch-boundary edge by a small Schur complement, leaving a
+!> symmetric positive (semi)definite system for the multipliers of normal continuity on the
+!> patch's inner edges: 2 unknowns per inner edge for RT1 (12 for a vertex patch of six
+!> triangles). The refined patches of the multilevel algebraic flux have 60: there the caller
+!> numbers the three inner edges of each coarse triangle's middle child first, so that these
+!> unknowns form independent diagonal blocks (they couple only through the halves of the coarse
+!> edges at the patch vertex), and the blocks are eliminated first; what remains is a
+!> 24-unknown system for a patch of six coarse triangles, about a tenth of the dense work.
 !> When no edge touches ∂Ω the multipliers are defined up to a constant (the Neumann
 !> compatibility of the data makes any choice work): the first one is pinned to zero.
 module twomem_estimate_patch
    use twomem_base_kinds, only: dp, ip
-   use twomem_linalg_dense, only: lu_factor, lu_solve, cholesky_factor, cholesky_solve
-   use twomem_estimate_raviart_thomas, only: rt_space_t, rt_matrices_t
+   use twomem_linalg_dense, only: lu_factor, lu_solve
+   use twomem_estimate_raviart_thomas, only: rt_space_t
+   use twomem_estimate_shapes, only: shape_classes_t
    implicit none
    private
 
-   public :: solve_patch, inner_edge, edge_free, edge_neumann
+   public :: solve_patch, solve_condensed_patch, inner_edge, edge_free, edge_neumann
 
    !> edge kinds in `links`: a positive value numbers an inner edge of the patch
    integer, parameter :: edge_free = 0, edge_neumann = -1
@@ -40,34 +45,43 @@ contains
       end if
    end subroutine inner_edge
 
-   !> elements(k): the mesh triangle of patch triangle k, whose precomputed operators are in
-   !> `matrices`; links(m,k): the edge opposite local vertex m is inner edge links(m,k) > 0, or
-   !> edge_free (on ∂Ω, no condition) or edge_neumann (σ·n = 0). For each right-hand side r,
-   !> rhs_flux(:,k,r) holds (σ_0, φ_i)_K and rhs_div(:,k,r) the moments (∇·σ, q_k)_K to reach;
-   !> sigma(:,k,r) returns the coefficients of σ|_K. ok is .false. if a system is singular.
-   pure subroutine solve_patch(space, matrices, elements, links, rhs_flux, rhs_div, sigma, ok)
+   !> Patch triangle k is of class classes(k) at ratio ratios(k) (twomem_estimate_shapes), and
+   !> signs(:, k) = ±1 turns its class trace rows into the patch's (the mesh's edge
+   !> orientation); links(m,k): the edge opposite local vertex m is inner edge links(m,k) > 0,
+   !> or edge_free (on ∂Ω, no condition) or edge_neumann (σ·n = 0). For each right-hand side r,
+   !> rhs_flux(:,k,r) holds (σ_0, φ_i)_K (zero when flux_data is .false., which skips it) and
+   !> rhs_div(:,k,r) the moments (∇·σ, q_k)_K to reach; sigma(:,k,r) returns the coefficients of
+   !> σ|_K. The first n_blocks blocks of 3 n_trace multipliers must couple only with the
+   !> multipliers after them. ok is .false. if a system is singular.
+   pure subroutine solve_patch(space, shapes, classes, ratios, signs, links, rhs_flux, rhs_div, flux_data, n_blocks, &
+                               sigma, ok)
       type(rt_space_t), intent(in) :: space
-      type(rt_matrices_t), intent(in) :: matrices
-      integer(ip), intent(in) :: elements(:)
+      type(shape_classes_t), intent(in) :: shapes
+      integer, intent(in) :: classes(:)
+      real(dp), intent(in) :: ratios(:), signs(:, :)
       integer, intent(in) :: links(:, :)
       real(dp), intent(in) :: rhs_flux(:, :, :), rhs_div(:, :, :)
+      logical, intent(in) :: flux_data
+      integer, intent(in) :: n_blocks
       real(dp), intent(out) :: sigma(:, :, :)
       logical, intent(out) :: ok
 
-      integer :: nt, ne, nr, n_theta, nc, nf
+      integer :: nt, ne, nr, n_theta, nc, nf, nd
       real(dp) :: h(space%n_trace*max(0, maxval(links)), space%n_trace*max(0, maxval(links)))
       real(dp) :: b(size(h, 1), size(rhs_flux, 3))
-      !> flux response to each trace row of each triangle, after its zero-flux edges are enforced
-      real(dp) :: response(space%n_flux, 3*space%n_trace, size(elements))
-      real(dp) :: c_response(3*space%n_trace, 3*space%n_trace), c_sigma(3*space%n_trace, size(rhs_flux, 3))
-      real(dp) :: schur(3*space%n_trace, 3*space%n_trace), rhs(3*space%n_trace, 3*space%n_trace + size(rhs_flux, 3))
+      !> the traces C σ of each triangle's particular solution (no edge multipliers)
+      real(dp) :: c_sigma(3*space%n_trace, size(rhs_flux, 3), size(classes))
+      real(dp) :: czc(3*space%n_trace, 3*space%n_trace), schur(3*space%n_trace, 3*space%n_trace)
+      real(dp) :: rhs(3*space%n_trace, 3*space%n_trace + size(rhs_flux, 3)), mu(3*space%n_trace, size(rhs_flux, 3))
       integer :: rows_n(3*space%n_trace), rows_i(3*space%n_trace), global_i(3*space%n_trace), piv(3*space%n_trace)
-      integer :: k, m, l, i, j, nn, ni, r
+      integer :: k, i, j, nn, ni, r, c, q
+      real(dp) :: rho, rho2, s(3*space%n_trace), acc
 
       nt = space%n_trace
       nf = space%n_flux
+      nd = space%n_div
       nc = 3*nt
-      ne = size(elements)
+      ne = size(classes)
       nr = size(rhs_flux, 3)
       n_theta = size(h, 1)
       h = 0.0_dp
@@ -75,89 +89,453 @@ contains
       ok = .true.
 
       do k = 1, ne
-         associate (z => matrices%z(:, :, elements(k)), y => matrices%y(:, :, elements(k)), &
-                    zc => matrices%zc(:, :, elements(k)), czc => matrices%czc(:, :, elements(k)), &
-                    cy => matrices%cy(:, :, elements(k)))
-            nn = 0
-            ni = 0
-            do m = 1, 3
-               do l = 1, nt
-                  if (links(m, k) == edge_neumann) then
-                     nn = nn + 1
-                     rows_n(nn) = (m - 1)*nt + l
-                  else if (links(m, k) > 0) then
-                     ni = ni + 1
-                     rows_i(ni) = (m - 1)*nt + l
-                     global_i(ni) = (links(m, k) - 1)*nt + l
-                  end if
+         c = classes(k)
+         rho = ratios(k)
+         rho2 = rho*rho
+         s = signs(:, k)
+         call edge_rows(links(:, k), nt, nn, rows_n, ni, rows_i, global_i)
+         ! the triangle alone: σ = z F + y G and its traces C σ, with the class operators
+         ! z → ρ² z, y → ρ y, z Cᵀ → ρ z Cᵀ S, C z Cᵀ → S C z Cᵀ S, C y → S C y (S = signs)
+         do r = 1, nr
+            do i = 1, nf
+               acc = 0.0_dp
+               do q = 1, nd
+                  acc = acc + shapes%y(i, q, c)*rhs_div(q, k, r)
                end do
+               sigma(i, k, r) = rho*acc
             end do
-            ! the triangle alone: σ = z F + y G, its traces C σ (loops: no array temporaries here,
-            ! this is the innermost work of every estimator evaluation)
-            do r = 1, nr
+            do i = 1, nc
+               acc = 0.0_dp
+               do q = 1, nd
+                  acc = acc + shapes%cy(i, q, c)*rhs_div(q, k, r)
+               end do
+               c_sigma(i, r, k) = s(i)*acc
+            end do
+            if (flux_data) then
                do i = 1, nf
-                  sigma(i, k, r) = dot_product(z(i, :), rhs_flux(:, k, r)) + dot_product(y(i, :), rhs_div(:, k, r))
+                  acc = 0.0_dp
+                  do q = 1, nf
+                     acc = acc + shapes%z(i, q, c)*rhs_flux(q, k, r)
+                  end do
+                  sigma(i, k, r) = sigma(i, k, r) + rho2*acc
                end do
                do i = 1, nc
-                  c_sigma(i, r) = dot_product(zc(:, i), rhs_flux(:, k, r)) + dot_product(cy(i, :), rhs_div(:, k, r))
-               end do
-            end do
-            response(:, :, k) = zc
-            c_response = czc
-            if (nn > 0) then
-               ! zero flux through the patch boundary: a Schur complement on its trace rows
-               do j = 1, nn
-                  do i = 1, nn
-                     schur(i, j) = czc(rows_n(i), rows_n(j))
+                  acc = 0.0_dp
+                  do q = 1, nf
+                     acc = acc + shapes%zc(q, i, c)*rhs_flux(q, k, r)
                   end do
-                  rhs(j, 1:nc) = czc(rows_n(j), :)
-                  rhs(j, nc + 1:nc + nr) = c_sigma(rows_n(j), :)
-               end do
-               call lu_factor(schur(1:nn, 1:nn), piv, ok)
-               if (.not. ok) return
-               call lu_solve(schur(1:nn, 1:nn), piv, rhs(1:nn, 1:nc + nr))
-               do j = 1, nn
-                  do r = 1, nr
-                     sigma(:, k, r) = sigma(:, k, r) - zc(:, rows_n(j))*rhs(j, nc + r)
-                     c_sigma(:, r) = c_sigma(:, r) - czc(:, rows_n(j))*rhs(j, nc + r)
-                  end do
-                  do i = 1, nc
-                     response(:, i, k) = response(:, i, k) - zc(:, rows_n(j))*rhs(j, i)
-                     c_response(:, i) = c_response(:, i) - czc(:, rows_n(j))*rhs(j, i)
-                  end do
+                  c_sigma(i, r, k) = c_sigma(i, r, k) + rho*s(i)*acc
                end do
             end if
-         end associate
-         ! σ_K = particular − Σ response θ; continuity Σ_K C_K σ_K = 0 on inner edges gives H θ = b
-         do i = 1, ni
-            do j = 1, ni
-               h(global_i(i), global_i(j)) = h(global_i(i), global_i(j)) + c_response(rows_i(i), rows_i(j))
-            end do
-            b(global_i(i), :) = b(global_i(i), :) + c_sigma(rows_i(i), :)
          end do
-      end do
-      if (n_theta == 0) return
-
-      if (.not. any(links == edge_free)) then
-         ! only zero-flux boundary: θ is defined up to a constant, pin the first multiplier
-         h(1, :) = 0.0_dp
-         h(:, 1) = 0.0_dp
-         h(1, 1) = 1.0_dp
-         b(1, :) = 0.0_dp
-      end if
-      call cholesky_factor(h, ok)
-      if (.not. ok) return
-      call cholesky_solve(h, b)
-      do k = 1, ne
-         do m = 1, 3
-            if (links(m, k) <= 0) cycle
-            do l = 1, nt
-               i = (links(m, k) - 1)*nt + l
-               do r = 1, nr
-                  sigma(:, k, r) = sigma(:, k, r) - b(i, r)*response(:, (m - 1)*nt + l, k)
+         do j = 1, nc
+            do i = 1, nc
+               czc(i, j) = s(i)*s(j)*shapes%czc(i, j, c)
+            end do
+         end do
+         if (nn > 0) then
+            ! zero flux through the patch boundary: eliminate its trace rows by a Schur complement
+            ! on the inner rows (schur⁻¹ [czc(n, inner) | C σ(n)])
+            call neumann_factor(czc, nn, rows_n, schur, piv, ok)
+            if (.not. ok) return
+            do j = 1, ni
+               rhs(1:nn, j) = czc(rows_n(1:nn), rows_i(j))
+            end do
+            rhs(1:nn, ni + 1:ni + nr) = c_sigma(rows_n(1:nn), :, k)
+            call lu_solve(schur(1:nn, 1:nn), piv, rhs(1:nn, 1:ni + nr))
+            do j = 1, ni
+               do i = 1, ni
+                  h(global_i(i), global_i(j)) = h(global_i(i), global_i(j)) + czc(rows_i(i), rows_i(j)) &
+                                                - dot_product(czc(rows_i(i), rows_n(1:nn)), rhs(1:nn, j))
                end do
+            end do
+            do r = 1, nr
+               do i = 1, ni
+                  b(global_i(i), r) = b(global_i(i), r) + c_sigma(rows_i(i), r, k) &
+                                      - dot_product(czc(rows_i(i), rows_n(1:nn)), rhs(1:nn, ni + r))
+               end do
+            end do
+         else
+            do j = 1, ni
+               do i = 1, ni
+                  h(global_i(i), global_i(j)) = h(global_i(i), global_i(j)) + czc(rows_i(i), rows_i(j))
+               end do
+            end do
+            do r = 1, nr
+               do i = 1, ni
+                  b(global_i(i), r) = b(global_i(i), r) + c_sigma(rows_i(i), r, k)
+               end do
+            end do
+         end if
+      end do
+      if (n_theta == 0 .and. all(links /= edge_neumann)) return
+
+      if (n_theta > 0) then
+         if (.not. any(links == edge_free)) then
+            ! only zero-flux boundary: θ is defined up to a constant, pin the first multiplier
+            h(1, :) = 0.0_dp
+            h(:, 1) = 0.0_dp
+            h(1, 1) = 1.0_dp
+            b(1, :) = 0.0_dp
+         end if
+         if (n_blocks > 0) then
+            call block_solve(h, b, n_blocks, nc, ok)
+         else
+            call chol_factor(n_theta, h, ok)
+            if (ok) call chol_solve(n_theta, h, nr, b)
+         end if
+         if (.not. ok) return
+      end if
+      ! σ_K = particular − ρ z Cᵀ S μ with μ the multipliers of all trace rows of K: θ on inner
+      ! edges, the solved Neumann multipliers on patch-boundary edges, zero on free edges
+      do k = 1, ne
+         c = classes(k)
+         rho = ratios(k)
+         s = signs(:, k)
+         call edge_rows(links(:, k), nt, nn, rows_n, ni, rows_i, global_i)
+         mu = 0.0_dp
+         do i = 1, ni
+            mu(rows_i(i), :) = b(global_i(i), :)
+         end do
+         if (nn > 0) then
+            do j = 1, nc
+               do i = 1, nc
+                  czc(i, j) = s(i)*s(j)*shapes%czc(i, j, c)
+               end do
+            end do
+            call neumann_factor(czc, nn, rows_n, schur, piv, ok)
+            do r = 1, nr
+               do i = 1, nn
+                  rhs(i, r) = c_sigma(rows_n(i), r, k) - dot_product(czc(rows_n(i), rows_i(1:ni)), mu(rows_i(1:ni), r))
+               end do
+            end do
+            call lu_solve(schur(1:nn, 1:nn), piv, rhs(1:nn, 1:nr))
+            do i = 1, nn
+               mu(rows_n(i), :) = rhs(i, 1:nr)
+            end do
+         end if
+         do r = 1, nr
+            do j = 1, nc
+               if (mu(j, r) == 0.0_dp) cycle
+               sigma(:, k, r) = sigma(:, k, r) - (rho*s(j)*mu(j, r))*shapes%zc(:, j, c)
             end do
          end do
       end do
    end subroutine solve_patch
+
+   !> solve_patch for a patch without edges on ∂Ω (an interior vertex's patch), with the
+   !> triangles condensed by their class (twomem_estimate_shapes, cond_*): neumann(k) is the
+   !> edge of triangle k that carries zero flux, or 0 when all three are inner edges (then
+   !> flux_data must be .false.); links(m, k) numbers every other edge. The flux datum of
+   !> triangle k is (σ_0, φ_j)_K = ρ⁻² Φ_i fgrad(:, k, r) with Φ_i = psi_phi(:, :, neumann(k)) of
+   !> the class, i.e. σ_0 = fgrad ψ_i for the vertex opposite the zero-flux edge. The
+   !> multipliers are defined up to a constant: the first one is pinned.
+   pure subroutine solve_condensed_patch(space, shapes, classes, ratios, signs, neumann, links, fgrad, rhs_div, &
+                                         flux_data, n_blocks, sigma, ok)
+      type(rt_space_t), intent(in) :: space
+      type(shape_classes_t), intent(in) :: shapes
+      integer, intent(in) :: classes(:), neumann(:), links(:, :)
+      real(dp), intent(in) :: ratios(:), signs(:, :), fgrad(:, :, :), rhs_div(:, :, :)
+      logical, intent(in) :: flux_data
+      integer, intent(in) :: n_blocks
+      real(dp), intent(out) :: sigma(:, :, :)
+      logical, intent(out) :: ok
+
+      integer :: nt, nf, nd, nc, ne, nr, n_theta, k, c, i, a, q, r, n_rows, rows(3*space%n_trace), glob(3*space%n_trace)
+      real(dp) :: h(space%n_trace*maxval(links), space%n_trace*maxval(links)), b(size(h, 1), size(rhs_div, 3))
+      real(dp) :: rho, sg(3*space%n_trace), t1(3*space%n_trace), theta(3*space%n_trace), g(space%n_div)
+      real(dp) :: f(space%n_flux), a_k(3*space%n_trace, 3*space%n_trace)
+
+      nt = space%n_trace
+      nf = space%n_flux
+      nd = space%n_div
+      nc = 3*nt
+      ne = size(classes)
+      nr = size(rhs_div, 3)
+      n_theta = size(h, 1)
+      h = 0.0_dp
+      b = 0.0_dp
+      do k = 1, ne
+         c = classes(k)
+         rho = ratios(k)
+         call inner_rows(nt, neumann(k), links(:, k), n_rows, rows, glob)
+         sg(1:n_rows) = signs(rows(1:n_rows), k)
+         i = neumann(k)
+         if (i > 0) then
+            a_k(1:n_rows, 1:n_rows) = shapes%cond_a(:, :, i, c)
+         else
+            a_k(1:n_rows, 1:n_rows) = shapes%czc(:, :, c)
+         end if
+         do a = 1, n_rows
+            do q = 1, n_rows
+               h(glob(q), glob(a)) = h(glob(q), glob(a)) + sg(q)*sg(a)*a_k(q, a)
+            end do
+         end do
+         do r = 1, nr
+            g = rhs_div(:, k, r)
+            if (i > 0) then
+               call mat_vec(n_rows, nd, shapes%cond_qg(:, :, i, c), g, t1)
+               if (flux_data) call mat_vec_add(n_rows, 2, shapes%cond_qf(:, :, i, c), fgrad(:, k, r), 1/rho, t1)
+            else
+               call mat_vec(n_rows, nd, shapes%cy(:, :, c), g, t1)
+            end if
+            do a = 1, n_rows
+               b(glob(a), r) = b(glob(a), r) + sg(a)*t1(a)
+            end do
+         end do
+      end do
+      h(1, :) = 0.0_dp
+      h(:, 1) = 0.0_dp
+      h(1, 1) = 1.0_dp
+      b(1, :) = 0.0_dp
+      if (n_blocks > 0) then
+         call block_solve(h, b, n_blocks, nc, ok)
+      else
+         call chol_factor(n_theta, h, ok)
+         if (ok) call chol_solve(n_theta, h, nr, b)
+      end if
+      if (.not. ok) return
+      do k = 1, ne
+         c = classes(k)
+         rho = ratios(k)
+         call inner_rows(nt, neumann(k), links(:, k), n_rows, rows, glob)
+         i = neumann(k)
+         do r = 1, nr
+            do a = 1, n_rows
+               theta(a) = -rho*signs(rows(a), k)*b(glob(a), r)
+            end do
+            g = rho*rhs_div(:, k, r)
+            if (i > 0) then
+               call mat_vec(nf, nd, shapes%cond_rg(:, :, i, c), g, f)
+               call mat_vec_add(nf, n_rows, shapes%cond_rt(:, :, i, c), theta, 1.0_dp, f)
+               if (flux_data) call mat_vec_add(nf, 2, shapes%cond_rf(:, :, i, c), fgrad(:, k, r), 1.0_dp, f)
+            else
+               call mat_vec(nf, nd, shapes%y(:, :, c), g, f)
+               call mat_vec_add(nf, nc, shapes%zc(:, :, c), theta, 1.0_dp, f)
+            end if
+            sigma(:, k, r) = f
+         end do
+      end do
+   end subroutine solve_condensed_patch
+
+   !> y = A x for a contiguous m×n matrix.
+   pure subroutine mat_vec(m, n, a, x, y)
+      integer, intent(in) :: m, n
+      real(dp), intent(in) :: a(m, n), x(n)
+      real(dp), intent(out) :: y(m)
+
+      integer :: j
+
+      y = a(:, 1)*x(1)
+      do j = 2, n
+         y = y + a(:, j)*x(j)
+      end do
+   end subroutine mat_vec
+
+   !> y = y + s A x for a contiguous m×n matrix.
+   pure subroutine mat_vec_add(m, n, a, x, s, y)
+      integer, intent(in) :: m, n
+      real(dp), intent(in) :: a(m, n), x(n), s
+      real(dp), intent(inout) :: y(m)
+
+      integer :: j
+
+      do j = 1, n
+         y = y + a(:, j)*(s*x(j))
+      end do
+   end subroutine mat_vec_add
+
+   !> In place, lower triangle of a contiguous n×n matrix: a = L Lᵀ; ok is .false. if a is not
+   !> positive definite.
+   pure subroutine chol_factor(n, a, ok)
+      integer, intent(in) :: n
+      real(dp), intent(inout) :: a(n, n)
+      logical, intent(out) :: ok
+
+      integer :: i, j, k
+      real(dp) :: d
+
+      ok = .true.
+      do j = 1, n
+         do k = 1, j - 1
+            do i = j, n
+               a(i, j) = a(i, j) - a(i, k)*a(j, k)
+            end do
+         end do
+         if (.not. a(j, j) > 0.0_dp) then
+            ok = .false.
+            return
+         end if
+         d = 1/sqrt(a(j, j))
+         do i = j, n
+            a(i, j) = a(i, j)*d
+         end do
+      end do
+   end subroutine chol_factor
+
+   !> b = (L Lᵀ)⁻¹ b for the m columns of b, with the factor of chol_factor.
+   pure subroutine chol_solve(n, a, m, b)
+      integer, intent(in) :: n, m
+      real(dp), intent(in) :: a(n, n)
+      real(dp), intent(inout) :: b(:, :)
+
+      integer :: i, j, k
+      real(dp) :: x
+
+      do j = 1, m
+         do k = 1, n
+            x = b(k, j)/a(k, k)
+            b(k, j) = x
+            do i = k + 1, n
+               b(i, j) = b(i, j) - a(i, k)*x
+            end do
+         end do
+         do k = n, 1, -1
+            x = b(k, j)
+            do i = k + 1, n
+               x = x - a(i, k)*b(i, j)
+            end do
+            b(k, j) = x/a(k, k)
+         end do
+      end do
+   end subroutine chol_solve
+
+   !> The inner trace rows of a patch triangle whose edge `neumann` (0: none) carries zero flux:
+   !> in the order of the class's condensed operators (edges neumann+1, neumann+2), with their
+   !> patch unknowns glob.
+   pure subroutine inner_rows(nt, neumann, links, n_rows, rows, glob)
+      integer, intent(in) :: nt, neumann, links(3)
+      integer, intent(out) :: n_rows, rows(:), glob(:)
+
+      integer :: m, l, e
+
+      n_rows = 0
+      do m = 1, merge(2, 3, neumann > 0)
+         e = merge(modulo(neumann + m - 1, 3) + 1, m, neumann > 0)
+         do l = 1, nt
+            n_rows = n_rows + 1
+            rows(n_rows) = (e - 1)*nt + l
+            glob(n_rows) = (links(e) - 1)*nt + l
+         end do
+      end do
+   end subroutine inner_rows
+
+   !> The trace rows of one patch triangle: nn on zero-flux edges, ni on inner edges with their
+   !> patch unknowns global_i.
+   pure subroutine edge_rows(links, nt, nn, rows_n, ni, rows_i, global_i)
+      integer, intent(in) :: links(3), nt
+      integer, intent(out) :: nn, rows_n(:), ni, rows_i(:), global_i(:)
+
+      integer :: m, l
+
+      nn = 0
+      ni = 0
+      do m = 1, 3
+         do l = 1, nt
+            if (links(m) == edge_neumann) then
+               nn = nn + 1
+               rows_n(nn) = (m - 1)*nt + l
+            else if (links(m) > 0) then
+               ni = ni + 1
+               rows_i(ni) = (m - 1)*nt + l
+               global_i(ni) = (links(m) - 1)*nt + l
+            end if
+         end do
+      end do
+   end subroutine edge_rows
+
+   !> LU factors of czc restricted to the zero-flux rows.
+   pure subroutine neumann_factor(czc, nn, rows_n, schur, piv, ok)
+      real(dp), intent(in) :: czc(:, :)
+      integer, intent(in) :: nn, rows_n(:)
+      real(dp), intent(out) :: schur(:, :)
+      integer, intent(out) :: piv(:)
+      logical, intent(out) :: ok
+
+      integer :: i, j
+
+      do j = 1, nn
+         do i = 1, nn
+            schur(i, j) = czc(rows_n(i), rows_n(j))
+         end do
+      end do
+      call lu_factor(schur(1:nn, 1:nn), piv, ok)
+   end subroutine neumann_factor
+
+   !> H θ = b for symmetric positive definite H whose first n_blocks diagonal blocks of size g
+   !> couple only with the unknowns after them (the tail): eliminate each block (Cholesky), the
+   !> tail's Schur complement by Cholesky, then back-substitute. b returns θ.
+   pure subroutine block_solve(h, b, n_blocks, g, ok)
+      real(dp), intent(in) :: h(:, :)
+      real(dp), intent(inout) :: b(:, :)
+      integer, intent(in) :: n_blocks, g
+      logical, intent(out) :: ok
+
+      integer :: nb, ns, nr, ib, r0, i, j, q, r, n_cpl
+      real(dp) :: d(g, g), x(g, size(h, 1) - n_blocks*g, n_blocks), y(g, size(b, 2), n_blocks)
+      real(dp) :: s(size(h, 1) - n_blocks*g, size(h, 1) - n_blocks*g), bt(size(h, 1) - n_blocks*g, size(b, 2))
+      real(dp) :: acc, hc(g, size(h, 1) - n_blocks*g)
+      integer :: cols(size(h, 1) - n_blocks*g, n_blocks), n_cols(n_blocks)
+
+      nb = n_blocks*g
+      ns = size(h, 1) - nb
+      nr = size(b, 2)
+      s = h(nb + 1:, nb + 1:)
+      bt = b(nb + 1:, :)
+      ok = .true.
+      do ib = 1, n_blocks
+         r0 = (ib - 1)*g
+         d = h(r0 + 1:r0 + g, r0 + 1:r0 + g)
+         call chol_factor(g, d, ok)
+         if (.not. ok) return
+         ! the tail unknowns this block touches
+         n_cpl = 0
+         do j = 1, ns
+            if (any(h(r0 + 1:r0 + g, nb + j) /= 0.0_dp)) then
+               n_cpl = n_cpl + 1
+               cols(n_cpl, ib) = j
+               hc(:, n_cpl) = h(r0 + 1:r0 + g, nb + j)
+            end if
+         end do
+         n_cols(ib) = n_cpl
+         x(:, 1:n_cpl, ib) = hc(:, 1:n_cpl)
+         y(:, :, ib) = b(r0 + 1:r0 + g, :)
+         call chol_solve(g, d, n_cpl, x(:, :, ib))
+         call chol_solve(g, d, nr, y(:, :, ib))
+         ! S = H_tt − H_tb D⁻¹ H_bt and b_t − H_tb D⁻¹ b_b on the touched tail entries
+         do j = 1, n_cpl
+            do i = 1, n_cpl
+               acc = 0.0_dp
+               do q = 1, g
+                  acc = acc + hc(q, i)*x(q, j, ib)
+               end do
+               s(cols(i, ib), cols(j, ib)) = s(cols(i, ib), cols(j, ib)) - acc
+            end do
+         end do
+         do r = 1, nr
+            do i = 1, n_cpl
+               acc = 0.0_dp
+               do q = 1, g
+                  acc = acc + hc(q, i)*y(q, r, ib)
+               end do
+               bt(cols(i, ib), r) = bt(cols(i, ib), r) - acc
+            end do
+         end do
+      end do
+      if (ns > 0) then
+         call chol_factor(ns, s, ok)
+         if (.not. ok) return
+         call chol_solve(ns, s, nr, bt)
+      end if
+      b(nb + 1:, :) = bt
+      do ib = 1, n_blocks
+         r0 = (ib - 1)*g
+         do r = 1, nr
+            b(r0 + 1:r0 + g, r) = y(:, r, ib)
+            do i = 1, n_cols(ib)
+               b(r0 + 1:r0 + g, r) = b(r0 + 1:r0 + g, r) - x(:, i, ib)*bt(cols(i, ib), r)
+            end do
+         end do
+      end do
+   end subroutine block_solve
 end module twomem_estimate_patch

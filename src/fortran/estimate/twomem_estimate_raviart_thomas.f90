@@ -12,13 +12,11 @@
 !> lower-numbered mesh vertex to the higher one, so both neighbours agree on it.
 module twomem_estimate_raviart_thomas
    use twomem_base_kinds, only: dp, ip
-   use twomem_mesh_triangulation, only: mesh_t
    use twomem_fem_quadrature, only: quadrature_t, triangle_rule
-   use twomem_linalg_dense, only: lu_factor, lu_solve
    implicit none
    private
 
-   public :: rt_space_t, rt_frame_t, rt_matrices_t, make_frame, edge_gauss
+   public :: rt_space_t, rt_frame_t, make_frame, edge_gauss
 
    !> 3-point Gauss–Legendre on [−1, 1] (exact to degree 5): traces of RT1 times P1 are cubic.
    real(dp), parameter :: edge_gauss(2, 3) = reshape([-sqrt(0.6_dp), 5.0_dp/9, 0.0_dp, 8.0_dp/9, &
@@ -36,7 +34,6 @@ module twomem_estimate_raviart_thomas
       procedure :: divergence_values
       procedure :: div_test_values
       procedure :: element_matrices
-      procedure :: mesh_matrices
    end type rt_space_t
 
    !> Where the monomials of one triangle live.
@@ -44,16 +41,6 @@ module twomem_estimate_raviart_thomas
       real(dp) :: vertices(2, 3) = 0.0_dp
       real(dp) :: centre(2) = 0.0_dp, scale = 1.0_dp, area = 0.0_dp
    end type rt_frame_t
-
-   !> What the patch solver needs of every triangle of a mesh, computed once since it depends on
-   !> the geometry only (each triangle takes part in three patch problems per evaluation): with
-   !> M = [A Bᵀ; B 0] the triangle's mixed matrix (A the RT mass matrix, B the divergence against
-   !> P_p) and C the edge traces (3 n_trace rows), z and y are the flux rows of M⁻¹ (σ = z F + y G
-   !> solves the triangle's problem with data F, G and no edge conditions), zc = z Cᵀ,
-   !> czc = C z Cᵀ and cy = C y. About 190 numbers per triangle for RT1.
-   type :: rt_matrices_t
-      real(dp), allocatable :: z(:, :, :), y(:, :, :), zc(:, :, :), czc(:, :, :), cy(:, :, :)
-   end type rt_matrices_t
 
 contains
 
@@ -186,58 +173,4 @@ contains
          end do
       end do
    end subroutine element_matrices
-
-   !> The precomputed triangle operators of every triangle; edge traces oriented from the lower
-   !> mesh vertex number. ok is .false. if some triangle's mixed matrix is singular.
-   subroutine mesh_matrices(self, mesh, matrices, ok)
-      class(rt_space_t), intent(in) :: self
-      type(mesh_t), intent(in) :: mesh
-      type(rt_matrices_t), intent(out) :: matrices
-      logical, intent(out) :: ok
-
-      integer(ip) :: t, v(3)
-      integer :: m, nf, nd, nc, i, piv(self%n_flux + self%n_div)
-      logical :: forward(3), t_ok
-      real(dp) :: mass(self%n_flux, self%n_flux), div(self%n_div, self%n_flux), trace(self%n_trace, self%n_flux, 3)
-      real(dp) :: mixed(self%n_flux + self%n_div, self%n_flux + self%n_div), inverse(size(mixed, 1), size(mixed, 1))
-      real(dp) :: c(3*self%n_trace, self%n_flux)
-
-      nf = self%n_flux
-      nd = self%n_div
-      nc = 3*self%n_trace
-      allocate (matrices%z(nf, nf, mesh%nt), matrices%y(nf, nd, mesh%nt), matrices%zc(nf, nc, mesh%nt), &
-                matrices%czc(nc, nc, mesh%nt), matrices%cy(nc, nd, mesh%nt))
-      ok = .true.
-      !$omp parallel do default(none) shared(self, mesh, matrices, nf, nd, nc) &
-      !$omp private(t, v, m, i, forward, mass, div, trace, mixed, inverse, c, piv, t_ok) reduction(.and.:ok) &
-      !$omp schedule(static)
-      do t = 1, mesh%nt
-         v = mesh%triangles(:, t)
-         do m = 1, 3
-            forward(m) = v(modulo(m, 3) + 1) < v(modulo(m + 1, 3) + 1)
-         end do
-         call self%element_matrices(make_frame(mesh%vertices(:, v)), forward, mass, div, trace)
-         mixed = 0.0_dp
-         mixed(1:nf, 1:nf) = mass
-         mixed(nf + 1:, 1:nf) = div
-         mixed(1:nf, nf + 1:) = transpose(div)
-         inverse = 0.0_dp
-         do i = 1, nf + nd
-            inverse(i, i) = 1.0_dp
-         end do
-         call lu_factor(mixed, piv, t_ok)
-         ok = ok .and. t_ok
-         if (.not. t_ok) cycle
-         call lu_solve(mixed, piv, inverse)
-         do m = 1, 3
-            c((m - 1)*self%n_trace + 1:m*self%n_trace, :) = trace(:, :, m)
-         end do
-         matrices%z(:, :, t) = inverse(1:nf, 1:nf)
-         matrices%y(:, :, t) = inverse(1:nf, nf + 1:)
-         matrices%zc(:, :, t) = matmul(inverse(1:nf, 1:nf), transpose(c))
-         matrices%czc(:, :, t) = matmul(c, matrices%zc(:, :, t))
-         matrices%cy(:, :, t) = matmul(c, inverse(1:nf, nf + 1:))
-      end do
-      !$omp end parallel do
-   end subroutine mesh_matrices
 end module twomem_estimate_raviart_thomas

@@ -1,0 +1,287 @@
+!> Shape classes of a red-refined hierarchy: every triangle of every level is a copy of its
+!> coarse ancestor T_0, scaled by 2^−l, translated, and point-reflected when an odd number of
+!> middle children lie on its line of descent (the corner children of refine_red are
+!> homothetic copies with ratio 1/2, the middle child with ratio −1/2, local vertices keeping
+!> their order). In the scaled monomial basis of twomem_estimate_raviart_thomas the mixed
+!> matrices of similar triangles are the same up to powers of the ratio ρ = 2^l: with M the
+!> mixed matrix, z and y the flux rows of M⁻¹ and C the edge traces, z ∝ ρ², y ∝ ρ, C ∝ ρ⁻¹, so
+!> z Cᵀ ∝ ρ while C z Cᵀ and C y do not change, and the patch integrals of ψ_i against φ_j and
+!> q_k scale with the area, ρ⁻². The trace rows of a triangle differ only by the sign of the
+!> t-moment on the edges whose mesh orientation runs against the triangle's own. So one set of
+!> operators per coarse triangle and reflection replaces the per-triangle inverses of every
+!> level (about 270 numbers per triangle for RT1): the patch solvers scale and sign them on the
+!> fly, and both membranes share them. `init` checks the similarity on every triangle, so a
+!> hierarchy made otherwise is reported, not mis-estimated.
+module twomem_estimate_shapes
+   use twomem_base_kinds, only: dp, ip
+   use twomem_base_errors, only: error_t, make_error, exit_io
+   use twomem_mesh_triangulation, only: mesh_t
+   use twomem_mesh_hierarchy, only: mesh_hierarchy_t
+   use twomem_linalg_dense, only: lu_factor, lu_solve
+   use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, make_frame
+   implicit none
+   private
+
+   public :: shape_classes_t, triangle_class, trace_signs
+
+   type :: shape_classes_t
+      !> per class c = 2(T_0 − 1) + 1 (as T_0) or + 2 (point-reflected), at the size of T_0 and with
+      !> every edge oriented by the class's own local order (t from local vertex m+1 to m+2):
+      !> the operators of rt_space_t's patch solve, z (nf, nf), y (nf, nd), zc = z Cᵀ (nf, nc),
+      !> czc = C z Cᵀ (nc, nc), cy = C y (nc, nd), the mass matrix (nf, nf) for the flux norms
+      real(dp), allocatable :: z(:, :, :), y(:, :, :), zc(:, :, :), czc(:, :, :), cy(:, :, :), mass(:, :, :)
+      !> patch integrals for the local vertex i of ψ_i: psi_phi(:, j, i) = ∫ ψ_i φ_j,
+      !> psi_q(k, i) = ∫ ψ_i q_k, bary_psi_q(k, j, i) = ∫ λ_j ψ_i q_k, q_int(k) = ∫ q_k
+      real(dp), allocatable :: psi_phi(:, :, :, :), psi_q(:, :, :), bary_psi_q(:, :, :, :), q_int(:, :)
+      !> the triangle condensed for a patch in which its edge i carries zero flux and the other
+      !> two are inner edges (every triangle of an interior vertex's patch, with i the local
+      !> index of the vertex; the children on the far edge of a refined patch): with N the trace
+      !> rows of edge i, I those of the other two (edge i+1 first) and Z = zc(:, N) (C z Cᵀ)_NN⁻¹,
+      !> cond_a = (C z Cᵀ)_II − (C z Cᵀ)_IN (C z Cᵀ)_NN⁻¹ (C z Cᵀ)_NI    (2 n_trace)²
+      !> cond_qg = (C y)_I − (C z Cᵀ)_IN (C z Cᵀ)_NN⁻¹ (C y)_N       (2 n_trace, nd)
+      !> cond_rg = y − Z (C y)_N                                      (nf, nd)
+      !> cond_rt = zc(:, I) − Z (C z Cᵀ)_NI                           (nf, 2 n_trace)
+      !> cond_qf = [zc(:, I)ᵀ − (C z Cᵀ)_IN (C z Cᵀ)_NN⁻¹ zc(:, N)ᵀ] Φ_iᵀ  (2 n_trace, 2)
+      !> cond_rf = [z − Z zc(:, N)ᵀ] Φ_iᵀ                              (nf, 2)
+      !> where Φ_i = psi_phi(:, :, i): the last two take a flux datum −μ ψ_i ∇u directly.
+      real(dp), allocatable :: cond_a(:, :, :, :), cond_qg(:, :, :, :), cond_rg(:, :, :, :), cond_rt(:, :, :, :)
+      real(dp), allocatable :: cond_qf(:, :, :, :), cond_rf(:, :, :, :)
+   contains
+      procedure :: init
+      procedure :: free
+   end type shape_classes_t
+
+contains
+
+   !> The class of triangle t of level l (numbered as refine_red numbers children) and its
+   !> ratio ρ = 2^l to the class size.
+   pure subroutine triangle_class(level, t, class, ratio)
+      integer, intent(in) :: level
+      integer(ip), intent(in) :: t
+      integer, intent(out) :: class
+      real(dp), intent(out) :: ratio
+
+      integer(ip) :: rest
+      integer :: l, reflected
+
+      rest = t - 1
+      reflected = 0
+      do l = 1, level
+         ! child 4 of each step is the middle, point-reflected one
+         if (modulo(rest, 4_ip) == 3) reflected = 1 - reflected
+         rest = rest/4
+      end do
+      class = int(2*rest + 1 + reflected)
+      ratio = 2.0_dp**level
+   end subroutine triangle_class
+
+   !> ±1 per trace row of a triangle with mesh vertices v: −1 on the t-moment of an edge whose
+   !> mesh orientation (from the lower vertex number) runs against the local one (m+1 to m+2).
+   pure function trace_signs(space, v) result(s)
+      type(rt_space_t), intent(in) :: space
+      integer(ip), intent(in) :: v(3)
+      real(dp) :: s(3*space%n_trace)
+
+      integer :: m
+
+      s = 1.0_dp
+      if (space%n_trace == 2) then
+         do m = 1, 3
+            if (v(modulo(m, 3) + 1) > v(modulo(m + 1, 3) + 1)) s(2*m) = -1.0_dp
+         end do
+      end if
+   end function trace_signs
+
+   subroutine init(self, space, hierarchy, err)
+      class(shape_classes_t), intent(inout) :: self
+      type(rt_space_t), intent(in) :: space
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
+      type(error_t), allocatable, intent(out) :: err
+
+      integer :: nf, nd, nc, n_classes, c, l, i, piv(space%n_flux + space%n_div)
+      integer(ip) :: t0
+      logical :: ok, all_ok
+      real(dp) :: v0(2, 3), centre(2), mass(space%n_flux, space%n_flux), div(space%n_div, space%n_flux)
+      real(dp) :: trace(space%n_trace, space%n_flux, 3), c_rows(3*space%n_trace, space%n_flux)
+      real(dp) :: mixed(space%n_flux + space%n_div, space%n_flux + space%n_div), inverse(size(mixed, 1), size(mixed, 1))
+      type(rt_frame_t) :: frame
+
+      call self%free()
+      nf = space%n_flux
+      nd = space%n_div
+      nc = 3*space%n_trace
+      n_classes = int(2*hierarchy%meshes(0)%nt)
+      block
+         allocate (self%z(nf, nf, n_classes), self%y(nf, nd, n_classes), self%zc(nf, nc, n_classes), &
+                   self%czc(nc, nc, n_classes), self%cy(nc, nd, n_classes), self%mass(nf, nf, n_classes))
+         allocate (self%psi_phi(2, nf, 3, n_classes), self%psi_q(nd, 3, n_classes), &
+                   self%bary_psi_q(nd, 3, 3, n_classes), self%q_int(nd, n_classes))
+         allocate (self%cond_a(nc - space%n_trace, nc - space%n_trace, 3, n_classes), &
+                   self%cond_qg(nc - space%n_trace, nd, 3, n_classes), self%cond_rg(nf, nd, 3, n_classes), &
+                   self%cond_rt(nf, nc - space%n_trace, 3, n_classes), self%cond_qf(nc - space%n_trace, 2, 3, n_classes), &
+                   self%cond_rf(nf, 2, 3, n_classes))
+         all_ok = .true.
+         !$omp parallel do default(none) shared(self, space, hierarchy, nf, nd, nc, n_classes) &
+         !$omp private(c, t0, v0, centre, frame, mass, div, trace, c_rows, mixed, inverse, piv, ok, i, l) &
+         !$omp reduction(.and.:all_ok) schedule(static)
+         do c = 1, n_classes
+            t0 = (c + 1)/2
+            v0 = hierarchy%meshes(0)%vertices(:, hierarchy%meshes(0)%triangles(:, t0))
+            if (modulo(c, 2) == 0) then
+               ! the point reflection through the barycentre, local order kept
+               centre = sum(v0, dim=2)/3
+               do i = 1, 3
+                  v0(:, i) = 2*centre - v0(:, i)
+               end do
+            end if
+            frame = make_frame(v0)
+            call space%element_matrices(frame, [.true., .true., .true.], mass, div, trace)
+            mixed = 0.0_dp
+            mixed(1:nf, 1:nf) = mass
+            mixed(nf + 1:, 1:nf) = div
+            mixed(1:nf, nf + 1:) = transpose(div)
+            inverse = 0.0_dp
+            do i = 1, nf + nd
+               inverse(i, i) = 1.0_dp
+            end do
+            call lu_factor(mixed, piv, ok)
+            all_ok = all_ok .and. ok
+            if (.not. ok) cycle
+            call lu_solve(mixed, piv, inverse)
+            do l = 1, 3
+               c_rows((l - 1)*space%n_trace + 1:l*space%n_trace, :) = trace(:, :, l)
+            end do
+            self%mass(:, :, c) = mass
+            self%z(:, :, c) = inverse(1:nf, 1:nf)
+            self%y(:, :, c) = inverse(1:nf, nf + 1:)
+            self%zc(:, :, c) = matmul(inverse(1:nf, 1:nf), transpose(c_rows))
+            self%czc(:, :, c) = matmul(c_rows, self%zc(:, :, c))
+            self%cy(:, :, c) = matmul(c_rows, inverse(1:nf, nf + 1:))
+            call class_integrals(space, frame, self%psi_phi(:, :, :, c), self%psi_q(:, :, c), &
+                                 self%bary_psi_q(:, :, :, c), self%q_int(:, c))
+            do i = 1, 3
+               call condense(self, space, c, i, ok)
+               all_ok = all_ok .and. ok
+            end do
+         end do
+         !$omp end parallel do
+      end block
+      if (.not. all_ok) then
+         call make_error(err, exit_io, 'estimators', 'a triangle''s mixed finite element matrix is singular')
+         return
+      end if
+      do l = 1, hierarchy%levels
+         if (.not. similar(hierarchy, l)) then
+            call make_error(err, exit_io, 'estimators', 'the mesh hierarchy is not a red refinement of its coarse mesh')
+            return
+         end if
+      end do
+   end subroutine init
+
+   !> The condensed operators cond_* of class c with zero flux on its edge i (see the type).
+   pure subroutine condense(self, space, c, i, ok)
+      type(shape_classes_t), intent(inout) :: self
+      type(rt_space_t), intent(in) :: space
+      integer, intent(in) :: c, i
+      logical, intent(out) :: ok
+
+      integer :: nt, nn, ni, l, m, rows_n(space%n_trace), rows_i(2*space%n_trace), piv(space%n_trace)
+      real(dp) :: schur(space%n_trace, space%n_trace), z_n(space%n_flux, space%n_trace)
+      real(dp) :: x_ni(space%n_trace, 2*space%n_trace), x_ny(space%n_trace, space%n_div)
+      real(dp) :: x_nf(space%n_trace, space%n_flux), phi(space%n_flux, 2)
+
+      nt = space%n_trace
+      nn = nt
+      ni = 2*nt
+      rows_n = [((i - 1)*nt + l, l=1, nt)]
+      rows_i = [(((modulo(i + m - 1, 3))*nt + l, l=1, nt), m=1, 2)]
+      associate (czc => self%czc(:, :, c), zc => self%zc(:, :, c), cy => self%cy(:, :, c), z => self%z(:, :, c), &
+                 y => self%y(:, :, c))
+         schur = czc(rows_n, rows_n)
+         call lu_factor(schur, piv, ok)
+         if (.not. ok) return
+         ! (C z Cᵀ)_NN⁻¹ times the rows N of czc (inner columns), of cy and of zcᵀ
+         x_ni = czc(rows_n, rows_i)
+         x_ny = cy(rows_n, :)
+         x_nf = transpose(zc(:, rows_n))
+         call lu_solve(schur, piv, x_ni)
+         call lu_solve(schur, piv, x_ny)
+         call lu_solve(schur, piv, x_nf)
+         z_n = zc(:, rows_n)
+         phi = transpose(self%psi_phi(:, :, i, c))
+         self%cond_a(:, :, i, c) = czc(rows_i, rows_i) - matmul(czc(rows_i, rows_n), x_ni)
+         self%cond_qg(:, :, i, c) = cy(rows_i, :) - matmul(czc(rows_i, rows_n), x_ny)
+         self%cond_rg(:, :, i, c) = y - matmul(z_n, x_ny)
+         self%cond_rt(:, :, i, c) = zc(:, rows_i) - matmul(z_n, x_ni)
+         self%cond_qf(:, :, i, c) = matmul(transpose(zc(:, rows_i)) - matmul(czc(rows_i, rows_n), x_nf), phi)
+         self%cond_rf(:, :, i, c) = matmul(z - matmul(z_n, x_nf), phi)
+      end associate
+   end subroutine condense
+
+   !> The integrals of psi_phi etc. (see the type) on one triangle, by the degree-5 rule.
+   pure subroutine class_integrals(space, frame, psi_phi, psi_q, bary_psi_q, q_int)
+      type(rt_space_t), intent(in) :: space
+      type(rt_frame_t), intent(in) :: frame
+      real(dp), intent(out) :: psi_phi(:, :, :), psi_q(:, :), bary_psi_q(:, :, :), q_int(:)
+
+      real(dp) :: x(2), w, phi(2, space%n_flux), q(space%n_div)
+      integer :: k, i, j
+
+      psi_phi = 0.0_dp
+      psi_q = 0.0_dp
+      bary_psi_q = 0.0_dp
+      q_int = 0.0_dp
+      do k = 1, space%rule%n
+         associate (bary => space%rule%bary(:, k))
+            x = matmul(frame%vertices, bary)
+            w = space%rule%weights(k)*frame%area
+            phi = space%flux_values(frame, x)
+            q = space%div_test_values(frame, x)
+            q_int = q_int + w*q
+            do i = 1, 3
+               psi_phi(:, :, i) = psi_phi(:, :, i) + w*bary(i)*phi
+               psi_q(:, i) = psi_q(:, i) + w*bary(i)*q
+               do j = 1, 3
+                  bary_psi_q(:, j, i) = bary_psi_q(:, j, i) + w*bary(j)*bary(i)*q
+               end do
+            end do
+         end associate
+      end do
+   end subroutine class_integrals
+
+   !> Whether every triangle of level l is its class's copy: vertices at ±2^−l times the
+   !> class's offsets from the barycentre, to round-off of the coordinates.
+   logical function similar(hierarchy, level) result(ok)
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
+      integer, intent(in) :: level
+
+      integer(ip) :: t, t0
+      integer :: class, i
+      real(dp) :: ratio, sign, v(2, 3), v0(2, 3), tolerance
+
+      ok = .true.
+      !$omp parallel do default(none) shared(hierarchy, level) &
+      !$omp private(t, t0, class, ratio, sign, v, v0, tolerance, i) reduction(.and.:ok) schedule(static)
+      do t = 1, hierarchy%meshes(level)%nt
+         call triangle_class(level, t, class, ratio)
+         t0 = (class + 1)/2
+         sign = merge(-1.0_dp, 1.0_dp, modulo(class, 2) == 0)
+         v = hierarchy%meshes(level)%vertices(:, hierarchy%meshes(level)%triangles(:, t))
+         v0 = hierarchy%meshes(0)%vertices(:, hierarchy%meshes(0)%triangles(:, t0))
+         tolerance = 1.0e-8_dp*hierarchy%meshes(0)%h(t0)/ratio
+         do i = 1, 3
+            ok = ok .and. all(abs((v(:, i) - sum(v, dim=2)/3) - sign/ratio*(v0(:, i) - sum(v0, dim=2)/3)) <= tolerance)
+         end do
+      end do
+      !$omp end parallel do
+   end function similar
+
+   subroutine free(self)
+      class(shape_classes_t), intent(inout) :: self
+
+      if (allocated(self%z)) deallocate (self%z, self%y, self%zc, self%czc, self%cy, self%mass)
+      if (allocated(self%psi_phi)) deallocate (self%psi_phi, self%psi_q, self%bary_psi_q, self%q_int)
+      if (allocated(self%cond_a)) deallocate (self%cond_a, self%cond_qg, self%cond_rg, self%cond_rt, self%cond_qf, &
+                                              self%cond_rf)
+   end subroutine free
+end module twomem_estimate_shapes
