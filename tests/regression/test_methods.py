@@ -81,7 +81,7 @@ def test_nested_iteration_bounds_newton_on_the_finest_level():
     for levels in range(1, 5):
         path = out_file(f"methods/nested_{levels}.h5")
         run(f"mesh.levels={levels}", "mesh.coarse_h=0.5", "problem.exact=bbbv", "newton.initial=nested",
-            "output.history=.false.", f"output.file={path}")
+            "newton.linear=direct", "output.history=.false.", f"output.file={path}")
         counts.append(int(result(path)["summary"]["newton_iterations"]))
     print(f"Newton steps on the finest level, levels 1..4: {counts}")
     assert max(counts) <= 4, counts
@@ -97,7 +97,7 @@ def test_line_search_does_not_slow_fischer_burmeister(data):
     for ls in ("on", "off"):
         path = out_file(f"methods/fb_ls_{ls}.h5")
         run("mesh.levels=2", "newton.initial=paper", "newton.cfun=fb", f"newton.line_search={ls}",
-            *data, "output.history=.false.", f"output.file={path}")
+            "newton.linear=direct", *data, "output.history=.false.", f"output.file={path}")
         steps[ls] = int(result(path)["summary"]["newton_iterations"])
     print(f"{data}: Newton steps with line search {steps['on']}, without {steps['off']}")
     assert steps["on"] <= steps["off"] + 2, steps
