@@ -205,7 +205,6 @@ contains
 
       real(dp) :: positive_norm, positive_sq, lin_factor
       real(dp) :: sums(7)
-      real(dp), allocatable :: local_values(:, :)
       integer(ip) :: n, nt_own
       integer :: alpha
       logical :: ok
@@ -276,19 +275,10 @@ contains
       lin_factor = 1.0_dp
       if (est%nonc1 > 0.0_dp) lin_factor = 1 + sqrt(2*self%c_omega*positive_norm/est%nonc1)
       est%lin_k = lin_factor*est%nonc1_k + est%nonc2_k
-      if (self%comm%size > 1) then
-         ! the local criteria's values on the ghost triangles, from their owners
-         associate (nt => hierarchy%meshes(hierarchy%levels)%nt)
-            allocate (local_values(5, nt))
-            local_values(1:2, :) = est%disc_k
-            local_values(3:4, :) = est%alg_k
-            local_values(5, :) = est%lin_k
-            call self%ghosts%fill(hierarchy%levels, local_values)
-            est%disc_k = local_values(1:2, :)
-            est%alg_k = local_values(3:4, :)
-            est%lin_k = local_values(5, :)
-         end associate
-      end if
+      ! the local criteria's values on the ghost triangles, from their owners
+      call self%ghosts%fill(hierarchy%levels, est%disc_k)
+      call self%ghosts%fill(hierarchy%levels, est%alg_k)
+      call self%ghosts%fill(hierarchy%levels, est%lin_k)
    end subroutine evaluate
 
    !> The nodal field of the interior values x (discrete_problem_t%to_nodal into a kept array).
@@ -544,14 +534,13 @@ contains
       integer(ip) :: a, m, t, nt_own
       integer :: alpha
       real(dp) :: patch_alg, bound
-      logical, allocatable :: inside(:)
 
       nt_own = mesh%nt_owned
       lin_ok = all(self%lin_k(1:nt_own) <= gamma_lin*minval(self%disc_k(:, 1:nt_own), dim=1))
-      inside = mesh%in_subdomain()
       alg_ok = .true.
       vertices: do a = 1, mesh%nv
-         if (.not. inside(a)) cycle
+         ! the vertices of own triangles (the others' patches are not whole here)
+         if (minval(mesh%patch_triangles(mesh%patch_ptr(a):mesh%patch_ptr(a + 1) - 1)) > nt_own) cycle
          do alpha = 1, 2
             patch_alg = 0.0_dp
             bound = huge(1.0_dp)

@@ -27,7 +27,9 @@ module twomem_estimate_ghosts
       integer(ip), allocatable :: send_coarse(:), recv_coarse(:)
    contains
       procedure :: init
-      procedure :: fill
+      procedure, private :: fill_rows, fill_values
+      !> values(:, t) or values(t) of the ghost triangles of a level from their owners
+      generic :: fill => fill_rows, fill_values
    end type ghost_cells_t
 
 contains
@@ -89,19 +91,35 @@ contains
 
    !> values(:, t) of the ghost triangles of level `level` from their owners. Collective among
    !> neighbours.
-   subroutine fill(self, level, values)
+   subroutine fill_rows(self, level, values)
       class(ghost_cells_t), intent(in) :: self
       integer, intent(in) :: level
-      real(dp), intent(inout) :: values(:, :)
+      real(dp), intent(inout), contiguous :: values(:, :)
+
+      call fill_block(self, level, size(values, 1), size(values, 2, kind=ip), values)
+   end subroutine fill_rows
+
+   subroutine fill_values(self, level, values)
+      class(ghost_cells_t), intent(in) :: self
+      integer, intent(in) :: level
+      real(dp), intent(inout), contiguous :: values(:)
+
+      call fill_block(self, level, 1, size(values, kind=ip), values)
+   end subroutine fill_values
+
+   subroutine fill_block(self, level, width, nt, values)
+      class(ghost_cells_t), intent(in) :: self
+      integer, intent(in) :: level, width
+      integer(ip), intent(in) :: nt
+      real(dp), intent(inout) :: values(width, nt)
 
       real(dp), allocatable :: send(:), recv(:)
       integer, allocatable :: send_ptr(:), recv_ptr(:)
       integer(ip) :: generations, j, c, f, fill_at
-      integer :: k, width
+      integer :: k
 
       if (size(self%neighbours) == 0) return
       generations = 4_ip**level
-      width = size(values, 1)
       send_ptr = 1 + (self%send_ptr - 1)*width*int(generations)
       recv_ptr = 1 + (self%recv_ptr - 1)*width*int(generations)
       allocate (send(send_ptr(size(send_ptr)) - 1), recv(recv_ptr(size(recv_ptr)) - 1))
@@ -124,5 +142,5 @@ contains
             end do
          end do
       end do
-   end subroutine fill
+   end subroutine fill_block
 end module twomem_estimate_ghosts
