@@ -191,6 +191,42 @@ def test_unusable_result_is_a_failure(tmp_path, case, capsys):
     assert "no run produced a result: figures skipped" in captured.err
 
 
+def test_job_array_split(tmp_path, case, capsys, monkeypatch):
+    """--list, --task N per run (as a job array runs them) and --collect give the same tables
+    as one study; a run no task ran is reported, not invented."""
+    monkeypatch.delenv("FAKE_ETA", raising=False)
+    fake = str(fake_twomem(tmp_path))
+    base = ["study", str(case), "--levels", "0,1", "--methods", "exact,inexact,adaptive", "--twomem", fake]
+    whole, split = tmp_path / "whole", tmp_path / "split"
+    assert main([*base, "-o", str(whole), "--jobs", "1"]) == 1
+    capsys.readouterr()
+
+    assert main([*base, "-o", str(split), "--list"]) == 0
+    listed = capsys.readouterr().out.splitlines()
+    assert listed == ["0 exact_L0", "1 inexact_L0", "2 adaptive_L0", "3 exact_L1", "4 inexact_L1",
+                      "5 adaptive_L1"]
+    assert not split.exists()  # --list runs and writes nothing
+    for n in range(5):  # the last task never ran (a cancelled array task)
+        assert main([*base, "-o", str(split), "--task", str(n)]) == (1 if n == 2 else 0)
+    assert not (split / "summary.csv").exists()  # a task writes its run only
+    capsys.readouterr()
+
+    assert main([*base, "-o", str(split), "--collect"]) == 1
+    captured = capsys.readouterr()
+    assert "adaptive_L0 (exit 2), adaptive_L1 (not run)" in captured.err
+    _, rows = read_csv(split / "summary.csv")
+    _, expected = read_csv(whole / "summary.csv")
+    for got, want in zip(rows[:5], expected[:5]):
+        assert {k: v for k, v in got.items() if k != "wall_time"} == \
+               {k: v for k, v in want.items() if k != "wall_time"}
+    assert rows[5]["status"] == f"failed: not run: no log {split / 'runs' / 'adaptive_L1.log'}"
+    assert rows[5]["exit_code"] == ""
+    assert "| not run |" in captured.out
+
+    assert main([*base, "-o", str(split), "--task", "6"]) == 2
+    assert capsys.readouterr().err.startswith("twomem_post: error: --task: 6 is not a run of this study")
+
+
 # ----------------------------------------------------------------------------------------------
 # command-line errors
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import shutil
 import subprocess
 import time
@@ -87,8 +88,33 @@ def execute(exe: Path, case: Path, run: Run, env: dict[str, str]) -> Run:
             run.error = f"cannot start {exe}: {one_line(exc)}"
             print(run.error, file=log)
     run.seconds = time.perf_counter() - start
+    if run.exit_code is not None:
+        with open(run.log, "a") as log:
+            print(f"# exit {run.exit_code} after {run.seconds:.3f} s", file=log)
     if run.failed and not run.error:
         run.error = _error_line(run.log.read_text(errors="replace"))
+    return run
+
+
+_EXIT_LINE = re.compile(r"^# exit (-?\d+) after ([0-9.]+) s$", re.MULTILINE)
+
+
+def recorded(run: Run) -> Run:
+    """A run executed earlier, maybe by another process (a job array task): its exit code,
+    time and error line from the last line `execute` wrote to its log; a run without a log or
+    whose log has no such line (still running, or killed) is recorded as failed."""
+    try:
+        text = run.log.read_text(errors="replace")
+    except OSError:
+        run.error = f"not run: no log {run.log}"
+        return run
+    ends = _EXIT_LINE.findall(text)
+    if not ends:
+        run.error = f"did not finish: {run.log} has no exit line"
+        return run
+    run.exit_code, run.seconds = int(ends[-1][0]), float(ends[-1][1])
+    if run.failed:
+        run.error = _error_line("\n".join(ln for ln in text.splitlines() if not ln.startswith("# exit ")))
     return run
 
 

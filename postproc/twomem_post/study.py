@@ -22,6 +22,11 @@ first, since a sweep is usually written coarse to fine and the longest runs shou
 last. With more than one job at a time, wall times include the competition for memory
 bandwidth; use --jobs 1 for timings. A run that fails or does not converge is reported and the
 study goes on; the exit status is then 1.
+
+On a cluster, a job array runs the study one run per task (jobs/study_array.sbatch):
+``--list`` prints the planned runs (index and tag), ``--task N`` runs only run N (exit 1 if it
+fails), and ``--collect`` then builds the tables and figures from DIR/runs without running
+anything, reading each run's exit code and time from the last line of its log.
 """
 from __future__ import annotations
 
@@ -37,7 +42,7 @@ from .errors import PostError, ResultError
 from .figure import subtitle
 from .plot import FORMATS, output_writer
 from .result import load
-from .runner import Run, execute_all, find_twomem
+from .runner import Run, execute_all, find_twomem, recorded
 
 #: mesh.coarse_h (= mesh.boundary_h) of input/paper_p1.nml giving the paper's three meshes
 PAPER_COARSE_H = ("0.25", "0.122", "0.0582")
@@ -177,23 +182,65 @@ def _inputs(args) -> tuple[Path, Sweep, list[str], tuple[str, ...]]:
     return case, sweep, names, _check_overrides(args.overrides)
 
 
+def collect(runs: list[Run], out) -> list[tables.Outcome]:
+    """The outcomes of runs executed earlier (--task, e.g. by a job array), from their logs
+    and result files, with the same progress lines as a study that runs them."""
+    outcomes = []
+    for n, run in enumerate(runs, start=1):
+        recorded(run)
+        result = None
+        if run.exit_code is not None and run.result.exists():
+            try:
+                result = load(run.result)
+            except ResultError as exc:
+                run.error = f"unusable result: {exc.why}"
+        elif run.exit_code is not None and not run.error:
+            run.error = f"no result file {run.result}"
+        outcomes.append(tables.Outcome(run, result))
+        _finished(outcomes[-1], n, len(runs), out)
+    return outcomes
+
+
+def run_task(case: Path, runs: list[Run], task: int, exe: Path, out) -> int:
+    """--task N: only the N-th run of the plan (0-based, the order --list prints), so that a
+    job array runs a study one run per task; --collect gathers them afterwards."""
+    if not 0 <= task < len(runs):
+        raise PostError("--task", f"{task} is not a run of this study (it has runs 0 to {len(runs) - 1})")
+    run = runs[task]
+    print(f"study: run {task} of {len(runs)} ({run.tag}) of {case} with {exe}", file=out, flush=True)
+    outcome, = run_study(case.resolve(), [run], exe, 1, out)
+    return 1 if outcome.failed else 0
+
+
 def study(args, out=None, err=None) -> int:
     out = sys.stdout if out is None else out
     err = sys.stderr if err is None else err
     case, sweep, names, overrides = _inputs(args)
-    exe = find_twomem(args.twomem)
     outdir = Path(args.outdir)
-    w = output_writer(outdir, args.fmt, out, err)  # an unusable DIR fails before any run
     runs = plan(sweep, names, outdir, args.max_it, overrides)
-    jobs = min(args.jobs, len(runs))
-    print(f"study: {len(runs)} runs of {case} with {exe}, {jobs} at a time", file=out, flush=True)
-    outcomes = run_study(case.resolve(), runs, exe, jobs, out)
+    if args.list:
+        for n, run in enumerate(runs):
+            print(n, run.tag, file=out)
+        return 0
+    if args.task is not None:
+        return run_task(case, runs, args.task, find_twomem(args.twomem), out)
+    w = output_writer(outdir, args.fmt, out, err)  # an unusable DIR fails before any run
+    if args.collect:
+        print(f"study: {len(runs)} runs of {case} collected from {outdir / 'runs'}", file=out, flush=True)
+        outcomes = collect(runs, out)
+        how = "collected"
+    else:
+        exe = find_twomem(args.twomem)
+        jobs = min(args.jobs, len(runs))
+        print(f"study: {len(runs)} runs of {case} with {exe}, {jobs} at a time", file=out, flush=True)
+        outcomes = run_study(case.resolve(), runs, exe, jobs, out)
+        how = f"{jobs} at a time"
 
     summary = write_tables(outdir, sweep, outcomes)
     print(outdir / "summary.csv", outdir / "history.csv", sep="\n", file=out)
     with_paper = any(o.result is not None and paper.is_paper_case(o.result.input_text)
                      for o in outcomes)
-    draw(outcomes, names, w, with_paper, subtitle(case.stem, f"{len(runs)} runs, {jobs} at a time"))
+    draw(outcomes, names, w, with_paper, subtitle(case.stem, f"{len(runs)} runs, {how}"))
     print("\n" + tables.markdown(summary, sweep.keys, with_paper), file=out)
     return _report_failures(outcomes, err)
 
@@ -201,7 +248,8 @@ def study(args, out=None, err=None) -> int:
 def _report_failures(outcomes, err) -> int:
     bad = [o for o in outcomes if o.failed]
     if bad:
-        listed = ", ".join(f"{o.run.tag} (exit {o.run.exit_code})" for o in bad)
+        listed = ", ".join(f"{o.run.tag} ({'not run' if o.run.exit_code is None else f'exit {o.run.exit_code}'})"
+                           for o in bad)
         print(f"twomem_post: {len(bad)} of {len(outcomes)} runs did not succeed: {listed}; "
               f"see their logs in runs/", file=err)
     return 1 if bad else 0
@@ -235,4 +283,11 @@ def add_parser(sub) -> None:
                    help="executable (default: $TWOMEM_EXE, else build/release/twomem)")
     p.add_argument("--format", choices=FORMATS, default="png", dest="fmt",
                    help="figure file format (default png)")
+    split = p.add_mutually_exclusive_group()
+    split.add_argument("--list", action="store_true",
+                       help="print the planned runs (index and tag) and run nothing")
+    split.add_argument("--task", type=int, metavar="N",
+                       help="run only run N of --list (a job array task); no tables")
+    split.add_argument("--collect", action="store_true",
+                       help="run nothing: tables and figures from the runs --task made")
     p.set_defaults(func=study)

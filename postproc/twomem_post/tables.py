@@ -109,7 +109,7 @@ def _markdown_cells(row: dict, mesh_nt: float, with_paper: bool) -> list[str]:
 def _short_status(row: dict) -> str:
     """The status, or for a run without a result only its exit code (the CSV has the why)."""
     if str(row["status"]).startswith("failed:"):
-        return f"failed (exit {row['exit_code']})"
+        return f"failed (exit {row['exit_code']})" if row["exit_code"] != "" else "not run"
     return row["status"].replace("|", "/")
 
 

@@ -114,7 +114,7 @@ def test_help_and_version(work, args, expect):
     assert proc.stdout.startswith(expect)
     no_noise(proc)
     if expect == "twomem ":
-        assert re.fullmatch(r"twomem \d+\.\d+\.\d+\S*\n", proc.stdout)
+        assert re.fullmatch(r"twomem \d+\.\d+\.\d+\S*\nMPI: [^\n]+\n", proc.stdout)
 
 
 # --- namelist files: (text, line, group, key, fragment) ---------------------------------------

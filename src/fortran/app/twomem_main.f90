@@ -10,7 +10,7 @@ program twomem_main
    use twomem_base_version, only: twomem_version
    use twomem_input_config, only: config_t, string_t, load_config
    use twomem_app_run, only: run_case, check_case
-   use twomem_base_comm, only: comm_t, comm_start, comm_stop
+   use twomem_base_comm, only: comm_t, comm_start, comm_stop, mpi_library
    implicit none
 
    type(comm_t) :: comm
@@ -32,7 +32,7 @@ program twomem_main
       if (comm%is_root()) call usage(output_unit)
       call finish(exit_ok)
    case ('--version', '-V')
-      if (comm%is_root()) write (output_unit, '(a)') 'twomem '//twomem_version
+      if (comm%is_root()) write (output_unit, '(a)') 'twomem '//twomem_version, 'MPI: '//mpi_library()
       call finish(exit_ok)
    case ('run', 'check')
       if (n_args < 2) then

@@ -1,11 +1,11 @@
-!> Numbers as text for the progress output: fixed decimals with the leading zero that `f0.d`
-!> drops ('.43').
+!> Numbers as text for the progress output and messages: fixed decimals with the leading zero
+!> that `f0.d` drops ('.43'), and integers without blanks.
 module twomem_base_text
    use twomem_base_kinds, only: dp
    implicit none
    private
 
-   public :: fixed
+   public :: fixed, int_text
 
 contains
 
@@ -21,4 +21,15 @@ contains
       write (buffer, format) x
       text = trim(adjustl(buffer))
    end function fixed
+
+   !> i in as many characters as it needs.
+   pure function int_text(i) result(text)
+      integer, intent(in) :: i
+      character(len=:), allocatable :: text
+
+      character(len=12) :: buffer
+
+      write (buffer, '(i0)') i
+      text = trim(buffer)
+   end function int_text
 end module twomem_base_text

@@ -9,7 +9,8 @@
 !> everywhere or broadcast from rank 0), so the extraction needs no further communication.
 module twomem_mesh_partition
    use twomem_base_kinds, only: dp, ip
-   use twomem_base_errors, only: error_t
+   use twomem_base_errors, only: error_t, make_error, exit_bad_input
+   use twomem_base_text, only: int_text
    use twomem_base_comm, only: comm_t
    use twomem_mesh_triangulation, only: mesh_t, corner_of
    use twomem_mesh_metis, only: metis_partition
@@ -61,6 +62,15 @@ contains
       call comm%agree(err)
       if (allocated(err)) return
       call comm%bcast(part)
+      ! a rank without triangles would have no unknowns of its own: refuse, rather than run
+      ! with idle ranks or fail later in a confusing place
+      if (count(part == comm%rank) == 0) then
+         call make_error(err, exit_bad_input, 'mesh', 'the coarse mesh has '//int_text(int(whole%nt))// &
+                         ' triangles, too few to give each of '//int_text(comm%size)//' MPI ranks a part: '// &
+                         'use fewer ranks or a finer coarse mesh (mesh.coarse_h)')
+      end if
+      call comm%agree(err)
+      if (allocated(err)) return
 
       ! owner of a vertex: the lowest rank owning a triangle at it
       allocate (owner(whole%nv), own_vertex(whole%nv), keep(whole%nt))

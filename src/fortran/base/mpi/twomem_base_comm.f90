@@ -13,13 +13,14 @@ module twomem_base_comm
       MPI_Comm_dup, MPI_Comm_free, MPI_Comm_rank, MPI_Comm_size, MPI_Allreduce, MPI_Bcast, MPI_Gather, &
       MPI_Gatherv, MPI_Scatterv, MPI_Isend, MPI_Irecv, MPI_Waitall, MPI_Barrier, MPI_Request, MPI_Status, &
       MPI_IN_PLACE, MPI_SUM, MPI_MAX, MPI_MIN, MPI_LOR, MPI_DOUBLE_PRECISION, MPI_INTEGER, MPI_INTEGER8, &
-      MPI_LOGICAL, MPI_CHARACTER, MPI_THREAD_FUNNELED, MPI_STATUSES_IGNORE, MPI_Abort
+      MPI_LOGICAL, MPI_CHARACTER, MPI_THREAD_FUNNELED, MPI_STATUSES_IGNORE, MPI_Abort, &
+      MPI_Get_library_version, MPI_MAX_LIBRARY_VERSION_STRING
    use twomem_base_kinds, only: dp, ip, i8
    use twomem_base_errors, only: error_t, make_error
    implicit none
    private
 
-   public :: comm_t, comm_start, comm_stop, comm_abort, mpi_enabled
+   public :: comm_t, comm_start, comm_stop, comm_abort, mpi_enabled, mpi_library
 
    !> this build talks MPI
    logical, parameter :: mpi_enabled = .true.
@@ -447,4 +448,17 @@ contains
 
       if (self%size > 1) call MPI_Barrier(self%handle)
    end subroutine barrier
+   !> The MPI library this build runs on, as `--version` reports it (callable before comm_start:
+   !> users checking a cluster's module set want to see which MPI they got).
+   function mpi_library() result(text)
+      character(len=:), allocatable :: text
+      character(len=MPI_MAX_LIBRARY_VERSION_STRING) :: version
+      integer :: length, ierr, eol
+
+      call MPI_Get_library_version(version, length, ierr)
+      text = version(:length)
+      eol = scan(text, achar(10)//',')
+      if (eol > 1) text = text(:eol - 1)
+   end function mpi_library
+
 end module twomem_base_comm

@@ -9,7 +9,7 @@ module twomem_base_comm
    implicit none
    private
 
-   public :: comm_t, comm_start, comm_stop, comm_abort, mpi_enabled
+   public :: comm_t, comm_start, comm_stop, comm_abort, mpi_enabled, mpi_library
 
    !> this build has no MPI
    logical, parameter :: mpi_enabled = .false.
@@ -220,4 +220,11 @@ contains
    subroutine barrier(self)
       class(comm_t), intent(in) :: self
    end subroutine barrier
+   !> What `--version` says about MPI in a build without it.
+   function mpi_library() result(text)
+      character(len=:), allocatable :: text
+
+      text = 'none (built with TWOMEM_WITH_MPI=OFF: one process)'
+   end function mpi_library
+
 end module twomem_base_comm
