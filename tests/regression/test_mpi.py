@@ -66,7 +66,9 @@ def mpi_run(case: str, ranks: int) -> str:
         env.update(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
     command = [MPIEXEC, "--oversubscribe", "-n", str(ranks), EXE, "run", str(SOURCE / "input" / "default.nml"),
                *CASES[case], f"output.file={path}"]
-    proc = subprocess.run(command, capture_output=True, text=True, cwd=SOURCE, env=env, timeout=300)
+    # no stdin: mpirun forwards it to rank 0 and would stop in a background process group
+    proc = subprocess.run(command, capture_output=True, text=True, cwd=SOURCE, env=env, timeout=300,
+                          stdin=subprocess.DEVNULL)
     assert proc.returncode == 0, f"{' '.join(command)} exited {proc.returncode}\n{proc.stdout[-3000:]}\n{proc.stderr}"
     assert f"{ranks} MPI ranks" in proc.stdout
     return str(path)
