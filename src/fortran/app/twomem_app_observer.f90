@@ -59,7 +59,7 @@ contains
             row%eta_alg = self%last%alg
             row%eta_total = self%last%total
             call self%last%local_criteria(self%hierarchy%meshes(self%hierarchy%levels), self%gamma_alg, self%gamma_lin, &
-                                          row%local_alg_ok, row%local_lin_ok)
+                                          row%local_alg_ok, row%local_lin_ok, self%p%halo%comm)
          end if
       end if
       if (self%with_error) then
@@ -86,15 +86,18 @@ contains
    end subroutine estimate
 
    !> self%last at x, evaluated into the arrays of the previous evaluation (no new mesh-sized
-   !> allocations in the Newton loop), unless it already is at x.
+   !> allocations in the Newton loop), unless it already is at x (on every rank: the
+   !> evaluation is collective, so the ranks decide together).
    subroutine refresh(self, x)
       class(run_observer_t), intent(inout) :: self
       real(dp), intent(in) :: x(:)
 
       real(dp) :: t0
 
-      if (allocated(self%last_x)) then
-         if (all(self%last_x == x)) return
+      if (self%p%halo%comm%any_true(.not. allocated(self%last_x))) then
+         if (allocated(self%last_x)) deallocate (self%last_x)
+      else if (.not. self%p%halo%comm%any_true(.not. all(self%last_x == x))) then
+         return
       end if
       t0 = wall_time()
       call self%estimator%evaluate(self%hierarchy, self%data, self%p, x, self%last, self%err)

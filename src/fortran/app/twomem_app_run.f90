@@ -108,7 +108,7 @@ contains
       if (need_estimates) then
          call clock%switch(phase_estimators)
          call estimator%init(hierarchy, data, merge(1, 0, trim(cfg%estimate%flux) == 'rt1'), cfg%estimate%alg_levels, &
-                             poincare_constant(trim(cfg%mesh%domain), hierarchy%meshes(finest)%diameter), err)
+                             poincare_constant(trim(cfg%mesh%domain), hierarchy%meshes(finest)%diameter), err, comm)
          if (allocated(err)) then
             exit_code = err%code
             return
@@ -169,10 +169,7 @@ contains
       type(error_t), allocatable, intent(out) :: err
 
       if (comm%size == 1) return
-      if (options%linear == method_adaptive .or. cfg%estimate%enabled) then
-         call make_error(err, exit_bad_input, 'estimate', 'the estimators do not run on several MPI ranks yet: '// &
-                         'set estimate.enabled=.false. and newton.linear=''gmres'' or ''direct''')
-      else if (options%precond /= precond_mg .and. options%linear /= method_direct) then
+      if (options%precond /= precond_mg .and. options%linear /= method_direct) then
          call make_error(err, exit_bad_input, 'gmres.precond', '''ilu0'', ''jacobi'' and ''none'' act on one '// &
                          'rank''s matrix: on several MPI ranks use ''mg''')
       end if
@@ -243,7 +240,7 @@ contains
          rec%eta_lin = final%lin
          rec%eta_alg = final%alg
          if (data%has_exact()) rec%effectivity = final%total/rec%energy_error_total
-         if (cfg%output%estimators) call estimator_fields(final, rec)
+         if (cfg%output%estimators) call estimator_fields(final, plan, rec)
       end if
       rec%estimator_evaluations = observer%evaluations
       rec%estimator_time = observer%estimator_time
@@ -326,9 +323,11 @@ contains
       options%verbose = comm%is_root()
    end subroutine newton_options_from
 
-   !> The `/estimators` fields of docs/output.md from one evaluation.
-   subroutine estimator_fields(est, rec)
+   !> The `/estimators` fields of docs/output.md from one evaluation, gathered on rank 0 in the
+   !> whole mesh's order. Collective.
+   subroutine estimator_fields(est, plan, rec)
       type(estimates_t), intent(in) :: est
+      type(gather_plan_t), intent(in) :: plan
       type(result_record_t), intent(inout) :: rec
 
       character(len=*), parameter :: names(10) = [character(len=16) :: 'eta_total', 'eta_disc', 'eta_lin', &
@@ -341,6 +340,7 @@ contains
       allocate (rec%estimator_totals(size(names)))
       do i = 1, size(names)
          call est%field(trim(names(i)), values, rec%estimator_totals(i))
+         values = plan%cells(values)
          if (i == 1) allocate (rec%estimators(size(values), size(names)))
          rec%estimators(:, i) = values
       end do

@@ -11,16 +11,24 @@
 !> The patch problems use the operators of the shape classes (twomem_estimate_shapes); a refined
 !> patch's multipliers are numbered so that those inside each coarse triangle form a block
 !> (twomem_estimate_patch). The level parts and the P2 fields are kept between evaluations.
+!> On a rank's piece of a distributed hierarchy: the restriction of R_α starts from the finest
+!> vertices the rank owns (each vertex counted once over the ranks), the parts are summed at
+!> the shared coarse unknowns, and the coarse problem is solved whole on rank 0
+!> (twomem_linalg_gathered_solve), which returns ρ_α at every local vertex of T_b, ghost layer
+!> included, so that ∇ρ_α is right on every triangle of a rank's patches. The patches are those
+!> of the vertices of the rank's own triangles (twomem_estimate_coloring), whose data the
+!> caller has made whole on the ghost triangles (the lifting r, twomem_estimate_ghosts).
 module twomem_estimate_alg_flux
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_io
+   use twomem_base_comm, only: comm_t
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_mesh_hierarchy, only: mesh_hierarchy_t
    use twomem_fem_problem, only: problem_data_t
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_fem_assembly, only: p1_gradients
    use twomem_linalg_dense, only: lu_factor, lu_solve
-   use twomem_linalg_umfpack, only: umfpack_solver_t
+   use twomem_linalg_gathered_solve, only: gathered_solver_t
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, make_frame
    use twomem_estimate_shapes, only: shape_classes_t, triangle_class, trace_signs
    use twomem_estimate_coloring, only: coloring_t
@@ -49,8 +57,14 @@ module twomem_estimate_alg_flux
       !> the coarsest level used (b) and the finest (J)
       integer :: base = 0, finest = 0
       type(rt_space_t) :: space
+      type(comm_t) :: comm
       type(discrete_problem_t) :: coarse
-      type(umfpack_solver_t) :: coarse_solver
+      type(gathered_solver_t) :: coarse_solver
+      !> the vertices of T_b where the coarse solve returns ρ_α: the unknowns, then (distributed)
+      !> the interior vertices of the ghost layer only
+      integer(ip), allocatable :: rho_vertices(:)
+      !> the finest vertices this rank owns: it restricts their residuals
+      logical, allocatable :: fine_owned(:)
       !> vertex colourings of the meshes whose vertices carry patches (first−1..finest−1, or J)
       type(coloring_t), allocatable :: colors(:)
       !> the result of the last `compute`, level by level (first..finest), and its workspaces
@@ -73,17 +87,23 @@ module twomem_estimate_alg_flux
 contains
 
    !> Use the last `n_meshes` meshes of the hierarchy (all when fewer); factorize the coarse
-   !> Laplacian, colour the patch meshes, allocate the level parts.
-   subroutine init(self, space, hierarchy, data, n_meshes, err)
+   !> Laplacian, colour the patch meshes, allocate the level parts. With `comm`, the hierarchy
+   !> is this rank's piece of a distributed one (collective).
+   subroutine init(self, space, hierarchy, data, n_meshes, err, comm)
       class(algebraic_flux_t), intent(out) :: self
       type(rt_space_t), intent(in) :: space
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       class(problem_data_t), intent(in) :: data
       integer, intent(in) :: n_meshes
       type(error_t), allocatable, intent(out) :: err
+      type(comm_t), intent(in), optional :: comm
 
       integer :: j, first
+      integer(ip) :: a
+      integer(ip), allocatable :: ghost_only(:)
+      logical, allocatable :: inside(:)
 
+      if (present(comm)) self%comm = comm
       self%space = space
       self%finest = hierarchy%levels
       self%base = max(0, self%finest - n_meshes + 1)
@@ -98,13 +118,24 @@ contains
          if (j < self%finest) allocate (self%p2(j)%c(n_p2, hierarchy%meshes(j)%nt, 2))
       end do
       allocate (self%grad_rho(2, hierarchy%meshes(self%base)%nt, 2))
-      call self%coarse%init(hierarchy%meshes(self%base), data, err)
-      if (allocated(err)) return
+      associate (base_mesh => hierarchy%meshes(self%base), fine_mesh => hierarchy%meshes(self%finest))
+         call self%coarse%init(base_mesh, data, err, self%comm)
+         call self%comm%agree(err)
+         if (allocated(err)) return
+         inside = base_mesh%in_subdomain()
+         ghost_only = pack([(a, a=1, base_mesh%nv)], .not. (inside .or. base_mesh%boundary_vertex))
+         self%rho_vertices = [self%coarse%interior, ghost_only]
+         call self%coarse_solver%init(self%comm, base_mesh%global_vertex(self%rho_vertices), &
+                                      [self%coarse%halo%owned, spread(.false., 1, size(ghost_only))])
+         self%fine_owned = fine_mesh%vertex_owner == self%comm%rank
+         allocate (self%nodal(base_mesh%nv))
+      end associate
       allocate (self%restricted(self%base:self%finest - 1))
       do j = self%base, self%finest - 1
          allocate (self%restricted(j)%v(hierarchy%meshes(j)%nv))
       end do
-      allocate (self%coarse_rhs(self%coarse%n), self%rho(self%coarse%n), self%nodal(hierarchy%meshes(self%base)%nv))
+      allocate (self%coarse_rhs(size(self%rho_vertices)), self%rho(size(self%rho_vertices)))
+      self%coarse_rhs = 0.0_dp
       call self%coarse_solver%factor(self%coarse%stiffness, err)
    end subroutine init
 
@@ -176,6 +207,8 @@ contains
                   coarse = 0.0_dp
                   if (l == self%finest - 1) then
                      do v = 1, hierarchy%meshes(l + 1)%nv
+                        ! each finest vertex once over the ranks: the coarser sums are parts
+                        if (.not. self%fine_owned(v)) cycle
                         coarse(parents(1, v)) = coarse(parents(1, v)) + 0.5_dp*residual(v, alpha)
                         coarse(parents(2, v)) = coarse(parents(2, v)) + 0.5_dp*residual(v, alpha)
                      end do
@@ -194,10 +227,12 @@ contains
                   self%coarse_rhs(i) = self%restricted(self%base)%v(self%coarse%interior(i))
                end if
             end do
-            call self%coarse_solver%solve(self%coarse%stiffness, self%coarse_rhs, self%rho, err)
+            ! the ranks' parts of the restricted residual at shared unknowns (full already on T_J)
+            if (self%base < self%finest) call self%coarse%halo%add(self%coarse_rhs(1:self%coarse%n))
+            call self%coarse_solver%solve(self%coarse_rhs, self%rho, err)
             if (allocated(err)) return
             self%nodal = 0.0_dp
-            self%nodal(self%coarse%interior) = self%rho
+            self%nodal(self%rho_vertices) = self%rho
             do t = 1, base_mesh%nt
                self%grad_rho(:, t, alpha) = matmul(p1_gradients(base_mesh, t), self%nodal(base_mesh%triangles(:, t)))
             end do

@@ -3,7 +3,9 @@
 !> triangles in parallel without races, with no per-patch copies of the result (the three
 !> vertex contributions of a triangle used to be stored apart and added afterwards, 48 numbers
 !> per triangle for RT1). The colours come from a greedy sweep in vertex order, so a result is
-!> summed in the same order whatever the number of threads.
+!> summed in the same order whatever the number of threads. On a rank's piece of a distributed
+!> mesh only the vertices of its own triangles are listed: their patches are whole there (the
+!> ghost layer), the others' are not and belong to other ranks.
 module twomem_estimate_coloring
    use twomem_base_kinds, only: ip
    use twomem_mesh_triangulation, only: mesh_t
@@ -33,6 +35,7 @@ contains
       !> a vertex has at most two neighbours per triangle of its patch, so one more colour
       !> than that always suffices
       logical, allocatable :: used(:)
+      logical, allocatable :: inside(:)
 
       allocate (color(mesh%nv), used(2*maxval(mesh%patch_ptr(2:) - mesh%patch_ptr(:mesh%nv)) + 1))
       self%n_colors = 0
@@ -48,10 +51,11 @@ contains
          color(a) = c
          self%n_colors = max(self%n_colors, c)
       end do
-      allocate (count(self%n_colors + 1), self%ptr(self%n_colors + 1), self%vertices(mesh%nv))
+      inside = mesh%in_subdomain()
+      allocate (count(self%n_colors + 1), self%ptr(self%n_colors + 1), self%vertices(sum(merge(1_ip, 0_ip, inside))))
       count = 0
       do a = 1, mesh%nv
-         count(color(a) + 1) = count(color(a) + 1) + 1
+         if (inside(a)) count(color(a) + 1) = count(color(a) + 1) + 1
       end do
       self%ptr(1) = 1
       do c = 1, self%n_colors
@@ -59,6 +63,7 @@ contains
       end do
       count(1:self%n_colors) = self%ptr(1:self%n_colors)
       do a = 1, mesh%nv
+         if (.not. inside(a)) cycle
          self%vertices(count(color(a))) = a
          count(color(a)) = count(color(a)) + 1
       end do

@@ -14,21 +14,31 @@
 !> With RT0 the fluxes only match the means of f_α ∓ λ_h − r_α, so the oscillation term takes
 !> the whole f_α ∓ λ_h − Π_0(f_α ∓ λ_h) (r_α drops out: σ_alg carries Π_0 r_α): the bound stays
 !> guaranteed, at the price of a λ_h-dependent term.
+!> Distributed (a communicator given to `init`): each rank evaluates the patches of the vertices
+!> of its own triangles, which are whole on its piece thanks to the ghost layer, with ∇u_h and
+!> the residual lifting of the ghost triangles copied from their owners
+!> (twomem_estimate_ghosts); it computes the element estimators on its own triangles only, and
+!> every global value is a sum or maximum over the ranks, so all ranks see the same totals and
+!> take the same decisions. The per-triangle values of the local criteria are copied to the
+!> ghost triangles too, so that a vertex's patch test sees its whole patch.
 module twomem_estimate_estimators
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_io
+   use twomem_base_comm, only: comm_t
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_mesh_hierarchy, only: mesh_hierarchy_t
    use twomem_fem_problem, only: problem_data_t
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_fem_assembly, only: p1_gradients
    use twomem_linalg_dense, only: lu_factor, lu_solve
+   use twomem_linalg_halo, only: halo_t
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, make_frame
    use twomem_estimate_lifting, only: algebraic_residuals, residual_lifting
    use twomem_estimate_disc_flux, only: discretization_flux, load_moments
    use twomem_estimate_alg_flux, only: algebraic_flux_t, level_flux_t
    use twomem_estimate_shapes, only: shape_classes_t, triangle_class
    use twomem_estimate_coloring, only: coloring_t
+   use twomem_estimate_ghosts, only: ghost_cells_t
    implicit none
    private
 
@@ -66,6 +76,12 @@ module twomem_estimate_estimators
       real(dp), allocatable :: sigma(:, :, :), u(:, :), s(:, :), residual(:, :), lambda(:), grad_u(:, :, :), r(:, :, :)
       real(dp), allocatable :: r1(:), r2(:)
       real(dp) :: mu(2) = 1, c_omega = 1
+      !> the ranks (one by default), the copies to the ghost triangles, and a copy of the
+      !> discrete problem's halo for the residual's products
+      type(comm_t) :: comm
+      type(ghost_cells_t) :: ghosts
+      type(halo_t) :: halo
+      logical :: has_halo = .false.
    contains
       procedure :: init
       procedure :: evaluate
@@ -94,26 +110,32 @@ contains
    end function poincare_constant
 
    !> flux_order 0 or 1; alg_meshes: how many of the finest meshes the algebraic flux uses;
-   !> poincare: h_Ω C_PF.
-   subroutine init(self, hierarchy, data, flux_order, alg_meshes, poincare, err)
+   !> poincare: h_Ω C_PF. With `comm`, the hierarchy is this rank's piece of a distributed one
+   !> (collective; every rank returns the same error).
+   subroutine init(self, hierarchy, data, flux_order, alg_meshes, poincare, err, comm)
       class(estimator_t), intent(out) :: self
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       class(problem_data_t), intent(in) :: data
       integer, intent(in) :: flux_order, alg_meshes
       real(dp), intent(in) :: poincare
       type(error_t), allocatable, intent(out) :: err
+      type(comm_t), intent(in), optional :: comm
 
+      if (present(comm)) self%comm = comm
+      call self%ghosts%init(self%comm, hierarchy%meshes(0))
       associate (mesh => hierarchy%meshes(hierarchy%levels))
          call self%space%init(flux_order)
          self%mu = [data%mu1, data%mu2]
          self%c_omega = poincare*sqrt(1/data%mu1 + 1/data%mu2)
          call self%shapes%init(self%space, hierarchy, err)
+         call self%comm%agree(err)
          if (allocated(err)) return
          call self%colors%init(mesh)
          allocate (self%moments(self%space%n_div, 3, mesh%nt, 2))
          call load_moments(self%space, mesh, data, self%moments)
          if (flux_order == 1) call data_oscillation(self%space, mesh, data, self%mu, self%osc_data)
-         call self%alg%init(self%space, hierarchy, data, alg_meshes, err)
+         call self%alg%init(self%space, hierarchy, data, alg_meshes, err, self%comm)
+         call self%comm%agree(err)
          if (allocated(err)) return
          allocate (self%sigma(self%space%n_flux, mesh%nt, 2), self%u(mesh%nv, 2), self%s(mesh%nv, 2), &
                    self%residual(mesh%nv, 2), self%lambda(mesh%nv), self%grad_u(2, mesh%nt, 2), self%r(3, mesh%nt, 2))
@@ -167,7 +189,10 @@ contains
       !$omp end parallel do
    end subroutine data_oscillation
 
-   !> Every estimator for the iterate x = [X1; X2; X3] of the discrete problem p on the finest mesh.
+   !> Every estimator for the iterate x = [X1; X2; X3] of the discrete problem p on the finest
+   !> mesh. Collective (every rank returns the same error). The per-triangle values are those of
+   !> the local triangles: right on the rank's own ones, and on the ghost ones for the arrays of
+   !> the local criteria (disc_k, alg_k, lin_k); the other arrays are zero there.
    subroutine evaluate(self, hierarchy, data, p, x, est, err)
       class(estimator_t), intent(inout) :: self
       type(mesh_hierarchy_t), intent(in) :: hierarchy
@@ -178,12 +203,18 @@ contains
       type(estimates_t), intent(inout) :: est
       type(error_t), allocatable, intent(out) :: err
 
-      real(dp) :: positive_norm, lin_factor
-      integer(ip) :: n
+      real(dp) :: positive_norm, positive_sq, lin_factor
+      real(dp) :: sums(7)
+      integer(ip) :: n, nt_own
       integer :: alpha
       logical :: ok
 
       n = p%n
+      if (.not. self%has_halo) then
+         self%halo = p%halo
+         self%has_halo = .true.
+      end if
+      nt_own = hierarchy%meshes(hierarchy%levels)%nt_owned
       associate (mesh => hierarchy%meshes(hierarchy%levels), u => self%u, s => self%s, lambda => self%lambda, &
                  residual => self%residual, grad_u => self%grad_u, r => self%r)
          call scatter(p, x(1:n), p%g, u(:, 1))
@@ -197,43 +228,57 @@ contains
          end where
          call gradients(mesh, u, grad_u)
          if (.not. allocated(self%r1)) allocate (self%r1(n), self%r2(n))
-         call algebraic_residuals(p, x, self%r1, self%r2)
+         call algebraic_residuals(p, x, self%r1, self%r2, self%halo)
          call scatter(p, self%r1, 0.0_dp, residual(:, 1))
          call scatter(p, self%r2, 0.0_dp, residual(:, 2))
          do alpha = 1, 2
             call residual_lifting(mesh, residual(:, alpha), r(:, :, alpha))
+            ! a ghost triangle may have vertices outside this rank's unknowns: its owner's values
+            call self%ghosts%fill(hierarchy%levels, grad_u(:, :, alpha))
+            call self%ghosts%fill(hierarchy%levels, r(:, :, alpha))
          end do
 
          call discretization_flux(self%space, self%shapes, mesh, hierarchy%levels, self%colors, self%mu, self%moments, &
                                   grad_u, lambda, r, self%sigma, ok)
-         if (.not. ok) then
+         if (self%comm%any_true(.not. ok)) then
             call make_error(err, exit_io, 'discretization flux', 'a patch system is singular (degenerate triangles?)')
             return
          end if
          call self%alg%compute(self%shapes, hierarchy, residual, r, err)
+         call self%comm%agree(err)
          if (allocated(err)) return
 
          call est%ensure(mesh%nt)
          call element_estimators(self, hierarchy, data, u, lambda, s, grad_u, self%sigma, self%alg%levels, est, &
-                                 positive_norm)
+                                 positive_sq)
       end associate
+      positive_norm = sqrt(self%comm%sum(positive_sq))
 
+      ! the rank's own triangles, summed over the ranks
       est%nonc3_k = 2*self%c_omega*positive_norm*est%nonc1_k
-      est%eta_1 = sqrt(sum((est%flux_k + est%osc_k)**2))
-      est%flux = sqrt(sum(est%flux_k**2))
-      est%osc = sqrt(sum(est%osc_k**2))
-      est%contact = sum(est%contact_k)
-      est%nonc1 = sqrt(sum(est%nonc1_k**2))
-      est%nonc2 = sqrt(sum(est%nonc2_k**2))
+      sums = [sum((est%flux_k(:, 1:nt_own) + est%osc_k(:, 1:nt_own))**2), sum(est%flux_k(:, 1:nt_own)**2), &
+              sum(est%osc_k(:, 1:nt_own)**2), sum(est%contact_k(1:nt_own)), sum(est%nonc1_k(1:nt_own)**2), &
+              sum(est%nonc2_k(1:nt_own)**2), sum((est%disc_k(:, 1:nt_own) + est%osc_k(:, 1:nt_own))**2)]
+      call self%comm%sum_in_place(sums)
+      est%eta_1 = sqrt(sums(1))
+      est%flux = sqrt(sums(2))
+      est%osc = sqrt(sums(3))
+      est%contact = sums(4)
+      est%nonc1 = sqrt(sums(5))
+      est%nonc2 = sqrt(sums(6))
       est%nonc3 = 2*self%c_omega*positive_norm*est%nonc1
       est%total = sqrt(max(0.0_dp, (est%eta_1 + est%nonc1 + est%nonc2)**2 + est%nonc3 + est%contact))
-      est%disc = sqrt(sum((est%disc_k + est%osc_k)**2)) + sqrt(abs(est%contact))
+      est%disc = sqrt(sums(7)) + sqrt(abs(est%contact))
       est%lin = est%nonc1 + est%nonc2 + sqrt(est%nonc3)
-      est%alg = sqrt(sum(est%alg_k**2))
+      est%alg = sqrt(self%comm%sum(sum(est%alg_k(:, 1:nt_own)**2)))
       ! (65a): the local linearization estimator whose criterion implies the global one
       lin_factor = 1.0_dp
       if (est%nonc1 > 0.0_dp) lin_factor = 1 + sqrt(2*self%c_omega*positive_norm/est%nonc1)
       est%lin_k = lin_factor*est%nonc1_k + est%nonc2_k
+      ! the local criteria's values on the ghost triangles, from their owners
+      call self%ghosts%fill(hierarchy%levels, est%disc_k)
+      call self%ghosts%fill(hierarchy%levels, est%alg_k)
+      call self%ghosts%fill(hierarchy%levels, est%lin_k)
    end subroutine evaluate
 
    !> The nodal field of the interior values x (discrete_problem_t%to_nodal into a kept array).
@@ -270,18 +315,19 @@ contains
       !$omp end parallel do
    end subroutine gradients
 
-   !> The per-triangle parts; positive_norm returns ‖λ⁺‖_Ω. The flux norms are exact quadratic
+   !> The per-triangle parts on the rank's own triangles (zero on the ghost ones); positive_sq
+   !> returns their part of ‖λ⁺‖²_Ω. The flux norms are exact quadratic
    !> forms with the shape class's RT mass matrix: μ_α∇u_α is constant on K, so it is the
    !> combination of the constant basis fields φ_1, φ_2, and each coarser level's σ_alg is
    !> rewritten in K's own basis (`to_child_basis`), RT_p being closed under restriction.
-   subroutine element_estimators(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, positive_norm)
+   subroutine element_estimators(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, positive_sq)
       class(estimator_t), intent(in) :: self
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       class(problem_data_t), intent(in) :: data
       real(dp), intent(in) :: u(:, :), lambda(:), s(:, :), grad_u(:, :, :), sigma(:, :, :)
       type(level_flux_t), intent(in) :: levels(:)
       type(estimates_t), intent(inout) :: est
-      real(dp), intent(out) :: positive_norm
+      real(dp), intent(out) :: positive_sq
 
       type(rt_frame_t) :: frame, level_frame
       real(dp) :: x(2), w, sq(3, 2), f(2), lam_x, osc_mean(2), osc_sq(2), osc_w, ratio
@@ -294,19 +340,28 @@ contains
       integer :: k, j, alpha, class
       integer(ip) :: v(3)
       integer :: finest
+      integer(ip) :: nt_own
 
       sum_pos = 0.0_dp
       finest = hierarchy%levels
+      nt_own = hierarchy%meshes(finest)%nt_owned
+      est%disc_k(:, nt_own + 1:) = 0.0_dp
+      est%alg_k(:, nt_own + 1:) = 0.0_dp
+      est%flux_k(:, nt_own + 1:) = 0.0_dp
+      est%osc_k(:, nt_own + 1:) = 0.0_dp
+      est%contact_k(nt_own + 1:) = 0.0_dp
+      est%nonc1_k(nt_own + 1:) = 0.0_dp
+      est%nonc2_k(nt_own + 1:) = 0.0_dp
       ! the ancestor of finest triangle t on level l is (t − 1)/4^(J−l) + 1 (children 4(t−1)+1..4t)
       do j = 1, size(levels)
          generations(j) = 4_ip**(finest - levels(j)%level)
       end do
       !$omp parallel do default(none) &
-      !$omp shared(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, finest, generations) &
+      !$omp shared(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, finest, generations, nt_own) &
       !$omp private(t, anc, k, j, alpha, v, frame, level_frame, x, w, sq, f, lam_x, osc_mean, osc_sq, ratio, class) &
       !$omp private(c_disc, c_alg, c_sum, osc_w, pos_lw, pos_ll, neg_lw, neg_ll, grad_s, osc_values) &
       !$omp reduction(+:sum_pos) schedule(static)
-      do t = 1, hierarchy%meshes(finest)%nt
+      do t = 1, nt_own
          v = hierarchy%meshes(finest)%triangles(:, t)
          frame = make_frame(hierarchy%meshes(finest)%vertices(:, v))
          call triangle_class(finest, t, class, ratio)
@@ -370,7 +425,7 @@ contains
          est%nonc1_k(t) = sqrt(frame%area*(self%mu(1)*sum(grad_s(:, 1)**2) + self%mu(2)*sum(grad_s(:, 2)**2)))
       end do
       !$omp end parallel do
-      positive_norm = sqrt(sum_pos)
+      positive_sq = sum_pos
    end subroutine element_estimators
 
    !> cᵀ M c for a contiguous n×n matrix M.
@@ -466,20 +521,26 @@ contains
 
    !> The local stopping criteria (64) of the paper: (64a) η_alg,ω_a,α ≤ min_{K ⊂ ω_a} γ_alg
    !> max(η_disc,K,α, η_lin,K) on every vertex patch and membrane; (64b) η_lin,K ≤ γ_lin min_α
-   !> η_disc,K,α on every triangle.
-   subroutine local_criteria(self, mesh, gamma_alg, gamma_lin, alg_ok, lin_ok)
+   !> η_disc,K,α on every triangle. Distributed (`comm`): each rank tests its own triangles and
+   !> the patches of their vertices (whose ghost triangles carry their owners' values), and the
+   !> ranks agree (collective).
+   subroutine local_criteria(self, mesh, gamma_alg, gamma_lin, alg_ok, lin_ok, comm)
       class(estimates_t), intent(in) :: self
       type(mesh_t), intent(in) :: mesh
       real(dp), intent(in) :: gamma_alg, gamma_lin
       logical, intent(out) :: alg_ok, lin_ok
+      type(comm_t), intent(in), optional :: comm
 
-      integer(ip) :: a, m, t
+      integer(ip) :: a, m, t, nt_own
       integer :: alpha
       real(dp) :: patch_alg, bound
 
-      lin_ok = all(self%lin_k <= gamma_lin*minval(self%disc_k, dim=1))
+      nt_own = mesh%nt_owned
+      lin_ok = all(self%lin_k(1:nt_own) <= gamma_lin*minval(self%disc_k(:, 1:nt_own), dim=1))
       alg_ok = .true.
-      do a = 1, mesh%nv
+      vertices: do a = 1, mesh%nv
+         ! the vertices of own triangles (the others' patches are not whole here)
+         if (minval(mesh%patch_triangles(mesh%patch_ptr(a):mesh%patch_ptr(a + 1) - 1)) > nt_own) cycle
          do alpha = 1, 2
             patch_alg = 0.0_dp
             bound = huge(1.0_dp)
@@ -490,10 +551,14 @@ contains
             end do
             if (sqrt(patch_alg) > bound) then
                alg_ok = .false.
-               return
+               exit vertices
             end if
          end do
-      end do
+      end do vertices
+      if (present(comm)) then
+         alg_ok = .not. comm%any_true(.not. alg_ok)
+         lin_ok = .not. comm%any_true(.not. lin_ok)
+      end if
    end subroutine local_criteria
 
    !> Per-triangle arrays for nt triangles, kept when they are already of that size.

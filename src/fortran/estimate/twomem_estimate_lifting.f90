@@ -7,6 +7,7 @@ module twomem_estimate_lifting
    use twomem_base_kinds, only: dp, ip
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_fem_discrete, only: discrete_problem_t
+   use twomem_linalg_halo, only: halo_t
    implicit none
    private
 
@@ -14,19 +15,25 @@ module twomem_estimate_lifting
 
 contains
 
-   !> R_1 = F_1 − μ1 S X1 + D X3 and R_2 = F_2 − μ2 S X2 − D X3 at the interior vertices.
-   subroutine algebraic_residuals(p, x, r1, r2)
+   !> R_1 = F_1 − μ1 S X1 + D X3 and R_2 = F_2 − μ2 S X2 − D X3 at the interior vertices. On a
+   !> rank's piece of a distributed problem, `halo` (a copy of p%halo) sums the ranks' parts of
+   !> S X_α at shared vertices (F_α and D hold full values already), so every local unknown gets
+   !> the full residual.
+   subroutine algebraic_residuals(p, x, r1, r2, halo)
       type(discrete_problem_t), intent(in) :: p
       real(dp), intent(in) :: x(:)
       real(dp), intent(out) :: r1(:), r2(:)
+      type(halo_t), intent(inout), optional :: halo
 
       integer(ip) :: n
 
       ! S X_α into r_α first: no work vector of the mesh's size
       n = p%n
       call p%stiffness%matvec(x(1:n), r1)
+      if (present(halo)) call halo%add(r1)
       r1 = p%f1 - p%mu1*r1 + p%mass*x(2*n + 1:3*n)
       call p%stiffness%matvec(x(n + 1:2*n), r2)
+      if (present(halo)) call halo%add(r2)
       r2 = p%f2 - p%mu2*r2 - p%mass*x(2*n + 1:3*n)
    end subroutine algebraic_residuals
 
