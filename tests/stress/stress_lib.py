@@ -174,7 +174,7 @@ def run(case: Case, linear: str, cfun: str) -> Outcome:
     out = out_dir() / f"{case.name}_{linear}_{cfun}.h5"
     out.unlink(missing_ok=True)
     args = [EXE, "run", str(SOURCE / "input" / "default.nml"), *case_args(case), f"newton.linear={linear}",
-            f"newton.cfun={cfun}", "newton.tol=1e-12", "gmres.rtol=1e-13", "newton.max_it=200",
+            f"newton.cfun={cfun}", "newton.tol=1e-12", "gmres.rtol=1e-13", "newton.max_it=200", "newton.initial=paper",
             f"estimate.enabled={'.true.' if linear == 'adaptive' else '.false.'}", f"output.file={out}"]
     o = Outcome(case.name, linear, cfun)
     start = time.monotonic()
@@ -266,6 +266,17 @@ CLOSED_FORM_BOUND = 1e-12
 ADAPTIVE_FACTOR = 2.0
 
 
+EXACT_METHODS = [("direct", "min"), ("direct", "fb"), ("gmres", "min"), ("gmres", "fb")]
+
+
+def run_all(case: Case) -> tuple[dict, Outcome | None]:
+    """Every method on `case`, and the reference: the first exact method (direct Newton-min
+    first) that converged."""
+    outcomes = {(lin, cfun): run(case, lin, cfun) for lin, cfun in METHODS}
+    ref = next((outcomes[m] for m in EXACT_METHODS if outcomes[m].converged), None)
+    return outcomes, ref
+
+
 def judge(o: Outcome, ref: Outcome | None) -> list[str]:
     """What is wrong with an outcome (empty: it is acceptable); fills o.error and o.bound."""
     problems = []
@@ -293,7 +304,7 @@ def judge(o: Outcome, ref: Outcome | None) -> list[str]:
         o.error = closed_form_distance(o.data)
         o.bound = CLOSED_FORM_BOUND
     elif ref is o:
-        # the reference itself: checked by the numpy residual alone
+        # the reference itself: checked by the numpy residual
         o.error = o.residual
         o.bound = RESIDUAL_BOUND
     else:

@@ -29,21 +29,20 @@ def cell(o: sl.Outcome, problems: list[str]) -> str:
         return "**FAIL**: " + "; ".join(problems).replace("|", "/")
     if o.converged:
         its = f"{o.newton} N" + (f", {o.gmres} G" if o.linear != "direct" else "")
-        what = "res" if (o.linear, o.cfun) == ("direct", "min") and not sl.BY_NAME[o.case].closed_form else "err"
         if o.linear == "adaptive":
-            what = "E-err/η"
-            return f"ok, {its}, {what} {o.error / (o.bound / sl.ADAPTIVE_FACTOR):.2f}"
-        return f"ok, {its}, {what} {o.error:.0e}"
+            return f"ok, {its}, E-err/η {o.error / (o.bound / sl.ADAPTIVE_FACTOR):.0e}"
+        what = "res" if o.bound == sl.RESIDUAL_BOUND else "err"
+        return f"ok, {its}, {what} {o.error:.0e}" + (" (ref.)" if what == "res" else "")
     return f"exit 1: {o.status.removeprefix('not converged: ')} ({o.newton} N)"
 
 
 def main() -> int:
     rows, bad = [], 0
     for case in sl.CASES:
-        ref = sl.run(case, "direct", "min")
+        runs, ref = sl.run_all(case)
         cells = []
         for linear, cfun in sl.METHODS:
-            o = ref if (linear, cfun) == ("direct", "min") else sl.run(case, linear, cfun)
+            o = runs[(linear, cfun)]
             problems = sl.judge(o, ref)
             bad += bool(problems)
             cells.append(cell(o, problems))

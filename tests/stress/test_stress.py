@@ -18,16 +18,16 @@ SELECTED = [c for c in sl.CASES if c.name in os.environ.get("TWOMEM_STRESS_CASES
 
 
 @functools.lru_cache(maxsize=None)
-def reference(name: str) -> sl.Outcome:
-    """Direct Newton-min, the reference of the other methods (itself checked in numpy)."""
-    return sl.run(sl.BY_NAME[name], "direct", "min")
+def outcomes(name: str) -> tuple[dict, sl.Outcome | None]:
+    """Every method's run of the case and the reference (stress_lib.run_all)."""
+    return sl.run_all(sl.BY_NAME[name])
 
 
 @pytest.mark.parametrize("linear,cfun", sl.METHODS, ids=[f"{lin}-{c}" for lin, c in sl.METHODS])
 @pytest.mark.parametrize("name", [c.name for c in SELECTED])
 def test_case_by_method(name, linear, cfun):
-    ref = reference(name)
-    o = ref if (linear, cfun) == ("direct", "min") else sl.run(sl.BY_NAME[name], linear, cfun)
+    runs, ref = outcomes(name)
+    o = runs[(linear, cfun)]
     problems = sl.judge(o, ref)
     print(f"{name} {linear}/{cfun}: exit {o.code}, {o.status}, {o.newton} Newton, {o.gmres} GMRES, "
           f"error {o.error:.2e} (bound {o.bound:.2e}), residual {o.residual:.2e}, {o.seconds:.1f} s")
