@@ -4,7 +4,8 @@
 # builds, then either runs the default case or runs the whole test suite.
 #
 #   scripts/bootstrap.sh run    # install + build + run input/default.nml, print the result path
-#   scripts/bootstrap.sh test   # install + build + ctest (unit, regression, convergence, CLI)
+#   scripts/bootstrap.sh test   # install + build + ctest (every label: unit, fuzz, regression,
+#                               # postproc, stress), then the fast tests under the sanitizers
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 root=$(pwd)
@@ -83,5 +84,11 @@ case "$mode" in
     ctest --preset debug -E convergence -j 2
     say "all tests under the release build"
     ctest --preset release -j 2
+    # AddressSanitizer + UBSan on the C glue and the Fortran (MPI off: Open MPI's own
+    # allocations drown the reports); the fast tests only, the solver is 3-10x slower there
+    build sanitize
+    say "fast tests under the sanitizers (unit, fuzz, CLI and resources)"
+    ctest --preset sanitize -L "unit|fuzz" -j 2
+    ctest --preset sanitize -R "regression/(cli|resources)" -j 2
     ;;
 esac

@@ -119,3 +119,84 @@ int64_t twomem_sys_peak_rss_kib(void)
     if (getrusage(RUSAGE_SELF, &usage) != 0) return -1;
     return (int64_t)usage.ru_maxrss;
 }
+
+/* One "Key: value kB" line of a /proc file, in bytes; -1 if absent. */
+static long long proc_kib_bytes(const char *file, const char *key)
+{
+    FILE *f = fopen(file, "r");
+    char line[256];
+    long long kib = -1;
+    size_t n = strlen(key);
+
+    if (f == NULL) return -1;
+    while (fgets(line, sizeof line, f) != NULL) {
+        if (strncmp(line, key, n) == 0 && line[n] == ':') {
+            if (sscanf(line + n + 1, "%lld", &kib) != 1) kib = -1;
+            break;
+        }
+    }
+    fclose(f);
+    return kib < 0 ? -1 : kib * 1024;
+}
+
+/* The first number in a file (cgroup limits); -1 if absent or "max". */
+static long long file_number(const char *file)
+{
+    FILE *f = fopen(file, "r");
+    long long v = -1;
+
+    if (f == NULL) return -1;
+    if (fscanf(f, "%lld", &v) != 1) v = -1;
+    fclose(f);
+    return v;
+}
+
+static void take(long long *best, char *which, size_t cap, long long value, const char *name)
+{
+    if (value < 0) return;
+    if (*best < 0 || value < *best) {
+        *best = value;
+        snprintf(which, cap, "%s", name);
+    }
+}
+
+/* How many more bytes this process may allocate: the least of the memory the kernel reports
+ * available (MemAvailable, or MemTotal on kernels without it), the address-space and data
+ * rlimits (ulimit -v, ulimit -d) less what the process already maps, and the cgroup's limit
+ * (v2 memory.max, v1 memory.limit_in_bytes) less its current use. `which` names the limit that
+ * decided. -1 if nothing is known (no /proc, no limits). */
+int64_t twomem_sys_memory_allowed(char *which, size_t cap)
+{
+    long long best = -1, v, used;
+    struct rlimit lim;
+
+    if (cap > 0) which[0] = '\0';
+    v = proc_kib_bytes("/proc/meminfo", "MemAvailable");
+    if (v < 0) v = proc_kib_bytes("/proc/meminfo", "MemTotal");
+    take(&best, which, cap, v, "MemAvailable in /proc/meminfo");
+    if (getrlimit(RLIMIT_AS, &lim) == 0 && lim.rlim_cur != RLIM_INFINITY) {
+        used = proc_kib_bytes("/proc/self/status", "VmSize");
+        v = (long long)lim.rlim_cur - (used > 0 ? used : 0);
+        take(&best, which, cap, v < 0 ? 0 : v, "address-space limit, ulimit -v");
+    }
+    if (getrlimit(RLIMIT_DATA, &lim) == 0 && lim.rlim_cur != RLIM_INFINITY) {
+        used = proc_kib_bytes("/proc/self/status", "VmData");
+        v = (long long)lim.rlim_cur - (used > 0 ? used : 0);
+        take(&best, which, cap, v < 0 ? 0 : v, "data-segment limit, ulimit -d");
+    }
+    v = file_number("/sys/fs/cgroup/memory.max");
+    if (v >= 0) {
+        used = file_number("/sys/fs/cgroup/memory.current");
+        v -= used > 0 ? used : 0;
+        take(&best, which, cap, v < 0 ? 0 : v, "cgroup memory.max");
+    } else {
+        v = file_number("/sys/fs/cgroup/memory/memory.limit_in_bytes");
+        /* v1 reports "no limit" as a huge number: keep only limits below 2^60 */
+        if (v >= 0 && v < (1LL << 60)) {
+            used = file_number("/sys/fs/cgroup/memory/memory.usage_in_bytes");
+            v -= used > 0 ? used : 0;
+            take(&best, which, cap, v < 0 ? 0 : v, "cgroup memory.limit_in_bytes");
+        }
+    }
+    return (int64_t)best;
+}

@@ -1,7 +1,8 @@
 !> The mesh hierarchy of a run: rank 0 makes the coarse mesh (a built-in generator or a Gmsh
 !> file) and shares it, every rank takes its piece of the partition (`twomem_mesh_partition`)
 !> and refines it `mesh.levels` times. One rank takes the whole mesh: the same path, nothing
-!> cut. The sizes printed are those of the whole meshes.
+!> cut. The sizes printed are those of the whole meshes. Before anything is refined, rank 0
+!> refuses a hierarchy that would not fit in memory (twomem_app_memory).
 module twomem_app_mesh
    use, intrinsic :: iso_fortran_env, only: output_unit
    use twomem_base_kinds, only: dp
@@ -13,6 +14,7 @@ module twomem_app_mesh
    use twomem_mesh_generators, only: make_disk, make_square, disk_boundary_spacing
    use twomem_mesh_gmsh, only: read_gmsh
    use twomem_mesh_partition, only: share_mesh, distribute_coarse
+   use twomem_app_memory, only: check_memory
    implicit none
    private
 
@@ -31,6 +33,7 @@ contains
       integer :: l
 
       if (comm%is_root()) call coarse_mesh(cfg, whole, err)
+      if (comm%is_root() .and. .not. allocated(err)) call check_memory(cfg, whole, comm%size, err)
       call comm%agree(err)
       if (allocated(err)) return
       call share_mesh(comm, whole, 'coarse mesh', err)

@@ -10,7 +10,7 @@ module twomem_app_run
    use twomem_base_kinds, only: dp, ip, i8
    use twomem_base_errors, only: error_t, make_error, exit_ok, exit_not_converged, exit_bad_input, exit_io
    use twomem_base_system, only: make_directories, parent_directory, peak_memory_kib, process_id, remove_file, &
-      is_directory
+      is_directory, register_temporary, unregister_temporary
    use twomem_base_phases, only: phase_clock_t, phase_mesh, phase_assembly, phase_solve, phase_estimators, &
       phase_error, phase_output
    use twomem_base_comm, only: comm_t
@@ -387,14 +387,17 @@ contains
          return
       end if
       write (pid, '(i0)') process_id()
+      call register_temporary(path//'.probe-'//trim(pid))
       open (newunit=unit, file=path//'.probe-'//trim(pid), status='replace', action='write', &
             iostat=ios, iomsg=msg)
       if (ios /= 0) then
+         call unregister_temporary()
          call make_error(err, exit_io, path, 'cannot write the result file: '//trim(msg))
          return
       end if
       close (unit, status='delete', iostat=ios)
       call remove_file(path//'.probe-'//trim(pid), ignored)
+      call unregister_temporary()
    end subroutine check_output_writable
 
 end module twomem_app_run

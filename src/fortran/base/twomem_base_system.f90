@@ -1,6 +1,8 @@
 !> What twomem asks of the operating system: directory trees for output files, the atomic rename
 !> that makes a result file appear only when complete, clean-up of leftovers, the process id (for
-!> unique temporary names) and the peak memory for the run summary. The only Fortran that talks
+!> unique temporary names), the peak memory for the run summary, the memory the process may
+!> still use, and the guards of src/c/twomem_guard.c (SIGTERM/SIGINT and failed allocations end
+!> the run with one line after removing the registered temporary file). The only Fortran that talks
 !> to src/c/twomem_system.c. It also ends the program with a chosen exit code, which Fortran 2008
 !> cannot do quietly (`stop` takes only a constant, and prints it); only the main program calls it; failures come back as `exit_io` errors naming the path and the
 !> system's reason (strerror). Path arithmetic (`parent_directory`, `base_name`) is plain Fortran.
@@ -14,6 +16,7 @@ module twomem_base_system
 
    public :: make_directories, parent_directory, base_name, rename_file, remove_file, file_exists, is_directory
    public :: process_id, peak_memory_kib, c_text, exit_program
+   public :: memory_allowed_bytes, install_guards, register_temporary, unregister_temporary
 
    integer, parameter :: msg_len = 1024
 
@@ -61,6 +64,25 @@ module twomem_base_system
       integer(c_int64_t) function c_peak_rss_kib() bind(C, name='twomem_sys_peak_rss_kib')
          import :: c_int64_t
       end function c_peak_rss_kib
+
+      integer(c_int64_t) function c_memory_allowed(which, cap) bind(C, name='twomem_sys_memory_allowed')
+         import :: c_int64_t, c_char, c_size_t
+         character(kind=c_char), intent(out) :: which(*)
+         integer(c_size_t), value :: cap
+      end function c_memory_allowed
+
+      integer(c_int) function c_guard_install(print) bind(C, name='twomem_guard_install')
+         import :: c_int
+         integer(c_int), value :: print
+      end function c_guard_install
+
+      integer(c_int) function c_guard_register(path) bind(C, name='twomem_guard_register')
+         import :: c_int, c_char
+         character(kind=c_char), intent(in) :: path(*)
+      end function c_guard_register
+
+      subroutine c_guard_unregister() bind(C, name='twomem_guard_unregister')
+      end subroutine c_guard_unregister
    end interface
 
 contains
@@ -132,6 +154,46 @@ contains
    integer(i8) function peak_memory_kib()
       peak_memory_kib = int(c_peak_rss_kib(), i8)
    end function peak_memory_kib
+
+   !> How many more bytes this process may allocate (the least of available memory, ulimit -v
+   !> and -d, the cgroup limit; see src/c/twomem_system.c) and which limit decided; -1 if
+   !> nothing is known.
+   integer(i8) function memory_allowed_bytes(which)
+      character(len=:), allocatable, intent(out) :: which
+
+      character(len=256) :: buffer
+
+      memory_allowed_bytes = int(c_memory_allowed(buffer, len(buffer, c_size_t)), i8)
+      which = c_text(buffer)
+   end function memory_allowed_bytes
+
+   !> SIGTERM and SIGINT end the run at once with `twomem: interrupted by SIG...` (printed
+   !> when `print`) and exit status 128 + signo, after removing the registered temporary file;
+   !> a failed allocation ends it with one line and exit 3. Why a handler that exits rather
+   !> than a polled flag: src/c/twomem_guard.c.
+   subroutine install_guards(print)
+      logical, intent(in) :: print
+
+      integer(c_int) :: status
+
+      ! a handler that cannot be installed leaves the default action (the run still ends)
+      status = c_guard_install(merge(1_c_int, 0_c_int, print))
+   end subroutine install_guards
+
+   !> `path` is the temporary file about to be created: removed if the run is killed before
+   !> `unregister_temporary`. Call before creating it.
+   subroutine register_temporary(path)
+      character(len=*), intent(in) :: path
+
+      integer(c_int) :: status
+
+      ! too long a path (over 4 KiB) is written all the same, only without clean-up on a signal
+      status = c_guard_register(trim(path)//c_null_char)
+   end subroutine register_temporary
+
+   subroutine unregister_temporary()
+      call c_guard_unregister()
+   end subroutine unregister_temporary
 
    !> The directory part of `path`, as dirname(1): 'a/b.h5' -> 'a', 'b.h5' -> '.', '/b' -> '/'.
    pure function parent_directory(path) result(parent)

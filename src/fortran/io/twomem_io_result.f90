@@ -5,7 +5,8 @@
 module twomem_io_result
    use twomem_base_kinds, only: dp, ip, i8
    use twomem_base_errors, only: error_t
-   use twomem_base_system, only: rename_file, remove_file, process_id, base_name
+   use twomem_base_system, only: rename_file, remove_file, process_id, base_name, register_temporary, &
+      unregister_temporary
    use twomem_newton_history, only: history_t
    use twomem_io_hdf5, only: h5_file_t
    use twomem_io_xdmf, only: write_xdmf
@@ -86,22 +87,27 @@ contains
 
       write (pid, '(i0)') process_id()
       tmp = trim(path)//'.tmp-'//trim(pid)
+      ! a SIGTERM or SIGINT from here to the rename removes the temporary (twomem_guard.c)
+      call register_temporary(tmp)
       call h5%create(tmp, err)
-      if (allocated(err)) return
+      if (allocated(err)) then
+         call unregister_temporary()
+         return
+      end if
       with_mesh = choice%fields .or. allocated(rec%energy_error) .or. allocated(rec%estimators)
       call write_contents(h5, rec, choice, with_mesh, err)
       if (.not. allocated(err) .and. present(clock)) call write_performance(h5, clock, err)
       if (allocated(err)) then
          call h5%close(cleanup_err)
          call remove_file(tmp, cleanup_err)
+         call unregister_temporary()
          return
       end if
       call h5%close(err)
       if (.not. allocated(err)) call rename_file(tmp, path, err)
-      if (allocated(err)) then
-         call remove_file(tmp, cleanup_err)
-         return
-      end if
+      if (allocated(err)) call remove_file(tmp, cleanup_err)
+      call unregister_temporary()
+      if (allocated(err)) return
       if (choice%xdmf .and. with_mesh) then
          allocate (cells(0))
          if (allocated(rec%energy_error)) cells = [character(len=64) :: '/error/energy']

@@ -5,7 +5,8 @@
 module twomem_io_xdmf
    use twomem_base_kinds, only: ip
    use twomem_base_errors, only: error_t, make_error, exit_io
-   use twomem_base_system, only: rename_file, remove_file, process_id, base_name
+   use twomem_base_system, only: rename_file, remove_file, process_id, base_name, register_temporary, &
+      unregister_temporary
    implicit none
    private
 
@@ -31,9 +32,11 @@ contains
       h5 = xml_escape(trim(h5_name))
       nv_text = int_text(int(nv))
       nt_text = int_text(int(nt))
+      call register_temporary(tmp_path)
       open (newunit=unit, file=tmp_path, status='replace', action='write', form='formatted', &
             iostat=ios, iomsg=msg)
       if (ios /= 0) then
+         call unregister_temporary()
          call make_error(err, exit_io, xdmf_path, 'cannot write XDMF file: '//trim(msg))
          return
       end if
@@ -65,11 +68,13 @@ contains
       end if
       if (ios /= 0) then
          call remove_file(tmp_path)
+         call unregister_temporary()
          call make_error(err, exit_io, xdmf_path, 'cannot write XDMF file: '//trim(msg))
          return
       end if
       call rename_file(tmp_path, xdmf_path, err)
       if (allocated(err)) call remove_file(tmp_path)
+      call unregister_temporary()
    end subroutine write_xdmf
 
    !> A scalar field, named after the dataset's last path component.
