@@ -23,7 +23,7 @@ DISK_GMSH = SOURCE / "input" / "meshes" / "disk_gmsh.msh"
 LSHAPE = SOURCE / "input" / "meshes" / "lshape.msh"
 UNUSED = SOURCE / "tests" / "data" / "meshes" / "unused_nodes.msh"
 
-# the bbbv data (DESIGN of the paper's §7): mu = 1, g = 0.05, r0 = 1/sqrt(2),
+# the bbbv data (docs/method.md §4): mu = 1, g = 0.05, r0 = 1/sqrt(2),
 # c = g sqrt(2)/(sqrt(2) - 1); f1 = -10g inside r0, -8g outside; f2 = -6g inside,
 # -c(1 + 8r - 18r^2)/r outside
 R0 = "1/sqrt(2)"

@@ -1,4 +1,4 @@
-!> The algebraic two-membrane problem on one mesh (DESIGN.md §1): unknowns at interior vertices
+!> The algebraic two-membrane problem on one mesh (docs/method.md §1): unknowns at interior vertices
 !> only, S the P1 stiffness restricted to them, D = diag(|ω_a|/3), and the right-hand sides
 !> F1 = (f1, ψ_a) − μ1 S_IB g (the lifting of u1 = g) and F2 = (f2, ψ_a). It also maps between
 !> interior vectors and nodal fields on the whole mesh, boundary values included. On a rank's

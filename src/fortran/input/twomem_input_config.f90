@@ -342,6 +342,9 @@ contains
          else if (.not. allocated(what)) then
             call store_real(cfg, id, x)
             call store_text(cfg, id, '')
+         else if (index(what, 'out of range') > 0) then
+            ! a real literal that overflows is a bad number, not a formula: keep scan_real's message
+            continue
          else if (len(value) > config_len) then
             what = 'formula longer than '//itoa(config_len)//' characters'
          else if (has_control_character(value)) then
