@@ -22,7 +22,7 @@ module twomem_input_formula
    integer, parameter :: op_const = 1, op_x = 2, op_y = 3, op_r = 4, op_add = 5, op_sub = 6, &
       op_mul = 7, op_div = 8, op_pow = 9, op_neg = 10, op_lt = 11, op_le = 12, op_gt = 13, op_ge = 14, &
       op_eq = 15, op_ne = 16, op_sqrt = 17, op_exp = 18, op_log = 19, op_sin = 20, op_cos = 21, &
-      op_tan = 22, op_atan2 = 23, op_abs = 24, op_min = 25, op_max = 26
+      op_tan = 22, op_atan2 = 23, op_abs = 24, op_min = 25, op_max = 26, op_square = 27
 
    integer, parameter :: status_ok = 0, status_div_zero = 1, status_overflow = 2, status_log = 3, &
       status_sqrt = 4, status_pow = 5, status_atan2 = 6
@@ -35,6 +35,8 @@ module twomem_input_formula
       integer :: n = 0
       !> the formula does not depend on the position: it is `value(1)`
       logical :: constant = .false.
+      !> r appears: computed once per batch of points
+      logical :: uses_r = .false.
    contains
       procedure :: evaluate
       procedure :: evaluate_point
@@ -87,6 +89,7 @@ contains
       f%op = p%op(1:p%n)
       f%value = p%value(1:p%n)
       f%constant = p%n == 1 .and. p%op(1) == op_const
+      f%uses_r = any(f%op == op_r)
    end subroutine parse_formula
 
    !> The reason of an evaluation status, for messages.
@@ -158,9 +161,11 @@ contains
       real(dp), intent(out) :: values(:)
       integer, intent(inout) :: status, bad
 
-      real(dp) :: s(batch, max_depth), a, b, c
-      integer :: i, d, k
+      real(dp), parameter :: big = huge(1.0_dp)
+      real(dp) :: s(batch, max_depth), r(batch)
+      integer :: i, d
 
+      if (self%uses_r) r(1:m) = sqrt(x(1, 1:m)**2 + x(2, 1:m)**2)
       d = 0
       do i = 1, self%n
          select case (self%op(i))
@@ -175,7 +180,7 @@ contains
             s(1:m, d) = x(2, 1:m)
          case (op_r)
             d = d + 1
-            s(1:m, d) = sqrt(x(1, 1:m)**2 + x(2, 1:m)**2)
+            s(1:m, d) = r(1:m)
          case (op_neg)
             s(1:m, d) = -s(1:m, d)
          case (op_abs)
@@ -190,36 +195,110 @@ contains
          case (op_max)
             d = d - 1
             s(1:m, d) = max(s(1:m, d), s(1:m, d + 1))
-         case (op_lt, op_le, op_gt, op_ge, op_eq, op_ne)
+         case (op_lt)
             d = d - 1
-            do k = 1, m
-               s(k, d) = compare(self%op(i), s(k, d), s(k, d + 1))
-            end do
+            s(1:m, d) = merge(1.0_dp, 0.0_dp, s(1:m, d) < s(1:m, d + 1))
+         case (op_le)
+            d = d - 1
+            s(1:m, d) = merge(1.0_dp, 0.0_dp, s(1:m, d) <= s(1:m, d + 1))
+         case (op_gt)
+            d = d - 1
+            s(1:m, d) = merge(1.0_dp, 0.0_dp, s(1:m, d) > s(1:m, d + 1))
+         case (op_ge)
+            d = d - 1
+            s(1:m, d) = merge(1.0_dp, 0.0_dp, s(1:m, d) >= s(1:m, d + 1))
+         case (op_eq)
+            d = d - 1
+            s(1:m, d) = merge(1.0_dp, 0.0_dp, s(1:m, d) == s(1:m, d + 1))
+         case (op_ne)
+            d = d - 1
+            s(1:m, d) = merge(1.0_dp, 0.0_dp, s(1:m, d) /= s(1:m, d + 1))
+         ! +, −, *, / on the whole batch when a test that cannot itself overflow shows that no
+         ! point can overflow (almost always); otherwise point by point, which finds the point
+         case (op_add)
+            d = d - 1
+            if (all(abs(s(1:m, d)) <= big - abs(s(1:m, d + 1)))) then
+               s(1:m, d) = s(1:m, d) + s(1:m, d + 1)
+            else
+               call careful(op_add, 2, s, d, m, status, bad)
+            end if
+         case (op_sub)
+            d = d - 1
+            if (all(abs(s(1:m, d)) <= big - abs(s(1:m, d + 1)))) then
+               s(1:m, d) = s(1:m, d) - s(1:m, d + 1)
+            else
+               call careful(op_sub, 2, s, d, m, status, bad)
+            end if
+         case (op_mul)
+            d = d - 1
+            if (all(abs(s(1:m, d + 1)) <= big/max(abs(s(1:m, d)), 1.0_dp))) then
+               s(1:m, d) = s(1:m, d)*s(1:m, d + 1)
+            else
+               call careful(op_mul, 2, s, d, m, status, bad)
+            end if
+         case (op_div)
+            d = d - 1
+            if (all(abs(s(1:m, d)) < big*min(abs(s(1:m, d + 1)), 1.0_dp))) then
+               s(1:m, d) = s(1:m, d)/s(1:m, d + 1)
+            else
+               call careful(op_div, 2, s, d, m, status, bad)
+            end if
+         case (op_square)
+            if (all(abs(s(1:m, d)) <= sqrt(big))) then
+               s(1:m, d) = s(1:m, d)**2
+            else
+               call careful(op_square, 1, s, d, m, status, bad)
+            end if
          case default
             ! the operations with a domain: one point at a time
             if (is_binary(self%op(i))) d = d - 1
-            do k = 1, m
-               a = s(k, d)
-               b = 0.0_dp
-               if (is_binary(self%op(i))) b = s(k, d + 1)
-               call apply(self%op(i), a, b, c, status)
-               if (status /= status_ok) then
-                  bad = k
-                  values = 0.0_dp
-                  return
-               end if
-               s(k, d) = c
-            end do
+            call careful(self%op(i), merge(2, 1, is_binary(self%op(i))), s, d, m, status, bad)
          end select
+         if (status /= status_ok) then
+            values = 0.0_dp
+            return
+         end if
       end do
-      values = s(1:m, 1)
+      values(1:m) = s(1:m, 1)
    end subroutine run
+
+   !> Operation `op` of `arity` on stack level d of the first m points of s, point by point with
+   !> every domain check; on failure `bad` is the point.
+   pure subroutine careful(op, arity, s, d, m, status, bad)
+      integer, intent(in) :: op, arity, d, m
+      real(dp), intent(inout) :: s(:, :)
+      integer, intent(inout) :: status, bad
+
+      real(dp) :: a, b, c
+      integer :: k
+
+      do k = 1, m
+         a = s(k, d)
+         b = 0.0_dp
+         if (arity == 2) b = s(k, d + 1)
+         if (op == op_square) then
+            call apply(op_mul, a, a, c, status)
+         else
+            call apply(op, a, b, c, status)
+         end if
+         if (status /= status_ok) then
+            bad = k
+            return
+         end if
+         s(k, d) = c
+      end do
+   end subroutine careful
 
    pure logical function is_binary(op)
       integer, intent(in) :: op
 
-      is_binary = any(op == [op_add, op_sub, op_mul, op_div, op_pow, op_atan2, op_min, op_max, &
-                             op_lt, op_le, op_gt, op_ge, op_eq, op_ne])
+      select case (op)
+      case (op_add, op_sub, op_mul, op_div, op_pow, op_atan2, op_min, op_max, op_lt, op_le, op_gt, op_ge, &
+            op_eq, op_ne)
+         is_binary = .true.
+      case default
+         is_binary = .false.
+      end select
    end function is_binary
 
    pure real(dp) function compare(op, a, b)
@@ -720,6 +799,15 @@ contains
             p%n = p%n - arity
             p%depth = p%depth - arity
             call emit_const(p, c)
+            return
+         end if
+      end if
+      if (op == op_pow .and. p%op(p%n) == op_const) then
+         ! x^2, the commonest power, as one multiplication (same value as a**2)
+         if (p%value(p%n) == 2) then
+            p%n = p%n - 1
+            p%depth = p%depth - 1
+            call push(p, op_square, 0.0_dp)
             return
          end if
       end if
