@@ -1,5 +1,6 @@
-# Find METIS and define METIS::METIS. Partitioning of the coarse mesh for distributed runs uses
-# it; the serial solver links it so that the glue is compiled and tested from the start.
+# Find METIS and define METIS::METIS. src/c/twomem_metis.c (called from
+# src/fortran/mesh/twomem_mesh_metis.f90) partitions the coarse mesh's triangles for distributed
+# runs; every build links it, with or without MPI, so the glue is compiled and unit-tested always.
 find_path(METIS_INCLUDE_DIR metis.h)
 find_library(METIS_LIBRARY NAMES metis)
 include(FindPackageHandleStandardArgs)

@@ -1,5 +1,5 @@
 !> What the fuzzer demands of every answer a parser gives. A rejection must keep the bad-input
-!> contract of INTERFACE.md: exit category 2 and one short line that starts by naming the file
+!> contract of docs/input.md: exit category 2 and one short line that starts by naming the file
 !> (or the override) it is about. An acceptance must be usable: a mesh that passes the reader
 !> satisfies the invariants the solver relies on. Each function returns '' when all is well and
 !> otherwise says what is wrong, so the driver can print it next to the input that caused it.

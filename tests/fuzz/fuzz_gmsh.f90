@@ -28,7 +28,7 @@ module fuzz_gmsh
 
    character(len=*), parameter :: seed_files(*) = [character(len=32) :: &
       'square_msh22.msh', 'square_msh41.msh', 'square_msh22_groups.msh', &
-      'square_msh41_groups.msh', 'sparse_crlf.msh', 'clockwise.msh', 'lshape_msh41.msh', &
+      'square_msh41_groups.msh', 'sparse_crlf.msh', 'clockwise.msh', 'lshape_msh41.msh', 'unused_nodes.msh', &
       'broken/count_mismatch.msh', 'broken/unclosed_section.msh', 'broken/second_order.msh', &
       'broken/nonmanifold.msh', 'broken/duplicate_node.msh']
 

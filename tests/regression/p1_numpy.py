@@ -180,7 +180,7 @@ def composite_rule(levels: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 # --------------------------------------------------------------------------------------------
-# the `radial` closed form (DESIGN.md §4), gradients only
+# the `radial` closed form (docs/method.md §4), gradients only
 # --------------------------------------------------------------------------------------------
 def radial_contact_radius(D: float, g: float) -> float:
     """ρ in (0, 1) with (D/4)(1 − ρ² + 2ρ² ln ρ) = g, by bisection; 0 if D ≤ 4g (no contact).

@@ -1,4 +1,4 @@
-"""Energy-error convergence against the closed-form solutions (DESIGN.md §4).
+"""Energy-error convergence against the closed-form solutions (docs/method.md §4).
 
 P1 elements converge at rate 1 in the energy norm. Two studies per case, four meshes each:
 - *deeper*: one fixed coarse disk (its boundary spacing fixed too, so the polygon is the

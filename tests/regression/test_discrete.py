@@ -4,7 +4,7 @@ What is checked, for runs on Gmsh meshes (non-convex L-shape, a square with a ho
 as read and once red-refined, one case with unequal tensions) and on the built-in square and
 disk, all with `newton.linear = 'direct'` and data that produce both contact and non-contact:
 
-* the first two block rows of the discrete problem (DESIGN.md §1) at every interior vertex a:
+* the first two block rows of the discrete problem (docs/method.md §1) at every interior vertex a:
       r1(a) = μ1 (S u1)(a) − |ω_a|/3 λ(a) − f1 |ω_a|/3,
       r2(a) = μ2 (S u2)(a) + |ω_a|/3 λ(a) − f2 |ω_a|/3,
   with S applied to the full nodal vectors (boundary values included: the lifting of g), are

@@ -383,7 +383,7 @@ contains
       call expect_error(err, 'config_gmsh_no_file.nml', '&mesh domain = ''gmsh'' /', &
                         [character(len=60) :: ':1:', '&mesh', 'mesh.file'])
       call expect_error(err, 'config_exact_square.nml', '&mesh domain = ''square'' /'//nl//'&problem'//nl// &
-                        'exact = ''radial'' /', [character(len=60) :: ':3:', '&problem', "needs mesh.domain='disk'"])
+                        'exact = ''radial'' /', [character(len=60) :: ':3:', '&problem', "needs the unit disk"])
    end subroutine test_word_and_cross_rules
 
    subroutine test_non_finite(err)

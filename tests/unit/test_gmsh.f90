@@ -29,6 +29,7 @@ contains
                new_unittest('lshape_msh41', test_lshape), &
                new_unittest('sparse_tags_crlf', test_sparse), &
                new_unittest('flips_clockwise', test_clockwise), &
+               new_unittest('drops_unused_nodes', test_unused_nodes), &
                new_unittest('rejects_broken_files', test_broken), &
                new_unittest('rejects_missing_file', test_missing), &
                new_unittest('huge_coordinates', test_huge)]
@@ -180,6 +181,30 @@ contains
       call check(err, mesh%n_boundary_vertices() == 4, 'four corners on the boundary')
    end subroutine test_sparse
 
+   !> As Gmsh's built-in kernel writes files: nodes no triangle uses (geometry points), point and
+   !> line elements, elements without physical tags. The unused nodes are dropped, the others
+   !> keep the file's order.
+   subroutine test_unused_nodes(err)
+      type(error_t), allocatable, intent(out) :: err
+
+      type(mesh_t) :: mesh
+      character(len=:), allocatable :: path
+      integer(ip) :: n_unused
+
+      call data_file('unused_nodes.msh', path, err)
+      if (allocated(err)) return
+      call read_gmsh(path, mesh, err, n_unused)
+      if (allocated(err)) return
+      call check(err, n_unused == 2, 'two nodes (tags 7 and 9) are used by no triangle')
+      call check(err, mesh%nv == 4 .and. mesh%nt == 2, '4 vertices and 2 triangles remain')
+      if (allocated(err)) return
+      call check(err, all(mesh%vertices(1, :) == [0.0_dp, 1.0_dp, 1.0_dp, 0.0_dp]) .and. &
+                 all(mesh%vertices(2, :) == [0.0_dp, 0.0_dp, 1.0_dp, 1.0_dp]), 'used nodes in file order')
+      call check(err, all(mesh%triangles(:, 1) == [1, 2, 3]) .and. all(mesh%triangles(:, 2) == [1, 3, 4]), &
+                 'triangles renumbered past the dropped node')
+      call check(err, mesh%n_boundary_vertices() == 4, 'every vertex on the boundary')
+   end subroutine test_unused_nodes
+
    subroutine test_clockwise(err)
       type(error_t), allocatable, intent(out) :: err
 
@@ -197,13 +222,13 @@ contains
    subroutine test_broken(err)
       type(error_t), allocatable, intent(out) :: err
 
-      integer, parameter :: n = 25
+      integer, parameter :: n = 24
       character(len=*), parameter :: files(n) = [character(len=24) :: &
          'absent_node', 'bad_version', 'binary', 'count_mismatch', 'degenerate', &
          'duplicate_node', 'empty', 'extra_nodes', 'missing_nodes', 'nan_coordinate', &
          'no_triangles', 'non_numeric', 'nonmanifold', 'nonplanar', 'overflow_coordinate', &
          'quad', 'second_order', 'tetrahedron', 'truncated_nodes', 'unclosed_section', &
-         'unused_node', 'long_token', 'control_character', 'huge_node_count', &
+         'long_token', 'control_character', 'huge_node_count', &
          'huge_element_count']
       character(len=*), parameter :: expected(n) = [character(len=40) :: &
          ':14: triangle 2 refers to node tag 9', ':2: MSH version 4 is not supported', &
@@ -215,7 +240,7 @@ contains
          ':13: element type 3 (4-node quadrangle)', ':22: element type 9', &
          ':18: element type 4 (3D', &
          ':9: the $Nodes section is truncated', ':4: section $PhysicalNames', &
-         ':10: node tag 5 is used by no triangle', ':5: "3333333333', ':5: "3<0x7F>" is not an integer', &
+         ':5: "3333333333', ':5: "3<0x7F>" is not an integer', &
          ':7: the $Nodes section is truncated', ':18: the $Elements section is truncated']
       type(mesh_t) :: mesh
       type(error_t), allocatable :: got

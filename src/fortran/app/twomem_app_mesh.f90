@@ -5,8 +5,8 @@
 !> refuses a hierarchy that would not fit in memory (twomem_app_memory).
 module twomem_app_mesh
    use, intrinsic :: iso_fortran_env, only: output_unit
-   use twomem_base_kinds, only: dp
-   use twomem_base_errors, only: error_t
+   use twomem_base_kinds, only: dp, ip
+   use twomem_base_errors, only: error_t, make_error, exit_bad_input
    use twomem_base_comm, only: comm_t
    use twomem_input_config, only: config_t
    use twomem_mesh_triangulation, only: mesh_t
@@ -60,6 +60,7 @@ contains
       type(error_t), allocatable, intent(out) :: err
 
       real(dp) :: boundary_h
+      integer(ip) :: n_unused
 
       select case (trim(cfg%mesh%domain))
       case ('disk')
@@ -74,11 +75,51 @@ contains
          call make_square(cfg%mesh%coarse_h, coarse, err)
       case ('gmsh')
          write (output_unit, '("mesh: ",a,", ",i0," levels")') trim(cfg%mesh%file), cfg%mesh%levels
-         call read_gmsh(trim(cfg%mesh%file), coarse, err)
-         if (.not. allocated(err) .and. coarse%n_flipped > 0) write (output_unit, &
+         call read_gmsh(trim(cfg%mesh%file), coarse, err, n_unused)
+         if (allocated(err)) return
+         if (n_unused > 0) write (output_unit, '("  note: ",i0," nodes used by no triangle dropped")') n_unused
+         if (coarse%n_flipped > 0) write (output_unit, &
             '("  note: ",i0," clockwise triangles reoriented")') coarse%n_flipped
+         if (trim(cfg%problem%exact) /= 'none') call check_unit_disk(coarse, trim(cfg%mesh%file), &
+                                                                    trim(cfg%problem%exact), err)
       end select
    end subroutine coarse_mesh
+
+   !> The exact solutions live on the unit disk: a Gmsh mesh for them must have its boundary
+   !> vertices on the unit circle (to 1e-6, ample for any mesh generator's output) and lie
+   !> inside it. Red refinement keeps boundary vertices on the coarse chords, so the check of
+   !> the coarse mesh is the one that matters.
+   subroutine check_unit_disk(mesh, path, exact, err)
+      type(mesh_t), intent(in) :: mesh
+      character(len=*), intent(in) :: path, exact
+      type(error_t), allocatable, intent(out) :: err
+
+      real(dp), parameter :: tol = 1.0e-6_dp
+      real(dp) :: r
+      character(len=80) :: text
+      integer(ip) :: a
+
+      do a = 1, mesh%nv
+         r = norm2(mesh%vertices(:, a))
+         if ((mesh%boundary_vertex(a) .and. abs(r - 1) > tol) .or. r > 1 + tol) then
+            write (text, '("(",g0.8,", ",g0.8,"), |x| = ",g0.10)') mesh%vertices(:, a), r
+            call make_error(err, exit_bad_input, path, "problem.exact='"//exact//"' needs a mesh of the unit disk: "// &
+                            merge('boundary', 'interior', mesh%boundary_vertex(a))//' vertex '//itoa(a)//' at '// &
+                            trim(text)//' is not on the unit circle (tolerance 1e-6)')
+            return
+         end if
+      end do
+   end subroutine check_unit_disk
+
+   pure function itoa(n) result(s)
+      integer(ip), intent(in) :: n
+      character(len=:), allocatable :: s
+
+      character(len=24) :: buf
+
+      write (buf, '(i0)') n
+      s = trim(buf)
+   end function itoa
 
    !> One line per level: whole-mesh sizes and the range of element sizes. Collective.
    subroutine report_level(comm, l, m)

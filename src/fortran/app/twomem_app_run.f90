@@ -20,7 +20,7 @@ module twomem_app_run
    use twomem_input_config, only: config_t, config_echo
    use twomem_mesh_hierarchy, only: mesh_hierarchy_t
    use twomem_fem_problem, only: problem_data_t
-   use twomem_fem_cases, only: make_problem
+   use twomem_app_loads, only: make_data
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_fem_error, only: energy_error_per_element
    use twomem_newton_solver, only: newton_options_t, newton_result_t, method_direct, method_gmres, method_adaptive, &
@@ -89,8 +89,8 @@ contains
       finest = hierarchy%levels
 
       call clock%switch(phase_assembly)
-      call make_problem(trim(cfg%problem%exact), cfg%problem%mu1, cfg%problem%mu2, cfg%problem%f1, &
-                        cfg%problem%f2, cfg%problem%g, data, err)
+      call make_data(cfg, comm, hierarchy, data, err)
+      call comm%agree(err)
       if (allocated(err)) return
       call p%init(hierarchy%meshes(finest), data, err, comm)
       call comm%agree(err)

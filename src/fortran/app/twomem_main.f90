@@ -1,5 +1,5 @@
 !> The `twomem` executable: reads the command line, loads the case, runs or checks it, and is
-!> the only place that prints errors and chooses the exit code (INTERFACE.md). It starts MPI
+!> the only place that prints errors and chooses the exit code (docs/input.md). It starts MPI
 !> and makes the one communicator everything distributed is passed (a run without `mpirun` is
 !> one rank); every rank parses the same input and agrees on every error, rank 0 prints, and
 !> all ranks end together with the same exit code.

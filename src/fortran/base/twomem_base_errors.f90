@@ -1,6 +1,6 @@
 !> Errors travel as values. Library code never stops the program: it allocates an `error_t`
 !> naming where and what went wrong, and returns; only the program turns it into the one-line
-!> message and the exit code of INTERFACE.md. The category fixes the exit code, so a routine deep
+!> message and the exit code of docs/input.md. The category fixes the exit code, so a routine deep
 !> down decides whether a failure is bad input (2) or the environment's fault (3).
 module twomem_base_errors
    implicit none

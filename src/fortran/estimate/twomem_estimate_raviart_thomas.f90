@@ -1,6 +1,6 @@
 !> Raviart–Thomas spaces RT_p(K), p = 0 or 1, on one triangle, with the divergence space P_p(K)
 !> and the normal-trace space P_p(e) of each edge: everything the patch problems of the flux
-!> reconstructions need (DESIGN.md §3). The basis is monomial in the scaled coordinates
+!> reconstructions need (docs/method.md §3). The basis is monomial in the scaled coordinates
 !> ξ = (x − x_K)/h_K (x_K the barycentre, h_K the diameter), not the usual edge-moment basis:
 !> the patch solver enforces normal continuity with edge multipliers (hybridization), so it
 !> never needs basis functions shared across edges, and a monomial basis makes the coefficients

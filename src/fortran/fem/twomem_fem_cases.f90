@@ -1,4 +1,4 @@
-!> The verification cases of DESIGN.md §4, both on the unit disk with closed-form solutions:
+!> The verification cases of docs/method.md §4, both on the unit disk with closed-form solutions:
 !> `bbbv`, the paper's case (its data are fixed: μ1 = μ2 = 1, g = 0.05, loads that jump at
 !> r0 = 1/√2), and `radial`, constant data with a contact disk of radius ρ found from a scalar
 !> equation. `make_problem` turns the plain input values into the right data object.

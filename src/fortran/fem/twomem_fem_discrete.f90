@@ -1,4 +1,4 @@
-!> The algebraic two-membrane problem on one mesh (DESIGN.md §1): unknowns at interior vertices
+!> The algebraic two-membrane problem on one mesh (docs/method.md §1): unknowns at interior vertices
 !> only, S the P1 stiffness restricted to them, D = diag(|ω_a|/3), and the right-hand sides
 !> F1 = (f1, ψ_a) − μ1 S_IB g (the lifting of u1 = g) and F2 = (f2, ψ_a). It also maps between
 !> interior vectors and nodal fields on the whole mesh, boundary values included. On a rank's
@@ -6,8 +6,10 @@
 !> stiffness holds its own triangles' part (products are summed across ranks by `halo`), while
 !> D, F1 and F2 are summed once here and hold full values.
 module twomem_fem_discrete
+   use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_bad_input
+   use twomem_fem_quadrature, only: quadrature_t, triangle_rule
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_linalg_csr, only: csr_t
    use twomem_linalg_halo, only: halo_t
@@ -77,6 +79,11 @@ contains
       call stiffness_rows(mesh, self%unknown, self%stiffness, coupling)
       d_full = lumped_mass(mesh)
       f_full = assemble_loads(mesh, data)
+      ! a user's load that is not finite somewhere is bad input, found here once for all its uses
+      if (.not. all(ieee_is_finite(f_full))) then
+         call locate_bad_load(mesh, data, err)
+         return
+      end if
       self%mass = d_full(self%interior)
       self%f1 = f_full(self%interior, 1) - self%mu1*self%g*coupling
       self%f2 = f_full(self%interior, 2)
@@ -84,6 +91,35 @@ contains
       call self%halo%add(self%f1)
       call self%halo%add(self%f2)
    end subroutine discrete_init
+
+   !> The first quadrature point of the load rule (triangle order) where a load is not finite.
+   subroutine locate_bad_load(mesh, data, err)
+      type(mesh_t), intent(in) :: mesh
+      class(problem_data_t), intent(in) :: data
+      type(error_t), allocatable, intent(out) :: err
+
+      type(quadrature_t) :: rule
+      real(dp) :: x(2), f(2, 1)
+      integer(ip) :: t
+      integer :: q, alpha
+      character(len=80) :: where
+
+      rule = triangle_rule(5)
+      do t = 1, mesh%nt_owned
+         do q = 1, rule%n
+            x = matmul(mesh%vertices(:, mesh%triangles(:, t)), rule%bary(:, q))
+            call data%loads_at(reshape(x, [2, 1]), f)
+            do alpha = 1, 2
+               if (ieee_is_finite(f(alpha, 1))) cycle
+               write (where, '("(",es23.16,", ",es23.16,")")') x
+               call make_error(err, exit_bad_input, 'problem.f'//achar(48 + alpha), 'not finite at the quadrature '// &
+                               'point (x, y) = '//trim(where)//': '//data%explain_load(alpha, x))
+               return
+            end do
+         end do
+      end do
+      call make_error(err, exit_bad_input, 'problem', 'the load vector is not finite')
+   end subroutine locate_bad_load
 
    !> Nodal field on the whole mesh from interior values and a boundary value.
    function to_nodal(self, x, boundary_value) result(u)

@@ -1,7 +1,7 @@
 !> Problem data as an extensible type: tensions, the Dirichlet value g of u1, the loads f1, f2
 !> as functions of position and, when known, the exact solution. The assembly and the error
 !> computation see only `problem_data_t`, so constant data, the built-in verification cases and
-!> (later) user-defined data are interchangeable.
+!> user data (formulas, nodal data: `twomem_fem_user_data`) are interchangeable.
 module twomem_fem_problem
    use twomem_base_kinds, only: dp
    implicit none
@@ -17,6 +17,7 @@ module twomem_fem_problem
       procedure :: loads_at
       procedure :: has_exact
       procedure :: exact
+      procedure :: explain_load
    end type problem_data_t
 
    abstract interface
@@ -62,6 +63,16 @@ contains
       f(1, :) = self%f1
       f(2, :) = self%f2
    end subroutine constant_loads_at
+
+   !> Why f_alpha is not finite at x, for the error message ('' when there is nothing to add).
+   function explain_load(self, alpha, x) result(why)
+      class(problem_data_t), intent(in) :: self
+      integer, intent(in) :: alpha
+      real(dp), intent(in) :: x(2)
+      character(len=:), allocatable :: why
+
+      why = ''
+   end function explain_load
 
    pure logical function has_exact(self)
       class(problem_data_t), intent(in) :: self

@@ -12,6 +12,7 @@ module twomem_input_config
       parse_namelist, line_where
    use twomem_input_values, only: scan_integer, scan_real, scan_logical, unquote, format_real, &
       quote, to_lower, itoa
+   use twomem_input_formula, only: formula_t, parse_formula
    implicit none
    private
 
@@ -34,10 +35,17 @@ module twomem_input_config
    type :: problem_config_t
       real(dp) :: mu1 = 1.0_dp
       real(dp) :: mu2 = 1.0_dp
+      !> the loads when they are numbers (f1_formula, f2_formula empty)
       real(dp) :: f1 = -0.25_dp
       real(dp) :: f2 = 0.25_dp
       real(dp) :: g = 0.05_dp
       character(len=config_len) :: exact = 'none'
+      !> the loads as formulas of x, y, r (`twomem_input_formula`); '' when they are numbers
+      character(len=config_len) :: f1_formula = ''
+      character(len=config_len) :: f2_formula = ''
+      !> nodal loads from HDF5, 'FILE:DATASET'; '' when not used
+      character(len=config_len) :: f1_file = ''
+      character(len=config_len) :: f2_file = ''
    end type problem_config_t
 
    type :: newton_config_t
@@ -101,10 +109,13 @@ module twomem_input_config
    end type config_t
 
    ! The key table: one row per key, in the order of the documentation and of the echo.
-   integer, parameter :: n_groups = 6, n_keys = 34
+   integer, parameter :: n_groups = 6, n_keys = 36
    character(len=*), parameter :: group_names(n_groups) = [character(len=8) :: &
       'mesh', 'problem', 'newton', 'gmres', 'estimate', 'output']
-   integer, parameter :: kind_word = 1, kind_path = 2, kind_real = 3, kind_int = 4, kind_logical = 5
+   !> kind_load: a real number, or a formula (quoted in a file; a bare override that is not a
+   !> number is a formula too)
+   integer, parameter :: kind_word = 1, kind_path = 2, kind_real = 3, kind_int = 4, kind_logical = 5, &
+      kind_load = 6
    integer, parameter :: k_domain = 1, k_mesh_file = 2, k_coarse_h = 3, k_levels = 4, &
       k_mu1 = 5, k_mu2 = 6, k_f1 = 7, k_f2 = 8, k_g = 9, k_exact = 10, &
       k_cfun = 11, k_linear = 12, k_newton_max_it = 13, k_tol = 14, k_gamma_lin = 15, &
@@ -112,9 +123,10 @@ module twomem_input_config
       k_gamma_alg = 20, k_enabled = 21, &
       k_output_file = 22, k_fields = 23, k_estimators = 24, k_history = 25, k_xdmf = 26, &
       k_boundary_h = 27, k_initial = 28, k_line_search = 29, k_forcing = 30, k_every = 31, &
-      k_flux = 32, k_alg_levels = 33, k_criteria = 34
+      k_flux = 32, k_alg_levels = 33, k_criteria = 34, k_f1_file = 35, k_f2_file = 36
    integer, parameter :: key_group(n_keys) = [1, 1, 1, 1, 2, 2, 2, 2, 2, 2, 3, 3, 3, 3, 3, &
-                                              4, 4, 4, 4, 5, 5, 6, 6, 6, 6, 6, 1, 3, 3, 4, 5, 5, 5, 5]
+                                              4, 4, 4, 4, 5, 5, 6, 6, 6, 6, 6, 1, 3, 3, 4, 5, 5, 5, 5, &
+                                              2, 2]
    character(len=*), parameter :: key_names(n_keys) = [character(len=12) :: &
       'domain', 'file', 'coarse_h', 'levels', &
       'mu1', 'mu2', 'f1', 'f2', 'g', 'exact', &
@@ -122,14 +134,14 @@ module twomem_input_config
       'restart', 'max_it', 'rtol', 'precond', &
       'gamma_alg', 'enabled', &
       'file', 'fields', 'estimators', 'history', 'xdmf', 'boundary_h', &
-      'initial', 'line_search', 'forcing', 'every', 'flux', 'alg_levels', 'criteria']
+      'initial', 'line_search', 'forcing', 'every', 'flux', 'alg_levels', 'criteria', 'f1_file', 'f2_file']
    integer, parameter :: key_kinds(n_keys) = [kind_word, kind_path, kind_real, kind_int, &
-      kind_real, kind_real, kind_real, kind_real, kind_real, kind_word, &
+      kind_real, kind_real, kind_load, kind_load, kind_real, kind_word, &
       kind_word, kind_word, kind_int, kind_real, kind_real, &
       kind_int, kind_int, kind_real, kind_word, &
       kind_real, kind_logical, &
       kind_path, kind_logical, kind_logical, kind_logical, kind_logical, kind_real, &
-      kind_word, kind_word, kind_word, kind_int, kind_word, kind_int, kind_word]
+      kind_word, kind_word, kind_word, kind_int, kind_word, kind_int, kind_word, kind_path, kind_path]
 
 contains
 
@@ -321,6 +333,26 @@ contains
             call scan_integer(value, n, what)
             if (.not. allocated(what)) call store_int(cfg, id, n)
          end if
+      case (kind_load)
+         ! a number stays a number (bit-for-bit the same run as before formulas existed), quoted
+         ! or not; anything else is kept as a formula and parsed by `validate`
+         call scan_real(value, x, what)
+         if (len_trim(value) == 0) then
+            what = 'expected a number or a formula, got an empty string'
+         else if (.not. allocated(what)) then
+            call store_real(cfg, id, x)
+            call store_text(cfg, id, '')
+         else if (index(what, 'out of range') > 0) then
+            ! a real literal that overflows is a bad number, not a formula: keep scan_real's message
+            continue
+         else if (len(value) > config_len) then
+            what = 'formula longer than '//itoa(config_len)//' characters'
+         else if (has_control_character(value)) then
+            what = 'formula with a control character, got '//quote(excerpt(value))
+         else
+            deallocate (what)
+            call store_text(cfg, id, trim(adjustl(value)))
+         end if
       case (kind_logical)
          if (quoted) then
             what = 'expected a logical (.true. or .false.), got the string '//quote(excerpt(value))
@@ -350,6 +382,10 @@ contains
       case (k_flux); cfg%estimate%flux = s
       case (k_criteria); cfg%estimate%criteria = s
       case (k_output_file); cfg%output%file = s
+      case (k_f1); cfg%problem%f1_formula = s
+      case (k_f2); cfg%problem%f2_formula = s
+      case (k_f1_file); cfg%problem%f1_file = s
+      case (k_f2_file); cfg%problem%f2_file = s
       end select
    end subroutine store_text
 
@@ -426,12 +462,19 @@ contains
 
          call check_real(err, origin, k_mu1, p%mu1, gt=0.0_dp)
          call check_real(err, origin, k_mu2, p%mu2, gt=0.0_dp)
-         call check_real(err, origin, k_f1, p%f1)
-         call check_real(err, origin, k_f2, p%f2)
+         call check_load(err, origin, k_f1, p%f1, p%f1_formula)
+         call check_load(err, origin, k_f2, p%f2, p%f2_formula)
          call check_real(err, origin, k_g, p%g, gt=0.0_dp)
          call check_word(err, origin, k_exact, p%exact, [character(len=8) :: 'none', 'radial', 'bbbv'])
-         call require(err, origin, k_exact, p%exact == 'none' .or. m%domain == 'disk', &
-                      "exact='"//trim(p%exact)//"' needs mesh.domain='disk' (here '"//trim(m%domain)//"')")
+         ! on a Gmsh mesh the mesh reader checks that its boundary lies on the unit circle
+         call require(err, origin, k_exact, p%exact == 'none' .or. m%domain /= 'square', &
+                      "exact='"//trim(p%exact)//"' needs the unit disk: mesh.domain='disk' or a Gmsh mesh of "// &
+                      "the disk (here '"//trim(m%domain)//"')")
+         call check_load_file(err, origin, k_f1_file, p%f1_file, p%f1_formula, 'f1')
+         call check_load_file(err, origin, k_f2_file, p%f2_file, p%f2_formula, 'f2')
+         call require(err, origin, k_exact, p%exact == 'none' .or. len_trim(p%f1_formula // p%f2_formula // &
+                      p%f1_file // p%f2_file) == 0, "exact='"//trim(p%exact)//"' has its own loads: "// &
+                      'f1 and f2 must be numbers, and f1_file, f2_file empty')
 
          call check_word(err, origin, k_cfun, n%cfun, [character(len=8) :: 'min', 'fb'])
          call check_word(err, origin, k_linear, n%linear, [character(len=8) :: 'direct', 'gmres', 'adaptive'])
@@ -454,6 +497,47 @@ contains
       call check_int(err, origin, k_alg_levels, cfg%estimate%alg_levels, 1, 13)
       call check_word(err, origin, k_criteria, cfg%estimate%criteria, [character(len=8) :: 'global', 'local'])
    end subroutine validate
+
+   !> A load: finite when a number, parsed when a formula (the message gives the column).
+   subroutine check_load(err, origin, id, x, formula)
+      type(error_t), allocatable, intent(inout) :: err
+      type(string_t), intent(in) :: origin(:)
+      integer, intent(in) :: id
+      real(dp), intent(in) :: x
+      character(len=*), intent(in) :: formula
+
+      type(formula_t) :: f
+      character(len=:), allocatable :: why
+      integer :: where
+
+      if (allocated(err)) return
+      if (len_trim(formula) == 0) then
+         call check_real(err, origin, id, x)
+         return
+      end if
+      call parse_formula(trim(formula), f, where, why)
+      if (allocated(why)) call fail(err, origin, id, 'formula '//quote(excerpt(trim(formula)))//': column '// &
+                                    itoa(where)//': '//why)
+   end subroutine check_load
+
+   !> 'FILE:DATASET', and not together with a formula for the same load.
+   subroutine check_load_file(err, origin, id, spec, formula, load)
+      type(error_t), allocatable, intent(inout) :: err
+      type(string_t), intent(in) :: origin(:)
+      integer, intent(in) :: id
+      character(len=*), intent(in) :: spec, formula, load
+
+      integer :: colon
+
+      if (allocated(err) .or. len_trim(spec) == 0) return
+      colon = index(spec, ':', back=.true.)
+      if (colon <= 1 .or. colon >= len_trim(spec)) then
+         call fail(err, origin, id, "must be 'FILE:DATASET', e.g. 'loads.h5:/"//load//"', got "// &
+                   quote(excerpt(trim(spec))))
+      else if (len_trim(formula) > 0) then
+         call fail(err, origin, id, 'and a formula for '//load//' are both given: choose one')
+      end if
+   end subroutine check_load_file
 
    !> A rule across keys, blamed on key `id`: `<origin>: &group: what`.
    subroutine require(err, origin, id, ok, what)
@@ -590,8 +674,10 @@ contains
       case (k_levels); s = itoa(cfg%mesh%levels)
       case (k_mu1); s = format_real(cfg%problem%mu1)
       case (k_mu2); s = format_real(cfg%problem%mu2)
-      case (k_f1); s = format_real(cfg%problem%f1)
-      case (k_f2); s = format_real(cfg%problem%f2)
+      case (k_f1); s = load_text(cfg%problem%f1, cfg%problem%f1_formula)
+      case (k_f2); s = load_text(cfg%problem%f2, cfg%problem%f2_formula)
+      case (k_f1_file); s = quote(trim(cfg%problem%f1_file))
+      case (k_f2_file); s = quote(trim(cfg%problem%f2_file))
       case (k_g); s = format_real(cfg%problem%g)
       case (k_exact); s = quote(trim(cfg%problem%exact))
       case (k_cfun); s = quote(trim(cfg%newton%cfun))
@@ -620,6 +706,18 @@ contains
       case default; s = ''
       end select
    end function value_text
+
+   function load_text(x, formula) result(s)
+      real(dp), intent(in) :: x
+      character(len=*), intent(in) :: formula
+      character(len=:), allocatable :: s
+
+      if (len_trim(formula) > 0) then
+         s = quote(trim(formula))
+      else
+         s = format_real(x)
+      end if
+   end function load_text
 
    pure function logical_text(b) result(s)
       logical, intent(in) :: b

@@ -345,7 +345,8 @@ contains
       end if
       if (t(i)%kind == tk_bare .and. index(t(i)%text, '*') > 0) then
          call make_error(err, exit_bad_input, line_where(file, t(i)%line)//ctx, &
-                         'repeat counts (r*value) are not supported, got '//quote(excerpt(t(i)%text)))
+                         'repeat counts (r*value) are not supported (quote a formula: f1 = ''2*x''), got '// &
+                         quote(excerpt(t(i)%text)))
          return
       end if
       a%key = key

@@ -1,4 +1,4 @@
-!> The result file of INTERFACE.md: provenance attributes on `/`, the finest mesh, the nodal
+!> The result file of docs/output.md: provenance attributes on `/`, the finest mesh, the nodal
 !> solution, per-element errors, the history and a summary, plus the XDMF sidecar for ParaView.
 !> The HDF5 file is written under a temporary name in the target directory and renamed when
 !> complete, so a reader never sees half a result; a failure removes the temporary file.

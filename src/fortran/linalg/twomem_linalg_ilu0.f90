@@ -1,5 +1,5 @@
 !> Incomplete LU factorization with zero fill, ILU(0), on a CSR matrix's own pattern: the
-!> paper's preconditioner for GMRES on the full Newton matrix (DESIGN.md §2). `setup` runs the
+!> paper's preconditioner for GMRES on the full Newton matrix (docs/method.md §2). `setup` runs the
 !> IKJ variant of Saad's ILU(0) (Iterative Methods for Sparse Linear Systems, 2nd ed., Alg. 10.4)
 !> and stores L (unit lower, diagonal implied) and U in one value array on the matrix's pattern;
 !> `apply` solves L U z = r by two triangular sweeps without allocating, since GMRES calls it

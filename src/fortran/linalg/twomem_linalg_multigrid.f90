@@ -1,5 +1,5 @@
 !> Geometric multigrid for symmetric positive definite operators on a nested hierarchy: the
-!> V-cycle that preconditions the two SPD blocks of the Newton system (DESIGN.md §5). It knows
+!> V-cycle that preconditions the two SPD blocks of the Newton system (docs/method.md §5). It knows
 !> no PDE: the caller hands it the finest operator and the prolongations between consecutive
 !> levels (`multigrid_transfer_t`, built once per hierarchy and shared by every cycle on it);
 !> the coarse operators are the Galerkin products P_lᵀ A_l P_l, smoothing is Chebyshev–Jacobi

@@ -1,9 +1,11 @@
 !> Reader for meshes written by Gmsh: MSH 2.2 and MSH 4.1, ASCII. It keeps the linear triangles
-!> (element type 2), ignores points and lines (the boundary is recovered from the triangles) and
-!> every section other than $MeshFormat, $Nodes and $Elements, and rejects anything it cannot
-!> solve on (quadrangles, curved or 3D elements, binary files, other versions) rather than
-!> guessing. Node tags are arbitrary positive integers, possibly sparse and in any order; vertices
-!> are numbered 1..nv in the order the file lists the nodes. Every defect is reported as bad input
+!> (element type 2), ignores points and lines (the boundary is recovered from the triangles),
+!> physical groups and every section other than $MeshFormat, $Nodes and $Elements, and rejects
+!> anything it cannot solve on (quadrangles, curved or 3D elements, binary files, other versions)
+!> rather than guessing. Node tags are arbitrary positive integers, possibly sparse and in any
+!> order. Nodes that no triangle uses (Gmsh writes them for geometry points such as a circle's
+!> centre) are dropped and counted; the other nodes become vertices 1..nv in the order the file
+!> lists them. Every defect is reported as bad input
 !> naming the file and, where there is one, the line; geometric checks (orientation, zero areas,
 !> non-manifold edges) are left to `mesh_t%init`, the gate every mesh passes.
 module twomem_mesh_gmsh
@@ -41,25 +43,30 @@ module twomem_mesh_gmsh
 
 contains
 
-   !> Read the Gmsh file `path` into `mesh`. On error `mesh` is left empty.
-   subroutine read_gmsh(path, mesh, err)
+   !> Read the Gmsh file `path` into `mesh`. On error `mesh` is left empty. n_unused: how many
+   !> nodes no triangle uses (dropped).
+   subroutine read_gmsh(path, mesh, err, n_unused)
       character(len=*), intent(in) :: path
       type(mesh_t), intent(inout) :: mesh
       type(error_t), allocatable, intent(out) :: err
+      integer(ip), intent(out), optional :: n_unused
 
       type(text_reader_t) :: reader
       type(raw_mesh_t) :: raw
       real(dp), allocatable :: vertices(:, :)
       integer(ip), allocatable :: triangles(:, :)
+      integer(ip) :: dropped
 
       call mesh%free()
+      if (present(n_unused)) n_unused = 0
       call reader%open(path, err)
       if (allocated(err)) return
       call read_sections(reader, raw, err)
       call reader%close()
       if (allocated(err)) return
-      call number_vertices(raw, path, vertices, triangles, err)
+      call number_vertices(raw, path, vertices, triangles, dropped, err)
       if (allocated(err)) return
+      if (present(n_unused)) n_unused = dropped
       call mesh%init(vertices, triangles, path, err)
       if (allocated(err)) call mesh%free()
    end subroutine read_gmsh
@@ -551,16 +558,18 @@ contains
                        'supported: twomem reads planar meshes of linear triangles (type 2) only')
    end subroutine element_nodes
 
-   !> Turn tags into indices: vertex k is the k-th node of the file. Every node must be in the
-   !> xy-plane, have a unique tag and belong to a triangle; every triangle node must exist.
-   subroutine number_vertices(raw, path, vertices, triangles, err)
+   !> Turn tags into indices: vertex k is the k-th node of the file that a triangle uses. Every
+   !> node must be in the xy-plane and have a unique tag; every triangle node must exist. Nodes
+   !> no triangle uses are dropped (`dropped` counts them).
+   subroutine number_vertices(raw, path, vertices, triangles, dropped, err)
       type(raw_mesh_t), intent(in) :: raw
       character(len=*), intent(in) :: path
       real(dp), allocatable, intent(out) :: vertices(:, :)
       integer(ip), allocatable, intent(out) :: triangles(:, :)
+      integer(ip), intent(out) :: dropped
       type(error_t), allocatable, intent(out) :: err
 
-      integer(ip), allocatable :: order(:)
+      integer(ip), allocatable :: order(:), new_index(:)
       logical, allocatable :: used(:)
       integer(ip) :: k, t, i, lo, hi, mid, dup
       real(dp) :: scale
@@ -617,14 +626,23 @@ contains
             used(k) = .true.
          end do
       end do
+      dropped = count(.not. used, kind=ip)
+      if (dropped == 0) then
+         vertices = raw%xyz(1:2, 1:raw%n_nodes)
+         return
+      end if
+      allocate (new_index(raw%n_nodes), vertices(2, raw%n_nodes - dropped))
+      new_index = 0
+      i = 0
       do k = 1, raw%n_nodes
-         if (.not. used(k)) then
-            call make_error(err, exit_bad_input, path//':'//str(raw%node_line(k)), &
-                            'node tag '//str(raw%node_tag(k))//' is used by no triangle')
-            return
-         end if
+         if (.not. used(k)) cycle
+         i = i + 1
+         new_index(k) = i
+         vertices(:, i) = raw%xyz(1:2, k)
       end do
-      vertices = raw%xyz(1:2, 1:raw%n_nodes)
+      do t = 1, raw%n_triangles
+         triangles(:, t) = new_index(triangles(:, t))
+      end do
    end subroutine number_vertices
 
    !> Permutation that sorts `keys` ascending (stable bottom-up merge sort, O(n log n)).

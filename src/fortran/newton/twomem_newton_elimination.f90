@@ -1,4 +1,4 @@
-!> The multigrid preconditioner of the Newton system (DESIGN.md §5). With constant tensions the
+!> The multigrid preconditioner of the Newton system (docs/method.md §5). With constant tensions the
 !> 3N×3N system of either C-function
 !>     μ1 K X1 − D X3 = r1,   μ2 K X2 + D X3 = r2,   a (X1 − X2) + b X3 = r3
 !> eliminates exactly into two SPD problems for S = μ1 X1 + μ2 X2 and w = X1 − X2

@@ -1,6 +1,6 @@
 !> The run's history, one row per recorded point (a Newton step, or every ν GMRES iterations
 !> inside one), and the progress line printed for each Newton row. Columns are those of
-!> `/history` in INTERFACE.md plus the residuals; estimators and errors not computed are NaN, so
+!> `/history` in docs/output.md plus the residuals; estimators and errors not computed are NaN, so
 !> a missing value is never mistaken for a zero.
 module twomem_newton_history
    use, intrinsic :: iso_fortran_env, only: output_unit

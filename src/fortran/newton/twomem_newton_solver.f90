@@ -1,6 +1,6 @@
 !> The semismooth Newton driver. Each step linearizes the C-function at the current iterate,
 !> solves the Newton system (exactly with UMFPACK, or by GMRES) and checks the paper's stopping
-!> test ‖R_lin‖/‖[F;0]‖ ≤ tol with R_lin = [F − E X; −C(X)] (DESIGN.md §2). With GMRES the
+!> test ‖R_lin‖/‖[F;0]‖ ≤ tol with R_lin = [F − E X; −C(X)] (docs/method.md §2). With GMRES the
 !> inner observer (`twomem_newton_inner`) records every ν iterations and stops GMRES by the
 !> paper's forcing or, in the adaptive mode (the paper's Algorithm 1), by the estimators that
 !> the run's observer computes; Newton then stops when η_lin ≤ γ_lin η_disc. An optional

@@ -1,4 +1,4 @@
-!> The 3N×3N semismooth Newton system A X = B of DESIGN.md §1, in block order (X1, X2, X3):
+!> The 3N×3N semismooth Newton system A X = B of docs/method.md §1, in block order (X1, X2, X3):
 !>
 !>     [ μ1 K   0    −D ]          [ F1                   ]
 !>     [ 0     μ2 K   D ]  X  =    [ F2                   ]
