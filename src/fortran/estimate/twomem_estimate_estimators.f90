@@ -29,6 +29,7 @@ module twomem_estimate_estimators
    use twomem_estimate_alg_flux, only: algebraic_flux_t, level_flux_t
    use twomem_estimate_shapes, only: shape_classes_t, triangle_class
    use twomem_estimate_coloring, only: coloring_t
+   use twomem_estimate_patch_classes, only: patch_table_t
    implicit none
    private
 
@@ -57,6 +58,9 @@ module twomem_estimate_estimators
       type(algebraic_flux_t) :: alg
       !> the triangle operators of every level, per shape class
       type(shape_classes_t) :: shapes
+      !> the signatures of the interior vertices' patches: on the finest mesh's own triangles
+      !> (discretization flux, single-mesh algebraic flux) and on refined coarse triangles
+      type(patch_table_t) :: single, refined
       !> the finest mesh's vertex colouring for the discretization-flux patches
       type(coloring_t) :: colors
       !> (f_α ψ_i, q_k)_K and, for RT1, (h_K/π)‖f_α − Π_1 f_α‖_K (data only, fixed on the mesh)
@@ -115,10 +119,37 @@ contains
          if (flux_order == 1) call data_oscillation(self%space, mesh, data, self%mu, self%osc_data)
          call self%alg%init(self%space, hierarchy, data, alg_meshes, err)
          if (allocated(err)) return
+         call patch_tables(self, hierarchy, err)
+         if (allocated(err)) return
          allocate (self%sigma(self%space%n_flux, mesh%nt, 2), self%u(mesh%nv, 2), self%s(mesh%nv, 2), &
                    self%residual(mesh%nv, 2), self%lambda(mesh%nv), self%grad_u(2, mesh%nt, 2), self%r(3, mesh%nt, 2))
       end associate
    end subroutine init
+
+   !> The patch signatures of every patch mesh: the finest mesh for the discretization flux (and
+   !> the single-mesh algebraic flux), the coarse meshes of the refined algebraic-flux levels.
+   subroutine patch_tables(self, hierarchy, err)
+      type(estimator_t), intent(inout) :: self
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
+      type(error_t), allocatable, intent(out) :: err
+
+      integer :: j, finest
+      integer(ip) :: no_parents(2, 0)
+
+      finest = hierarchy%levels
+      call self%single%init(.false., finest)
+      call self%single%add_mesh(self%space, hierarchy%meshes(finest), hierarchy%meshes(finest), finest, no_parents)
+      call self%single%finish(self%space, self%shapes, err)
+      if (allocated(err)) return
+      call self%refined%init(.true., finest)
+      if (self%alg%base < finest) then
+         do j = self%alg%first(), finest
+            call self%refined%add_mesh(self%space, hierarchy%meshes(j - 1), hierarchy%meshes(j), j - 1, &
+                                       hierarchy%maps(j)%vertex_parents)
+         end do
+      end if
+      call self%refined%finish(self%space, self%shapes, err)
+   end subroutine patch_tables
 
    !> (h_K/π) μ_α^{−1/2} ‖f_α − Π_1 f_α‖_K with the load's degree-5 rule.
    subroutine data_oscillation(space, mesh, data, mu, osc)
@@ -205,12 +236,12 @@ contains
          end do
 
          call discretization_flux(self%space, self%shapes, mesh, hierarchy%levels, self%colors, self%mu, self%moments, &
-                                  grad_u, lambda, r, self%sigma, ok)
+                                  grad_u, lambda, r, self%sigma, ok, self%single)
          if (.not. ok) then
             call make_error(err, exit_io, 'discretization flux', 'a patch system is singular (degenerate triangles?)')
             return
          end if
-         call self%alg%compute(self%shapes, hierarchy, residual, r, err)
+         call self%alg%compute(self%shapes, hierarchy, residual, r, err, self%single, self%refined)
          if (allocated(err)) return
 
          call est%ensure(mesh%nt)

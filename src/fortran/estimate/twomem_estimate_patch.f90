@@ -23,6 +23,19 @@ module twomem_estimate_patch
    private
 
    public :: solve_patch, solve_condensed_patch, inner_edge, edge_free, edge_neumann
+   public :: patch_factor_t, condensed_factor, solve_condensed_factored
+
+   !> The multiplier matrix H of a condensed patch system, factorized once for every patch with
+   !> the same classes, edges and relative trace signs (twomem_estimate_patch_classes): H does
+   !> not depend on the ratio of the triangles nor on the data, only the right-hand side does.
+   !> d: Cholesky factors of the n_blocks leading diagonal blocks (size g), x = D⁻¹ H_bt on the
+   !> tail columns cols(1:n_cols) each block touches, s: the Cholesky factor of the tail's Schur
+   !> complement (of the whole H when n_blocks = 0).
+   type :: patch_factor_t
+      integer :: n_theta = 0, n_blocks = 0, g = 0
+      real(dp), allocatable :: d(:, :, :), x(:, :, :), s(:, :)
+      integer, allocatable :: cols(:, :), n_cols(:)
+   end type patch_factor_t
 
    !> edge kinds in `links`: a positive value numbers an inner edge of the patch
    integer, parameter :: edge_free = 0, edge_neumann = -1
@@ -317,6 +330,213 @@ contains
          end do
       end do
    end subroutine solve_condensed_patch
+
+   !> The factor of H for solve_condensed_factored: the assembly of solve_condensed_patch with
+   !> the patch's relative trace signs (each multiplier oriented as in the first triangle that
+   !> touches it, so that H depends on the geometry only) and its first multiplier pinned.
+   pure subroutine condensed_factor(space, shapes, classes, signs, neumann, links, n_blocks, factor, ok)
+      type(rt_space_t), intent(in) :: space
+      type(shape_classes_t), intent(in) :: shapes
+      integer, intent(in) :: classes(:), neumann(:), links(:, :)
+      real(dp), intent(in) :: signs(:, :)
+      integer, intent(in) :: n_blocks
+      type(patch_factor_t), intent(out) :: factor
+      logical, intent(out) :: ok
+
+      integer :: nt, k, c, i, a, q, n_rows, rows(3*space%n_trace), glob(3*space%n_trace)
+      real(dp) :: h(space%n_trace*maxval(links), space%n_trace*maxval(links))
+      real(dp) :: sg(3*space%n_trace), a_k(3*space%n_trace, 3*space%n_trace)
+
+      nt = space%n_trace
+      h = 0.0_dp
+      do k = 1, size(classes)
+         c = classes(k)
+         call inner_rows(nt, neumann(k), links(:, k), n_rows, rows, glob)
+         sg(1:n_rows) = signs(rows(1:n_rows), k)
+         i = neumann(k)
+         if (i > 0) then
+            a_k(1:n_rows, 1:n_rows) = shapes%cond_a(:, :, i, c)
+         else
+            a_k(1:n_rows, 1:n_rows) = shapes%czc(:, :, c)
+         end if
+         do a = 1, n_rows
+            do q = 1, n_rows
+               h(glob(q), glob(a)) = h(glob(q), glob(a)) + sg(q)*sg(a)*a_k(q, a)
+            end do
+         end do
+      end do
+      h(1, :) = 0.0_dp
+      h(:, 1) = 0.0_dp
+      h(1, 1) = 1.0_dp
+      call block_factor(h, n_blocks, 3*nt, factor, ok)
+   end subroutine condensed_factor
+
+   !> solve_condensed_patch with H factorized beforehand (condensed_factor, for a patch with
+   !> the same classes, neumann, links and relative signs): only the right-hand sides and the
+   !> triangles' fluxes are computed per patch. The signs are the patch's own; the orientation
+   !> o of each multiplier (the sign of its first row) turns them into the relative ones,
+   !> H_patch = O H O.
+   pure subroutine solve_condensed_factored(space, shapes, classes, ratios, signs, neumann, links, fgrad, rhs_div, &
+                                            flux_data, factor, sigma)
+      type(rt_space_t), intent(in) :: space
+      type(shape_classes_t), intent(in) :: shapes
+      integer, intent(in) :: classes(:), neumann(:), links(:, :)
+      real(dp), intent(in) :: ratios(:), signs(:, :), fgrad(:, :, :), rhs_div(:, :, :)
+      logical, intent(in) :: flux_data
+      type(patch_factor_t), intent(in) :: factor
+      real(dp), intent(out) :: sigma(:, :, :)
+
+      integer :: nt, nf, nd, nc, k, c, i, a, r, n_rows, rows(3*space%n_trace), glob(3*space%n_trace)
+      real(dp) :: b(factor%n_theta, size(rhs_div, 3)), o(factor%n_theta)
+      real(dp) :: rho, sg(3*space%n_trace), t1(3*space%n_trace), theta(3*space%n_trace), g(space%n_div)
+      real(dp) :: f(space%n_flux)
+
+      nt = space%n_trace
+      nf = space%n_flux
+      nd = space%n_div
+      nc = 3*nt
+      b = 0.0_dp
+      o = 0.0_dp
+      do k = 1, size(classes)
+         c = classes(k)
+         rho = ratios(k)
+         call inner_rows(nt, neumann(k), links(:, k), n_rows, rows, glob)
+         sg(1:n_rows) = signs(rows(1:n_rows), k)
+         i = neumann(k)
+         do a = 1, n_rows
+            if (o(glob(a)) == 0.0_dp) o(glob(a)) = sg(a)
+         end do
+         do r = 1, size(rhs_div, 3)
+            g = rhs_div(:, k, r)
+            if (i > 0) then
+               call mat_vec(n_rows, nd, shapes%cond_qg(:, :, i, c), g, t1)
+               if (flux_data) call mat_vec_add(n_rows, 2, shapes%cond_qf(:, :, i, c), fgrad(:, k, r), 1/rho, t1)
+            else
+               call mat_vec(n_rows, nd, shapes%cy(:, :, c), g, t1)
+            end if
+            do a = 1, n_rows
+               b(glob(a), r) = b(glob(a), r) + sg(a)*t1(a)
+            end do
+         end do
+      end do
+      do r = 1, size(b, 2)
+         b(:, r) = o*b(:, r)
+      end do
+      b(1, :) = 0.0_dp
+      call block_apply(factor, b)
+      do r = 1, size(b, 2)
+         b(:, r) = o*b(:, r)
+      end do
+      do k = 1, size(classes)
+         c = classes(k)
+         rho = ratios(k)
+         call inner_rows(nt, neumann(k), links(:, k), n_rows, rows, glob)
+         i = neumann(k)
+         do r = 1, size(rhs_div, 3)
+            do a = 1, n_rows
+               theta(a) = -rho*signs(rows(a), k)*b(glob(a), r)
+            end do
+            g = rho*rhs_div(:, k, r)
+            if (i > 0) then
+               call mat_vec(nf, nd, shapes%cond_rg(:, :, i, c), g, f)
+               call mat_vec_add(nf, n_rows, shapes%cond_rt(:, :, i, c), theta, 1.0_dp, f)
+               if (flux_data) call mat_vec_add(nf, 2, shapes%cond_rf(:, :, i, c), fgrad(:, k, r), 1.0_dp, f)
+            else
+               call mat_vec(nf, nd, shapes%y(:, :, c), g, f)
+               call mat_vec_add(nf, nc, shapes%zc(:, :, c), theta, 1.0_dp, f)
+            end if
+            sigma(:, k, r) = f
+         end do
+      end do
+   end subroutine solve_condensed_factored
+
+   !> The factor of block_solve's elimination (see patch_factor_t), for block_apply.
+   pure subroutine block_factor(h, n_blocks, g, f, ok)
+      real(dp), intent(in) :: h(:, :)
+      integer, intent(in) :: n_blocks, g
+      type(patch_factor_t), intent(out) :: f
+      logical, intent(out) :: ok
+
+      integer :: nb, ns, ib, r0, i, j, q, n_cpl, max_cpl
+      real(dp) :: acc
+
+      nb = n_blocks*g
+      ns = size(h, 1) - nb
+      f%n_theta = size(h, 1)
+      f%n_blocks = n_blocks
+      f%g = g
+      allocate (f%n_cols(n_blocks))
+      max_cpl = 0
+      do ib = 1, n_blocks
+         r0 = (ib - 1)*g
+         f%n_cols(ib) = count([(any(h(r0 + 1:r0 + g, nb + j) /= 0.0_dp), j=1, ns)])
+         max_cpl = max(max_cpl, f%n_cols(ib))
+      end do
+      allocate (f%d(g, g, n_blocks), f%x(g, max_cpl, n_blocks), f%cols(max_cpl, n_blocks), f%s(ns, ns))
+      f%s = h(nb + 1:, nb + 1:)
+      ok = .true.
+      do ib = 1, n_blocks
+         r0 = (ib - 1)*g
+         f%d(:, :, ib) = h(r0 + 1:r0 + g, r0 + 1:r0 + g)
+         call chol_factor(g, f%d(:, :, ib), ok)
+         if (.not. ok) return
+         n_cpl = 0
+         do j = 1, ns
+            if (any(h(r0 + 1:r0 + g, nb + j) /= 0.0_dp)) then
+               n_cpl = n_cpl + 1
+               f%cols(n_cpl, ib) = j
+               f%x(:, n_cpl, ib) = h(r0 + 1:r0 + g, nb + j)
+            end if
+         end do
+         call chol_solve(g, f%d(:, :, ib), n_cpl, f%x(:, :, ib))
+         ! S = H_tt − H_tb D⁻¹ H_bt on the touched tail entries
+         do j = 1, n_cpl
+            do i = 1, n_cpl
+               acc = 0.0_dp
+               do q = 1, g
+                  acc = acc + h(r0 + q, nb + f%cols(i, ib))*f%x(q, j, ib)
+               end do
+               f%s(f%cols(i, ib), f%cols(j, ib)) = f%s(f%cols(i, ib), f%cols(j, ib)) - acc
+            end do
+         end do
+      end do
+      if (ns > 0) call chol_factor(ns, f%s, ok)
+   end subroutine block_factor
+
+   !> b = H⁻¹ b with the factor of block_factor.
+   pure subroutine block_apply(f, b)
+      type(patch_factor_t), intent(in) :: f
+      real(dp), intent(inout) :: b(:, :)
+
+      integer :: nb, ns, nr, ib, r0, i, r, g
+      real(dp) :: y(f%g, size(b, 2))
+
+      g = f%g
+      nb = f%n_blocks*g
+      ns = f%n_theta - nb
+      nr = size(b, 2)
+      ! b_t − H_tb D⁻¹ b_b = b_t − xᵀ b_b, and D⁻¹ b_b kept in place of b_b
+      do ib = 1, f%n_blocks
+         r0 = (ib - 1)*g
+         do r = 1, nr
+            do i = 1, f%n_cols(ib)
+               b(nb + f%cols(i, ib), r) = b(nb + f%cols(i, ib), r) - dot_product(f%x(:, i, ib), b(r0 + 1:r0 + g, r))
+            end do
+         end do
+         y = b(r0 + 1:r0 + g, :)
+         call chol_solve(g, f%d(:, :, ib), nr, y)
+         b(r0 + 1:r0 + g, :) = y
+      end do
+      if (ns > 0) call chol_solve(ns, f%s, nr, b(nb + 1:, :))
+      do ib = 1, f%n_blocks
+         r0 = (ib - 1)*g
+         do r = 1, nr
+            do i = 1, f%n_cols(ib)
+               b(r0 + 1:r0 + g, r) = b(r0 + 1:r0 + g, r) - f%x(:, i, ib)*b(nb + f%cols(i, ib), r)
+            end do
+         end do
+      end do
+   end subroutine block_apply
 
    !> y = A x for a contiguous m×n matrix.
    pure subroutine mat_vec(m, n, a, x, y)
