@@ -21,11 +21,11 @@ module twomem_estimate_alg_flux
    use twomem_fem_assembly, only: p1_gradients
    use twomem_linalg_dense, only: lu_factor, lu_solve
    use twomem_linalg_umfpack, only: umfpack_solver_t
-   use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, make_frame
-   use twomem_estimate_shapes, only: shape_classes_t, triangle_class, trace_signs
+   use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, frame_of
+   use twomem_estimate_shapes, only: shape_classes_t, triangle_class
    use twomem_estimate_coloring, only: coloring_t
    use twomem_estimate_patch, only: solve_patch, solve_condensed_factored, inner_edge, edge_free, edge_neumann
-   use twomem_estimate_patch_classes, only: patch_table_t, patch_order
+   use twomem_estimate_patch_classes, only: patch_table_t, patch_order, edge_signs
    implicit none
    private
 
@@ -248,7 +248,7 @@ contains
             !$omp private(t, frame, child_frame, gram, b, m, x, w, value, k, c, alpha, piv, child, ok) &
             !$omp schedule(static)
             do t = 1, hierarchy%meshes(l)%nt
-               frame = make_frame(hierarchy%meshes(l)%vertices(:, hierarchy%meshes(l)%triangles(:, t)))
+               frame = frame_of(hierarchy%meshes(l)%vertices, hierarchy%meshes(l)%triangles(:, t))
                gram = 0.0_dp
                b = 0.0_dp
                do k = 1, space%rule%n
@@ -261,7 +261,7 @@ contains
                end do
                do c = 1, 4
                      child = 4*(t - 1) + c
-                     child_frame = make_frame(hierarchy%meshes(l + 1)%vertices(:, hierarchy%meshes(l + 1)%triangles(:, child)))
+                     child_frame = frame_of(hierarchy%meshes(l + 1)%vertices, hierarchy%meshes(l + 1)%triangles(:, child))
                      do k = 1, space%rule%n
                         x = matmul(child_frame%vertices, space%rule%bary(:, k))
                         w = space%rule%weights(k)*child_frame%area
@@ -424,7 +424,7 @@ contains
       rhs_flux = 0.0_dp
       do kc = 1, n_coarse
          t = order(kc)
-         coarse_frame = make_frame(coarse%vertices(:, coarse%triangles(:, t)))
+         coarse_frame = frame_of(coarse%vertices, coarse%triangles(:, t))
          local_a = findloc(coarse%triangles(:, t), a, dim=1)
          hat_gradients = p1_gradients(coarse, t)
          grad_psi = hat_gradients(:, local_a)
@@ -453,8 +453,7 @@ contains
             child = merge(4*(t - 1) + c, t, n_children == 4)
             children(ne) = child
             v = fine%triangles(:, child)
-            signs(:, ne) = trace_signs(space, v)
-            frame = make_frame(fine%vertices(:, v))
+            call edge_signs(space%n_trace, v, signs(:, ne))
             if (id > 0) then
                classes(ne) = table%sig(id)%classes(ne)
                ratios(ne) = 2.0_dp**level
@@ -507,6 +506,7 @@ contains
                end do
                cycle
             end if
+            frame = frame_of(fine%vertices, v)
             do q_point = 1, space%rule%n
                x = matmul(frame%vertices, space%rule%bary(:, q_point))
                w = space%rule%weights(q_point)*frame%area

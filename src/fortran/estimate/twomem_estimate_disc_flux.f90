@@ -11,11 +11,11 @@ module twomem_estimate_disc_flux
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_fem_problem, only: problem_data_t
    use twomem_fem_assembly, only: p1_gradients
-   use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, make_frame
+   use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, frame_of
    use twomem_estimate_shapes, only: shape_classes_t, triangle_class, trace_signs
    use twomem_estimate_coloring, only: coloring_t
    use twomem_estimate_patch, only: solve_patch, solve_condensed_factored, inner_edge, edge_free, edge_neumann
-   use twomem_estimate_patch_classes, only: patch_table_t, patch_signature_t, patch_order
+   use twomem_estimate_patch_classes, only: patch_table_t, patch_signature_t, patch_order, edge_signs, max_patch
    implicit none
    private
 
@@ -40,7 +40,7 @@ contains
       !$omp parallel do default(none) shared(space, mesh, data, moments) private(t, frame, k, x, w, q, i, alpha) &
       !$omp schedule(static)
       do t = 1, mesh%nt
-         frame = make_frame(mesh%vertices(:, mesh%triangles(:, t)))
+         frame = frame_of(mesh%vertices, mesh%triangles(:, t))
          moments(:, :, t, :) = 0.0_dp
          do k = 1, space%rule%n
             x = matmul(frame%vertices, space%rule%bary(:, k))
@@ -200,35 +200,42 @@ contains
       real(dp), intent(in) :: mu(2), moments(:, :, :, :), grad_u(:, :, :), lambda_a, r(:, :, :)
       real(dp), intent(inout) :: sigma(:, :, :)
 
-      integer :: k, i, alpha, c
-      integer(ip) :: t, order(size(sig%classes))
-      real(dp) :: ratios(size(sig%classes)), signs(3*space%n_trace, size(sig%classes)), area_factor
-      real(dp) :: rhs_div(space%n_div, size(sig%classes), 2), fgrad(2, size(sig%classes), 2)
-      real(dp) :: patch_sigma(space%n_flux, size(sig%classes), 2), grad_psi(2), hat_gradients(2, 3)
+      ! fixed-size work arrays (sizes checked when the table was built): no allocation per patch
+      integer :: k, i, alpha, c, ne, nd, nf
+      integer(ip) :: t, order(max_patch)
+      real(dp) :: ratios(max_patch), signs(6, max_patch), area_factor
+      real(dp) :: rhs_div(3, max_patch, 2), fgrad(2, max_patch, 2)
+      real(dp) :: patch_sigma(8, max_patch, 2), grad_psi(2), hat_gradients(2, 3)
       real(dp), parameter :: lambda_sign(2) = [1.0_dp, -1.0_dp]
 
-      call patch_order(mesh, level, a, order)
-      ratios = 2.0_dp**level
+      ne = size(sig%classes)
+      nd = space%n_div
+      nf = space%n_flux
+      call patch_order(mesh, level, a, order(1:ne))
+      ratios(1:ne) = 2.0_dp**level
       area_factor = 1/ratios(1)**2
-      do k = 1, size(order)
+      do k = 1, ne
          t = order(k)
          c = sig%classes(k)
          i = sig%neumann(k)
-         signs(:, k) = trace_signs(space, mesh%triangles(:, t))
+         call edge_signs(space%n_trace, mesh%triangles(:, t), signs(:, k))
          hat_gradients = p1_gradients(mesh, t)
          grad_psi = hat_gradients(:, i)
          do alpha = 1, 2
             fgrad(:, k, alpha) = -mu(alpha)*grad_u(:, t, alpha)
-            rhs_div(:, k, alpha) = moments(:, i, t, alpha) + area_factor*( &
-                                   lambda_sign(alpha)*lambda_a*shapes%psi_q(:, i, c) &
-                                   - matmul(shapes%bary_psi_q(:, :, i, c), r(:, t, alpha)) &
-                                   - mu(alpha)*dot_product(grad_u(:, t, alpha), grad_psi)*shapes%q_int(:, c))
+            rhs_div(1:nd, k, alpha) = moments(:, i, t, alpha) + area_factor*( &
+                                      lambda_sign(alpha)*lambda_a*shapes%psi_q(:, i, c) &
+                                      - shapes%bary_psi_q(:, 1, i, c)*r(1, t, alpha) &
+                                      - shapes%bary_psi_q(:, 2, i, c)*r(2, t, alpha) &
+                                      - shapes%bary_psi_q(:, 3, i, c)*r(3, t, alpha) &
+                                      - mu(alpha)*dot_product(grad_u(:, t, alpha), grad_psi)*shapes%q_int(:, c))
          end do
       end do
-      call solve_condensed_factored(space, shapes, sig%classes, ratios, signs, sig%neumann, sig%links, fgrad, rhs_div, &
-                                    .true., sig%factor, patch_sigma)
-      do k = 1, size(order)
-         sigma(:, order(k), :) = sigma(:, order(k), :) + patch_sigma(:, k, :)
+      call solve_condensed_factored(space, shapes, sig%classes, ratios(1:ne), signs(1:3*space%n_trace, 1:ne), &
+                                    sig%neumann, sig%links, fgrad(:, 1:ne, :), rhs_div(1:nd, 1:ne, :), .true., &
+                                    sig%factor, patch_sigma(1:nf, 1:ne, :))
+      do k = 1, ne
+         sigma(:, order(k), :) = sigma(:, order(k), :) + patch_sigma(1:nf, k, :)
       end do
    end subroutine interior_patch
 end module twomem_estimate_disc_flux

@@ -23,7 +23,7 @@ module twomem_estimate_estimators
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_fem_assembly, only: p1_gradients
    use twomem_linalg_dense, only: lu_factor, lu_solve
-   use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, make_frame
+   use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, frame_of
    use twomem_estimate_lifting, only: algebraic_residuals, residual_lifting
    use twomem_estimate_disc_flux, only: discretization_flux, load_moments
    use twomem_estimate_alg_flux, only: algebraic_flux_t, level_flux_t
@@ -169,7 +169,7 @@ contains
       !$omp parallel do default(none) shared(space, mesh, data, mu, osc) &
       !$omp private(t, frame, x, w, q, gram, b, projection, f, ff, k, i, alpha, piv, ok) schedule(static)
       do t = 1, mesh%nt
-         frame = make_frame(mesh%vertices(:, mesh%triangles(:, t)))
+         frame = frame_of(mesh%vertices, mesh%triangles(:, t))
          gram = 0.0_dp
          b = 0.0_dp
          ff = 0.0_dp
@@ -287,15 +287,16 @@ contains
       real(dp), intent(in) :: u(:, :)
       real(dp), intent(out) :: grad_u(:, :, :)
 
-      integer(ip) :: t
+      integer(ip) :: t, v(3)
       integer :: alpha
 
-      !$omp parallel do default(none) shared(mesh, grad_u, u) private(t, alpha) schedule(static)
+      !$omp parallel do default(none) shared(mesh, grad_u, u) private(t, v, alpha) schedule(static)
       do t = 1, mesh%nt
+         v = mesh%triangles(:, t)
          do alpha = 1, 2
             ! the same expression as for ∇s_h in element_estimators: ∇(s_h − u_h) is then exactly
             ! zero where s_h = u_h in every build (η_nonc,3 takes a square root of it)
-            grad_u(:, t, alpha) = matmul(p1_gradients(mesh, t), u(mesh%triangles(:, t), alpha))
+            grad_u(:, t, alpha) = matmul(p1_gradients(mesh, t), u(v, alpha))
          end do
       end do
       !$omp end parallel do
@@ -314,7 +315,7 @@ contains
       type(estimates_t), intent(inout) :: est
       real(dp), intent(out) :: positive_norm
 
-      type(rt_frame_t) :: frame, level_frame
+      type(rt_frame_t) :: frame, level_frames(size(levels))
       real(dp) :: x(2), w, sq(3, 2), f(2), lam_x, osc_mean(2), osc_sq(2), osc_w, ratio
       real(dp) :: c_disc(self%space%n_flux), c_alg(self%space%n_flux), c_sum(self%space%n_flux)
       real(dp) :: pos_lw, pos_ll, neg_lw, neg_ll, sum_pos, grad_s(2, 2)
@@ -334,13 +335,22 @@ contains
       end do
       !$omp parallel do default(none) &
       !$omp shared(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, finest, generations) &
-      !$omp private(t, anc, k, j, alpha, v, frame, level_frame, x, w, sq, f, lam_x, osc_mean, osc_sq, ratio, class) &
+      !$omp private(t, anc, k, j, alpha, v, frame, level_frames, x, w, sq, f, lam_x, osc_mean, osc_sq, ratio, class) &
       !$omp private(c_disc, c_alg, c_sum, osc_w, pos_lw, pos_ll, neg_lw, neg_ll, grad_s, osc_values) &
       !$omp reduction(+:sum_pos) schedule(static)
       do t = 1, hierarchy%meshes(finest)%nt
          v = hierarchy%meshes(finest)%triangles(:, t)
-         frame = make_frame(hierarchy%meshes(finest)%vertices(:, v))
+         frame = frame_of(hierarchy%meshes(finest)%vertices, v)
          call triangle_class(finest, t, class, ratio)
+         do j = 1, size(levels)
+            ! the ancestors' frames, once for both membranes
+            if (levels(j)%level /= finest) then
+               anc = (t - 1)/generations(j) + 1
+               associate (lm => hierarchy%meshes(levels(j)%level))
+                  level_frames(j) = frame_of(lm%vertices, lm%triangles(:, anc))
+               end associate
+            end if
+         end do
          do alpha = 1, 2
             c_disc = sigma(:, t, alpha)
             c_disc(1:2) = c_disc(1:2) + self%mu(alpha)*grad_u(:, t, alpha)
@@ -350,10 +360,7 @@ contains
                if (levels(j)%level == finest) then
                   c_alg = c_alg + levels(j)%sigma(:, anc, alpha)
                else
-                  associate (lm => hierarchy%meshes(levels(j)%level))
-                     level_frame = make_frame(lm%vertices(:, lm%triangles(:, anc)))
-                  end associate
-                  call to_child_basis(self%space%order, level_frame, frame, levels(j)%sigma(:, anc, alpha), c_sum)
+                  call to_child_basis(self%space%order, level_frames(j), frame, levels(j)%sigma(:, anc, alpha), c_sum)
                   c_alg = c_alg + c_sum
                end if
             end do

@@ -23,7 +23,11 @@ module twomem_estimate_patch
    private
 
    public :: solve_patch, solve_condensed_patch, inner_edge, edge_free, edge_neumann
-   public :: patch_factor_t, condensed_factor, solve_condensed_factored
+   public :: patch_factor_t, condensed_factor, solve_condensed_factored, max_theta
+
+   !> the largest multiplier system of a factorized patch (larger ones take the general path),
+   !> so that the per-patch work arrays have fixed sizes (no heap allocation per patch)
+   integer, parameter :: max_theta = 192
 
    !> The multiplier matrix H of a condensed patch system, factorized once for every patch with
    !> the same classes, edges and relative trace signs (twomem_estimate_patch_classes): H does
@@ -35,6 +39,8 @@ module twomem_estimate_patch
       integer :: n_theta = 0, n_blocks = 0, g = 0
       real(dp), allocatable :: d(:, :, :), x(:, :, :), s(:, :)
       integer, allocatable :: cols(:, :), n_cols(:)
+      !> per patch triangle: its inner trace rows and their multipliers (inner_rows)
+      integer, allocatable :: n_rows(:), rows(:, :), glob(:, :)
    end type patch_factor_t
 
    !> edge kinds in `links`: a positive value numbers an inner edge of the patch
@@ -369,6 +375,12 @@ contains
       h(:, 1) = 0.0_dp
       h(1, 1) = 1.0_dp
       call block_factor(h, n_blocks, 3*nt, factor, ok)
+      allocate (factor%n_rows(size(classes)), factor%rows(3*nt, size(classes)), factor%glob(3*nt, size(classes)))
+      factor%rows = 0
+      factor%glob = 0
+      do k = 1, size(classes)
+         call inner_rows(nt, neumann(k), links(:, k), factor%n_rows(k), factor%rows(:, k), factor%glob(:, k))
+      end do
    end subroutine condensed_factor
 
    !> solve_condensed_patch with H factorized beforehand (condensed_factor, for a patch with
@@ -386,66 +398,65 @@ contains
       type(patch_factor_t), intent(in) :: factor
       real(dp), intent(out) :: sigma(:, :, :)
 
-      integer :: nt, nf, nd, nc, k, c, i, a, r, n_rows, rows(3*space%n_trace), glob(3*space%n_trace)
-      real(dp) :: b(factor%n_theta, size(rhs_div, 3)), o(factor%n_theta)
-      real(dp) :: rho, sg(3*space%n_trace), t1(3*space%n_trace), theta(3*space%n_trace), g(space%n_div)
-      real(dp) :: f(space%n_flux)
+      integer, parameter :: max_rows = 6, max_flux = 8, max_div = 3
+      integer :: nf, nd, nc, k, c, i, a, r, n_rows, n_theta, nr
+      real(dp) :: b(max_theta, 2), o(max_theta)
+      real(dp) :: rho, sg, t1(max_rows), theta(max_rows), g(max_div), f(max_flux)
 
-      nt = space%n_trace
       nf = space%n_flux
       nd = space%n_div
-      nc = 3*nt
-      b = 0.0_dp
-      o = 0.0_dp
+      nc = 3*space%n_trace
+      n_theta = factor%n_theta
+      nr = size(rhs_div, 3)
+      b(1:n_theta, 1:nr) = 0.0_dp
+      o(1:n_theta) = 0.0_dp
       do k = 1, size(classes)
          c = classes(k)
          rho = ratios(k)
-         call inner_rows(nt, neumann(k), links(:, k), n_rows, rows, glob)
-         sg(1:n_rows) = signs(rows(1:n_rows), k)
+         n_rows = factor%n_rows(k)
          i = neumann(k)
-         do a = 1, n_rows
-            if (o(glob(a)) == 0.0_dp) o(glob(a)) = sg(a)
-         end do
-         do r = 1, size(rhs_div, 3)
-            g = rhs_div(:, k, r)
+         do r = 1, nr
+            g(1:nd) = rhs_div(:, k, r)
             if (i > 0) then
-               call mat_vec(n_rows, nd, shapes%cond_qg(:, :, i, c), g, t1)
-               if (flux_data) call mat_vec_add(n_rows, 2, shapes%cond_qf(:, :, i, c), fgrad(:, k, r), 1/rho, t1)
+               call mat_vec(n_rows, nd, shapes%cond_qg(:, :, i, c), g(1:nd), t1(1:n_rows))
+               if (flux_data) call mat_vec_add(n_rows, 2, shapes%cond_qf(:, :, i, c), fgrad(:, k, r), 1/rho, t1(1:n_rows))
             else
-               call mat_vec(n_rows, nd, shapes%cy(:, :, c), g, t1)
+               call mat_vec(n_rows, nd, shapes%cy(:, :, c), g(1:nd), t1(1:n_rows))
             end if
             do a = 1, n_rows
-               b(glob(a), r) = b(glob(a), r) + sg(a)*t1(a)
+               sg = signs(factor%rows(a, k), k)
+               b(factor%glob(a, k), r) = b(factor%glob(a, k), r) + sg*t1(a)
+               if (o(factor%glob(a, k)) == 0.0_dp) o(factor%glob(a, k)) = sg
             end do
          end do
       end do
-      do r = 1, size(b, 2)
-         b(:, r) = o*b(:, r)
+      do r = 1, nr
+         b(1:n_theta, r) = o(1:n_theta)*b(1:n_theta, r)
       end do
-      b(1, :) = 0.0_dp
-      call block_apply(factor, b)
-      do r = 1, size(b, 2)
-         b(:, r) = o*b(:, r)
+      b(1, 1:nr) = 0.0_dp
+      call block_apply(factor, b(1:n_theta, 1:nr))
+      do r = 1, nr
+         b(1:n_theta, r) = o(1:n_theta)*b(1:n_theta, r)
       end do
       do k = 1, size(classes)
          c = classes(k)
          rho = ratios(k)
-         call inner_rows(nt, neumann(k), links(:, k), n_rows, rows, glob)
+         n_rows = factor%n_rows(k)
          i = neumann(k)
-         do r = 1, size(rhs_div, 3)
+         do r = 1, nr
             do a = 1, n_rows
-               theta(a) = -rho*signs(rows(a), k)*b(glob(a), r)
+               theta(a) = -rho*signs(factor%rows(a, k), k)*b(factor%glob(a, k), r)
             end do
-            g = rho*rhs_div(:, k, r)
+            g(1:nd) = rho*rhs_div(:, k, r)
             if (i > 0) then
-               call mat_vec(nf, nd, shapes%cond_rg(:, :, i, c), g, f)
-               call mat_vec_add(nf, n_rows, shapes%cond_rt(:, :, i, c), theta, 1.0_dp, f)
-               if (flux_data) call mat_vec_add(nf, 2, shapes%cond_rf(:, :, i, c), fgrad(:, k, r), 1.0_dp, f)
+               call mat_vec(nf, nd, shapes%cond_rg(:, :, i, c), g(1:nd), f(1:nf))
+               call mat_vec_add(nf, n_rows, shapes%cond_rt(:, :, i, c), theta(1:n_rows), 1.0_dp, f(1:nf))
+               if (flux_data) call mat_vec_add(nf, 2, shapes%cond_rf(:, :, i, c), fgrad(:, k, r), 1.0_dp, f(1:nf))
             else
-               call mat_vec(nf, nd, shapes%y(:, :, c), g, f)
-               call mat_vec_add(nf, nc, shapes%zc(:, :, c), theta, 1.0_dp, f)
+               call mat_vec(nf, nd, shapes%y(:, :, c), g(1:nd), f(1:nf))
+               call mat_vec_add(nf, nc, shapes%zc(:, :, c), theta(1:nc), 1.0_dp, f(1:nf))
             end if
-            sigma(:, k, r) = f
+            sigma(:, k, r) = f(1:nf)
          end do
       end do
    end subroutine solve_condensed_factored
@@ -509,7 +520,7 @@ contains
       real(dp), intent(inout) :: b(:, :)
 
       integer :: nb, ns, nr, ib, r0, i, r, g
-      real(dp) :: y(f%g, size(b, 2))
+      real(dp) :: y(6, 2)
 
       g = f%g
       nb = f%n_blocks*g
@@ -523,9 +534,10 @@ contains
                b(nb + f%cols(i, ib), r) = b(nb + f%cols(i, ib), r) - dot_product(f%x(:, i, ib), b(r0 + 1:r0 + g, r))
             end do
          end do
-         y = b(r0 + 1:r0 + g, :)
-         call chol_solve(g, f%d(:, :, ib), nr, y)
-         b(r0 + 1:r0 + g, :) = y
+         ! (blocks of at most 6 multipliers and two right-hand sides: fixed-size work array)
+         y(1:g, 1:nr) = b(r0 + 1:r0 + g, :)
+         call chol_solve(g, f%d(:, :, ib), nr, y(1:g, 1:nr))
+         b(r0 + 1:r0 + g, :) = y(1:g, 1:nr)
       end do
       if (ns > 0) call chol_solve(ns, f%s, nr, b(nb + 1:, :))
       do ib = 1, f%n_blocks

@@ -19,11 +19,15 @@ module twomem_estimate_patch_classes
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_estimate_raviart_thomas, only: rt_space_t
    use twomem_estimate_shapes, only: shape_classes_t, triangle_class, trace_signs
-   use twomem_estimate_patch, only: patch_factor_t, condensed_factor, inner_edge, edge_free, edge_neumann
+   use twomem_estimate_patch, only: patch_factor_t, condensed_factor, inner_edge, edge_free, edge_neumann, max_theta
    implicit none
    private
 
-   public :: patch_table_t, patch_signature_t, patch_order
+   public :: patch_table_t, patch_signature_t, patch_order, edge_signs, max_patch
+
+   !> the most triangles of a factorized patch (larger ones take the general path), so that the
+   !> per-patch work arrays have fixed sizes
+   integer, parameter :: max_patch = 64
 
    !> One distinct patch: per patch triangle (canonical order, children of a coarse triangle
    !> consecutively for `refined`) its class, its zero-flux edge (0: none) and its edge links
@@ -75,7 +79,7 @@ contains
       integer(ip), intent(in) :: a
       integer(ip), intent(out) :: order(:)
 
-      integer(ip) :: keys(size(order)), key, t
+      integer(ip) :: keys(max_patch), key, t
       integer :: n, k, j, class
       real(dp) :: ratio
 
@@ -97,6 +101,20 @@ contains
       end do
    end subroutine patch_order
 
+   !> trace_signs without a run-time-sized function result (no temporary per call): s(1:3 n_trace).
+   pure subroutine edge_signs(n_trace, v, s)
+      integer, intent(in) :: n_trace
+      integer(ip), intent(in) :: v(3)
+      real(dp), intent(out) :: s(:)
+
+      s(1:3*n_trace) = 1.0_dp
+      if (n_trace == 2) then
+         if (v(2) > v(3)) s(2) = -1.0_dp
+         if (v(3) > v(1)) s(4) = -1.0_dp
+         if (v(1) > v(2)) s(6) = -1.0_dp
+      end if
+   end subroutine edge_signs
+
    !> Signatures of the patches of the interior vertices of `coarse` (level `level`): on its own
    !> triangles (`single`) or, for `refined`, on their children in `fine` (vertex_parents
    !> `parents` of the refinement). New signatures are factorized at `finish`.
@@ -108,7 +126,7 @@ contains
       integer(ip), intent(in) :: parents(:, :)
 
       integer(ip) :: a
-      integer :: n_coarse, n_children, ne, kc, c, m, k, i, n_inner, n_theta, max_patch, l, child_level
+      integer :: n_coarse, n_children, ne, kc, c, m, k, i, n_inner, n_theta, max_valence, l, child_level
       integer(ip), allocatable :: order(:), inner(:)
       integer, allocatable :: classes(:), neumann(:), links(:, :), key(:), local(:)
       real(dp), allocatable :: signs(:, :), o(:)
@@ -118,15 +136,16 @@ contains
 
       n_children = merge(4, 1, self%refined)
       child_level = merge(level + 1, level, self%refined)
-      max_patch = int(maxval(coarse%patch_ptr(2:) - coarse%patch_ptr(:coarse%nv)))
-      allocate (order(max_patch), inner(9*max_patch), local(max_patch))
-      allocate (classes(n_children*max_patch), neumann(n_children*max_patch), links(3, n_children*max_patch))
-      allocate (signs(3*space%n_trace, n_children*max_patch), o(space%n_trace*9*max_patch))
+      max_valence = int(maxval(coarse%patch_ptr(2:) - coarse%patch_ptr(:coarse%nv)))
+      allocate (order(max_valence), inner(9*max_valence), local(max_valence))
+      allocate (classes(n_children*max_valence), neumann(n_children*max_valence), links(3, n_children*max_valence))
+      allocate (signs(3*space%n_trace, n_children*max_valence), o(space%n_trace*9*max_valence))
       allocate (self%levels(level)%id(coarse%nv))
       self%levels(level)%id = 0
       do a = 1, coarse%nv
          if (coarse%boundary_vertex(a)) cycle
          n_coarse = int(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a))
+         if (n_children*n_coarse > max_patch) cycle
          call patch_order(coarse, level, a, order(1:n_coarse))
          n_inner = 0
          if (self%refined) then
@@ -168,6 +187,7 @@ contains
          end do
          ! relative signs: each multiplier oriented as in its first triangle
          n_theta = space%n_trace*n_inner
+         if (n_theta > max_theta) cycle
          o(1:n_theta) = 0.0_dp
          do k = 1, ne
             do m = 1, 3
