@@ -420,6 +420,17 @@ contains
       real(dp) :: row
 
       q = 0.0_dp
+      if (n == 8) then
+         ! RT1: a loop of constant length, unrolled
+         do j = 1, 8
+            row = 0.0_dp
+            do i = 1, 8
+               row = row + m(i, j)*c(i)
+            end do
+            q = q + c(j)*row
+         end do
+         return
+      end if
       do j = 1, n
          row = 0.0_dp
          do i = 1, n
