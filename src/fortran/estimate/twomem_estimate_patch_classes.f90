@@ -191,7 +191,12 @@ contains
          o(1:n_theta) = 0.0_dp
          do k = 1, ne
             do m = 1, 3
-               if (links(m, k) <= 0) cycle
+               if (links(m, k) <= 0) then
+                  ! not a multiplier of H (a zero-flux edge is condensed in its class's operators):
+                  ! its mesh orientation must not split signatures
+                  signs((m - 1)*space%n_trace + 1:m*space%n_trace, k) = 1.0_dp
+                  cycle
+               end if
                do l = 1, space%n_trace
                   i = (links(m, k) - 1)*space%n_trace + l
                   if (o(i) == 0.0_dp) o(i) = signs((m - 1)*space%n_trace + l, k)
@@ -259,10 +264,15 @@ contains
    subroutine rehash(self)
       type(patch_table_t), intent(inout) :: self
 
-      integer :: id
+      integer :: id, n_slots
 
+      ! a power of two: find takes the slot from the hash's low bits
+      n_slots = 2*size(self%hash)
+      do while (n_slots < 4*self%n)
+         n_slots = 2*n_slots
+      end do
       deallocate (self%hash)
-      allocate (self%hash(4*self%n))
+      allocate (self%hash(n_slots))
       self%hash = 0
       do id = 1, self%n
          self%hash(find(self%hash, self%sig, self%sig(id)%key)) = id
