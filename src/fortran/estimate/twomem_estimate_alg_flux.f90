@@ -29,10 +29,11 @@ module twomem_estimate_alg_flux
    use twomem_fem_assembly, only: p1_gradients
    use twomem_linalg_dense, only: lu_factor, lu_solve
    use twomem_linalg_gathered_solve, only: gathered_solver_t
-   use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, make_frame
-   use twomem_estimate_shapes, only: shape_classes_t, triangle_class, trace_signs
+   use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, frame_of
+   use twomem_estimate_shapes, only: shape_classes_t, triangle_class
    use twomem_estimate_coloring, only: coloring_t
-   use twomem_estimate_patch, only: solve_patch, solve_condensed_patch, inner_edge, edge_free, edge_neumann
+   use twomem_estimate_patch, only: solve_patch, solve_condensed_factored, inner_edge, edge_free, edge_neumann
+   use twomem_estimate_patch_classes, only: patch_table_t, patch_order, edge_signs
    implicit none
    private
 
@@ -107,6 +108,12 @@ contains
       self%space = space
       self%finest = hierarchy%levels
       self%base = max(0, self%finest - n_meshes + 1)
+      ! a mesh without interior vertices has no coarse problem (its ρ_α would be zero): the
+      ! first mesh of the hierarchy that has one is the base (a Gmsh mesh of a few triangles)
+      do while (self%base < self%finest)
+         if (self%comm%any_true(any(.not. hierarchy%meshes(self%base)%boundary_vertex))) exit
+         self%base = self%base + 1
+      end do
       first = self%first()
       allocate (self%colors(first:self%finest), self%levels(self%finest - first + 1), self%p2(first:self%finest))
       do j = first, self%finest
@@ -141,10 +148,30 @@ contains
 
    !> self%levels returns σ_alg level by level (levels b+1..J, or J alone with a single mesh)
    !> from the nodal algebraic residuals (nv_J, 2), zero at boundary vertices, and the lifting
-   !> r (3, nt_J, 2).
-   subroutine compute(self, shapes, hierarchy, residual, r, err)
+   !> r (3, nt_J, 2). With the patch signatures (twomem_estimate_patch_classes) of the finest
+   !> mesh (`single`) and of the coarse meshes of the refined levels (`refined`), the interior
+   !> vertices' patches use their factors.
+   subroutine compute(self, shapes, hierarchy, residual, r, err, single, refined)
       class(algebraic_flux_t), intent(inout) :: self
       type(shape_classes_t), intent(in) :: shapes
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
+      real(dp), intent(in) :: residual(:, :), r(:, :, :)
+      type(error_t), allocatable, intent(out) :: err
+      type(patch_table_t), intent(in), optional :: single, refined
+
+      type(patch_table_t) :: none
+
+      if (present(single) .and. present(refined)) then
+         call compute_levels(self, shapes, single, refined, hierarchy, residual, r, err)
+      else
+         call compute_levels(self, shapes, none, none, hierarchy, residual, r, err)
+      end if
+   end subroutine compute
+
+   subroutine compute_levels(self, shapes, single, refined, hierarchy, residual, r, err)
+      class(algebraic_flux_t), intent(inout) :: self
+      type(shape_classes_t), intent(in) :: shapes
+      type(patch_table_t), intent(in) :: single, refined
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       real(dp), intent(in) :: residual(:, :), r(:, :, :)
       type(error_t), allocatable, intent(out) :: err
@@ -161,15 +188,15 @@ contains
          associate (lev => self%levels(j - first + 1))
             if (j == self%base) then
                ! a single mesh: patches and triangles of T_J
-               call level_patches(self%space, shapes, hierarchy%meshes(j), hierarchy%meshes(j), j, self%colors(j), .true., &
-                                  self%grad_rho, self%p2(j), self%p2(j), r, lev%sigma, ok, no_parents)
+               call level_patches(self%space, shapes, single, hierarchy%meshes(j), hierarchy%meshes(j), j, self%colors(j), &
+                                  .true., self%grad_rho, self%p2(j), self%p2(j), r, lev%sigma, ok, no_parents)
             else if (j == first) then
-               call level_patches(self%space, shapes, hierarchy%meshes(j - 1), hierarchy%meshes(j), j, self%colors(j), &
-                                  .true., self%grad_rho, self%p2(j), self%p2(j), r, lev%sigma, ok, &
+               call level_patches(self%space, shapes, refined, hierarchy%meshes(j - 1), hierarchy%meshes(j), j, &
+                                  self%colors(j), .true., self%grad_rho, self%p2(j), self%p2(j), r, lev%sigma, ok, &
                                   hierarchy%maps(j)%vertex_parents)
             else
-               call level_patches(self%space, shapes, hierarchy%meshes(j - 1), hierarchy%meshes(j), j, self%colors(j), &
-                                  .false., self%grad_rho, self%p2(j - 1), self%p2(j), r, lev%sigma, ok, &
+               call level_patches(self%space, shapes, refined, hierarchy%meshes(j - 1), hierarchy%meshes(j), j, &
+                                  self%colors(j), .false., self%grad_rho, self%p2(j - 1), self%p2(j), r, lev%sigma, ok, &
                                   hierarchy%maps(j)%vertex_parents)
             end if
          end associate
@@ -178,7 +205,7 @@ contains
             return
          end if
       end do
-   end subroutine compute
+   end subroutine compute_levels
 
    !> The first level with patch problems: b + 1, or J for a single mesh.
    pure integer function first(self)
@@ -262,7 +289,7 @@ contains
             !$omp private(t, frame, child_frame, gram, b, m, x, w, value, k, c, alpha, piv, child, ok) &
             !$omp schedule(static)
             do t = 1, hierarchy%meshes(l)%nt
-               frame = make_frame(hierarchy%meshes(l)%vertices(:, hierarchy%meshes(l)%triangles(:, t)))
+               frame = frame_of(hierarchy%meshes(l)%vertices, hierarchy%meshes(l)%triangles(:, t))
                gram = 0.0_dp
                b = 0.0_dp
                do k = 1, space%rule%n
@@ -275,7 +302,7 @@ contains
                end do
                do c = 1, 4
                      child = 4*(t - 1) + c
-                     child_frame = make_frame(hierarchy%meshes(l + 1)%vertices(:, hierarchy%meshes(l + 1)%triangles(:, child)))
+                     child_frame = frame_of(hierarchy%meshes(l + 1)%vertices, hierarchy%meshes(l + 1)%triangles(:, child))
                      do k = 1, space%rule%n
                         x = matmul(child_frame%vertices, space%rule%bary(:, k))
                         w = space%rule%weights(k)*child_frame%area
@@ -327,10 +354,11 @@ contains
    !> `colors`), triangles of `fine`, level `level` of the hierarchy (its red refinement, or the
    !> same mesh when `parents` is empty). `first`: the data are r ψ_a − ∇ρ·∇ψ_a (grad_rho on the
    !> coarse triangles), otherwise (I − Π_coarse)(r ψ_a).
-   subroutine level_patches(space, shapes, coarse, fine, level, colors, first, grad_rho, p2_coarse, p2_fine, r, sigma, ok, &
-                            parents)
+   subroutine level_patches(space, shapes, table, coarse, fine, level, colors, first, grad_rho, p2_coarse, p2_fine, r, &
+                            sigma, ok, parents)
       type(rt_space_t), intent(in) :: space
       type(shape_classes_t), intent(in) :: shapes
+      type(patch_table_t), intent(in) :: table
       type(mesh_t), intent(in) :: coarse, fine
       integer, intent(in) :: level
       type(coloring_t), intent(in) :: colors
@@ -350,7 +378,8 @@ contains
       refined = size(parents, 2) > 0
       ok = .true.
       !$omp parallel default(none) &
-      !$omp shared(space, shapes, coarse, fine, level, colors, first, grad_rho, p2_coarse, p2_fine, r, sigma, parents, refined) &
+      !$omp shared(space, shapes, table, coarse, fine, level, colors, first, grad_rho, p2_coarse, p2_fine, r, sigma) &
+      !$omp shared(parents, refined) &
       !$omp private(a, m, c, patch_ok) reduction(.and.:ok)
       !$omp workshare
       sigma = 0.0_dp
@@ -360,10 +389,10 @@ contains
          do m = colors%ptr(c), colors%ptr(c + 1) - 1
             a = colors%vertices(m)
             if (refined) then
-               call coarse_patch(space, shapes, coarse, fine, level, a, 4, first, grad_rho, p2_coarse, p2_fine, r, sigma, &
+               call coarse_patch(space, shapes, table, coarse, fine, level, a, 4, first, grad_rho, p2_coarse, p2_fine, r, sigma, &
                                  patch_ok, parents)
             else
-               call coarse_patch(space, shapes, coarse, fine, level, a, 1, first, grad_rho, p2_coarse, p2_fine, r, sigma, &
+               call coarse_patch(space, shapes, table, coarse, fine, level, a, 1, first, grad_rho, p2_coarse, p2_fine, r, sigma, &
                                  patch_ok, parents)
             end if
             ok = ok .and. patch_ok
@@ -373,10 +402,13 @@ contains
       !$omp end parallel
    end subroutine level_patches
 
-   subroutine coarse_patch(space, shapes, coarse, fine, level, a, n_children, first, grad_rho, p2_coarse, p2_fine, &
+   !> One patch of level_patches; an interior vertex's patch goes with its signature in `table`
+   !> (triangles in the signature's order, its edges and factor), one on ∂Ω the general way.
+   subroutine coarse_patch(space, shapes, table, coarse, fine, level, a, n_children, first, grad_rho, p2_coarse, p2_fine, &
                            r, sigma, ok, parents)
       type(rt_space_t), intent(in) :: space
       type(shape_classes_t), intent(in) :: shapes
+      type(patch_table_t), intent(in) :: table
       type(mesh_t), intent(in) :: coarse, fine
       integer, intent(in) :: level
       integer(ip), intent(in) :: a
@@ -397,24 +429,33 @@ contains
       integer(ip) :: inner(max_inner_per_triangle*(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a)))
       type(rt_frame_t) :: frame, coarse_frame
       logical :: opposite, gram_ok
-      integer :: links(3, size(children)), classes(size(children)), neumann(size(children))
+      integer :: links(3, size(children)), classes(size(children))
       real(dp) :: ratios(size(children)), signs(3*space%n_trace, size(children))
       real(dp) :: rhs_flux(space%n_flux, size(children), 2), rhs_div(space%n_div, size(children), 2)
       real(dp) :: patch_sigma(space%n_flux, size(children), 2)
       real(dp) :: grad_psi(2), x(2), w, psi, q(space%n_div), value(2), coarse_part(space%n_div, 2)
       real(dp) :: gram(space%n_div, space%n_div), smooth(2), hat_gradients(2, 3), m6(n_p2), qc(space%n_div)
       real(dp) :: psi_v(3), smooth_v(3, 2), area_factor
-      integer :: cls
+      integer :: cls, id, coarse_level
+      integer(ip) :: order(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a))
 
       n_coarse = coarse%patch_ptr(a + 1) - coarse%patch_ptr(a)
       ne = 0
       n_inner = 0
       n_blocks = 0
-      if (n_children == 4) then
+      coarse_level = merge(level - 1, level, n_children == 4)
+      id = 0
+      if (allocated(table%levels)) id = table%levels(coarse_level)%id(a)
+      if (id > 0) then
+         call patch_order(coarse, coarse_level, a, order)
+      else
+         order = coarse%patch_triangles(coarse%patch_ptr(a):coarse%patch_ptr(a + 1) - 1)
+      end if
+      if (n_children == 4 .and. id == 0) then
          ! the inner edges of each coarse triangle (its middle child's edges) first, one block each
          n_blocks = n_coarse
          do kc = 1, n_coarse
-            t = coarse%patch_triangles(coarse%patch_ptr(a) + kc - 1)
+            t = order(kc)
             do m = 1, 3
                n_inner = n_inner + 1
                inner(n_inner) = fine%triangle_edges(m, 4*t)
@@ -423,8 +464,8 @@ contains
       end if
       rhs_flux = 0.0_dp
       do kc = 1, n_coarse
-         t = coarse%patch_triangles(coarse%patch_ptr(a) + kc - 1)
-         coarse_frame = make_frame(coarse%vertices(:, coarse%triangles(:, t)))
+         t = order(kc)
+         coarse_frame = frame_of(coarse%vertices, coarse%triangles(:, t))
          local_a = findloc(coarse%triangles(:, t), a, dim=1)
          hat_gradients = p1_gradients(coarse, t)
          grad_psi = hat_gradients(:, local_a)
@@ -453,10 +494,15 @@ contains
             child = merge(4*(t - 1) + c, t, n_children == 4)
             children(ne) = child
             v = fine%triangles(:, child)
-            call triangle_class(level, child, classes(ne), ratios(ne))
-            signs(:, ne) = trace_signs(space, v)
-            frame = make_frame(fine%vertices(:, v))
+            call edge_signs(space%n_trace, v, signs(:, ne))
+            if (id > 0) then
+               classes(ne) = table%sig(id)%classes(ne)
+               ratios(ne) = 2.0_dp**level
+            else
+               call triangle_class(level, child, classes(ne), ratios(ne))
+            end if
             do m = 1, 3
+               if (id > 0) exit
                e = fine%triangle_edges(m, child)
                ! on the coarse edge opposite a: neither end point descends from a
                if (n_children == 4) then
@@ -501,6 +547,7 @@ contains
                end do
                cycle
             end if
+            frame = frame_of(fine%vertices, v)
             do q_point = 1, space%rule%n
                x = matmul(frame%vertices, space%rule%bary(:, q_point))
                w = space%rule%weights(q_point)*frame%area
@@ -518,16 +565,15 @@ contains
             end do
          end do
       end do
-      if (coarse%boundary_vertex(a)) then
+      if (id > 0) then
+         associate (sig => table%sig(id))
+            call solve_condensed_factored(space, shapes, sig%classes, ratios, signs, sig%neumann, sig%links, &
+                                          rhs_flux(1:2, :, :), rhs_div, .false., sig%factor, patch_sigma)
+         end associate
+         ok = .true.
+      else
          call solve_patch(space, shapes, classes, ratios, signs, links, rhs_flux, rhs_div, .false., n_blocks, &
                           patch_sigma, ok)
-      else
-         ! an interior vertex: only the far edges carry zero flux, at most one per triangle
-         do k = 1, ne
-            neumann(k) = findloc(links(:, k), edge_neumann, dim=1)
-         end do
-         call solve_condensed_patch(space, shapes, classes, ratios, signs, neumann, links, rhs_flux(1:2, :, :), rhs_div, &
-                                    .false., n_blocks, patch_sigma, ok)
       end if
       do k = 1, ne
          sigma(:, children(k), :) = sigma(:, children(k), :) + patch_sigma(:, k, :)

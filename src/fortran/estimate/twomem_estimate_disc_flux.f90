@@ -11,10 +11,11 @@ module twomem_estimate_disc_flux
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_fem_problem, only: problem_data_t
    use twomem_fem_assembly, only: p1_gradients
-   use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, make_frame
+   use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, frame_of
    use twomem_estimate_shapes, only: shape_classes_t, triangle_class, trace_signs
    use twomem_estimate_coloring, only: coloring_t
-   use twomem_estimate_patch, only: solve_patch, solve_condensed_patch, inner_edge, edge_free, edge_neumann
+   use twomem_estimate_patch, only: solve_patch, solve_condensed_factored, inner_edge, edge_free, edge_neumann
+   use twomem_estimate_patch_classes, only: patch_table_t, patch_signature_t, patch_order, edge_signs, max_patch
    implicit none
    private
 
@@ -39,7 +40,7 @@ contains
       !$omp parallel do default(none) shared(space, mesh, data, moments) private(t, frame, k, x, w, q, i, alpha) &
       !$omp schedule(static)
       do t = 1, mesh%nt
-         frame = make_frame(mesh%vertices(:, mesh%triangles(:, t)))
+         frame = frame_of(mesh%vertices, mesh%triangles(:, t))
          moments(:, :, t, :) = 0.0_dp
          do k = 1, space%rule%n
             x = matmul(frame%vertices, space%rule%bary(:, k))
@@ -58,8 +59,10 @@ contains
    !> sigma(:, t, α): coefficients of σ_α,disc on triangle t of `mesh`, level `level` of the
    !> hierarchy of `shapes`, whose vertex colouring is `colors`. grad_u(:, t, α) is ∇u_α on t,
    !> lambda the nodal λ_h, r(:, t, α) the residual lifting's vertex values, moments from
-   !> load_moments. ok is .false. if some patch system is singular.
-   subroutine discretization_flux(space, shapes, mesh, level, colors, mu, moments, grad_u, lambda, r, sigma, ok)
+   !> load_moments. With `table`, the patch signatures of `mesh`'s interior vertices
+   !> (twomem_estimate_patch_classes), their patches use the signatures' factors; without, every
+   !> patch is assembled and factorized on its own. ok is .false. if some patch system is singular.
+   subroutine discretization_flux(space, shapes, mesh, level, colors, mu, moments, grad_u, lambda, r, sigma, ok, table)
       type(rt_space_t), intent(in) :: space
       type(shape_classes_t), intent(in) :: shapes
       type(mesh_t), intent(in) :: mesh
@@ -68,14 +71,38 @@ contains
       real(dp), intent(in) :: mu(2), moments(:, :, :, :), grad_u(:, :, :), lambda(:), r(:, :, :)
       real(dp), intent(inout) :: sigma(:, :, :)
       logical, intent(out) :: ok
+      type(patch_table_t), intent(in), optional :: table
+
+      type(patch_table_t) :: none
+
+      if (present(table)) then
+         call patch_loop(space, shapes, table, mesh, level, colors, mu, moments, grad_u, lambda, r, sigma, ok)
+      else
+         call patch_loop(space, shapes, none, mesh, level, colors, mu, moments, grad_u, lambda, r, sigma, ok)
+      end if
+   end subroutine discretization_flux
+
+   !> discretization_flux; table without levels: no signatures.
+   subroutine patch_loop(space, shapes, table, mesh, level, colors, mu, moments, grad_u, lambda, r, sigma, ok)
+      type(rt_space_t), intent(in) :: space
+      type(shape_classes_t), intent(in) :: shapes
+      type(patch_table_t), intent(in) :: table
+      type(mesh_t), intent(in) :: mesh
+      integer, intent(in) :: level
+      type(coloring_t), intent(in) :: colors
+      real(dp), intent(in) :: mu(2), moments(:, :, :, :), grad_u(:, :, :), lambda(:), r(:, :, :)
+      real(dp), intent(inout) :: sigma(:, :, :)
+      logical, intent(out) :: ok
 
       integer(ip) :: m, a
-      integer :: c
-      logical :: patch_ok
+      integer :: c, id
+      logical :: patch_ok, signatures
 
       ok = .true.
-      !$omp parallel default(none) shared(space, shapes, mesh, level, colors, mu, moments, grad_u, lambda, r, sigma) &
-      !$omp private(c, m, a, patch_ok) reduction(.and.:ok)
+      signatures = allocated(table%levels)
+      !$omp parallel default(none) &
+      !$omp shared(space, shapes, table, mesh, level, colors, mu, moments, grad_u, lambda, r, sigma) &
+      !$omp shared(signatures) private(c, m, a, id, patch_ok) reduction(.and.:ok)
       !$omp workshare
       sigma = 0.0_dp
       !$omp end workshare
@@ -83,13 +110,20 @@ contains
          !$omp do schedule(dynamic, 256)
          do m = colors%ptr(c), colors%ptr(c + 1) - 1
             a = colors%vertices(m)
-            call vertex_patch(space, shapes, mesh, level, a, mu, moments, grad_u, lambda(a), r, sigma, patch_ok)
-            ok = ok .and. patch_ok
+            id = 0
+            if (signatures) id = table%levels(level)%id(a)
+            if (id > 0) then
+               call interior_patch(space, shapes, table%sig(id), mesh, level, a, mu, moments, &
+                                   grad_u, lambda(a), r, sigma)
+            else
+               call vertex_patch(space, shapes, mesh, level, a, mu, moments, grad_u, lambda(a), r, sigma, patch_ok)
+               ok = ok .and. patch_ok
+            end if
          end do
          !$omp end do
       end do
       !$omp end parallel
-   end subroutine discretization_flux
+   end subroutine patch_loop
 
    subroutine vertex_patch(space, shapes, mesh, level, a, mu, moments, grad_u, lambda_a, r, sigma, ok)
       type(rt_space_t), intent(in) :: space
@@ -104,7 +138,7 @@ contains
       integer :: ne, k, m, i, n_inner, alpha, c
       integer(ip) :: t, e, inner(2*(mesh%patch_ptr(a + 1) - mesh%patch_ptr(a))), elements(size(inner)/2)
       integer(ip) :: v(3)
-      integer :: links(3, size(elements)), classes(size(elements)), neumann(size(elements))
+      integer :: links(3, size(elements)), classes(size(elements))
       real(dp) :: ratios(size(elements)), signs(3*space%n_trace, size(elements)), area_factor
       real(dp) :: rhs_flux(space%n_flux, size(elements), 2), rhs_div(space%n_div, size(elements), 2)
       real(dp) :: patch_sigma(space%n_flux, size(elements), 2), fgrad(2, size(elements), 2)
@@ -122,7 +156,6 @@ contains
          c = classes(k)
          hat_gradients = p1_gradients(mesh, t)
          i = findloc(v, a, dim=1)
-         neumann(k) = i
          do m = 1, 3
             e = mesh%triangle_edges(m, t)
             if (m == i) then
@@ -141,8 +174,7 @@ contains
          grad_psi = hat_gradients(:, i)
          do alpha = 1, 2
             fgrad(:, k, alpha) = -mu(alpha)*grad_u(:, t, alpha)
-            if (mesh%boundary_vertex(a)) rhs_flux(:, k, alpha) = area_factor*matmul(fgrad(:, k, alpha), &
-                                                                                     shapes%psi_phi(:, :, i, c))
+            rhs_flux(:, k, alpha) = area_factor*matmul(fgrad(:, k, alpha), shapes%psi_phi(:, :, i, c))
             rhs_div(:, k, alpha) = moments(:, i, t, alpha) + area_factor*( &
                                    lambda_sign(alpha)*lambda_a*shapes%psi_q(:, i, c) &
                                    - matmul(shapes%bary_psi_q(:, :, i, c), r(:, t, alpha)) &
@@ -150,15 +182,60 @@ contains
          end do
       end do
 
-      if (mesh%boundary_vertex(a)) then
-         call solve_patch(space, shapes, classes, ratios, signs, links, rhs_flux, rhs_div, .true., 0, patch_sigma, ok)
-      else
-         ! an interior vertex: every triangle has zero flux on the edge opposite a
-         call solve_condensed_patch(space, shapes, classes, ratios, signs, neumann, links, fgrad, rhs_div, .true., 0, &
-                                    patch_sigma, ok)
-      end if
+      ! a vertex on ∂Ω (the interior ones go through interior_patch)
+      call solve_patch(space, shapes, classes, ratios, signs, links, rhs_flux, rhs_div, .true., 0, patch_sigma, ok)
       do k = 1, ne
          sigma(:, elements(k), :) = sigma(:, elements(k), :) + patch_sigma(:, k, :)
       end do
    end subroutine vertex_patch
+   !> The patch of an interior vertex a with its signature's factor (twomem_estimate_patch_classes):
+   !> the data of vertex_patch in the signature's order of the triangles.
+   subroutine interior_patch(space, shapes, sig, mesh, level, a, mu, moments, grad_u, lambda_a, r, sigma)
+      type(rt_space_t), intent(in) :: space
+      type(shape_classes_t), intent(in) :: shapes
+      type(patch_signature_t), intent(in) :: sig
+      type(mesh_t), intent(in) :: mesh
+      integer, intent(in) :: level
+      integer(ip), intent(in) :: a
+      real(dp), intent(in) :: mu(2), moments(:, :, :, :), grad_u(:, :, :), lambda_a, r(:, :, :)
+      real(dp), intent(inout) :: sigma(:, :, :)
+
+      ! fixed-size work arrays (sizes checked when the table was built): no allocation per patch
+      integer :: k, i, alpha, c, ne, nd, nf
+      integer(ip) :: t, order(max_patch)
+      real(dp) :: ratios(max_patch), signs(6, max_patch), area_factor
+      real(dp) :: rhs_div(3, max_patch, 2), fgrad(2, max_patch, 2)
+      real(dp) :: patch_sigma(8, max_patch, 2), grad_psi(2), hat_gradients(2, 3)
+      real(dp), parameter :: lambda_sign(2) = [1.0_dp, -1.0_dp]
+
+      ne = size(sig%classes)
+      nd = space%n_div
+      nf = space%n_flux
+      call patch_order(mesh, level, a, order(1:ne))
+      ratios(1:ne) = 2.0_dp**level
+      area_factor = 1/ratios(1)**2
+      do k = 1, ne
+         t = order(k)
+         c = sig%classes(k)
+         i = sig%neumann(k)
+         call edge_signs(space%n_trace, mesh%triangles(:, t), signs(:, k))
+         hat_gradients = p1_gradients(mesh, t)
+         grad_psi = hat_gradients(:, i)
+         do alpha = 1, 2
+            fgrad(:, k, alpha) = -mu(alpha)*grad_u(:, t, alpha)
+            rhs_div(1:nd, k, alpha) = moments(:, i, t, alpha) + area_factor*( &
+                                      lambda_sign(alpha)*lambda_a*shapes%psi_q(:, i, c) &
+                                      - shapes%bary_psi_q(:, 1, i, c)*r(1, t, alpha) &
+                                      - shapes%bary_psi_q(:, 2, i, c)*r(2, t, alpha) &
+                                      - shapes%bary_psi_q(:, 3, i, c)*r(3, t, alpha) &
+                                      - mu(alpha)*dot_product(grad_u(:, t, alpha), grad_psi)*shapes%q_int(:, c))
+         end do
+      end do
+      call solve_condensed_factored(space, shapes, sig%classes, ratios(1:ne), signs(1:3*space%n_trace, 1:ne), &
+                                    sig%neumann, sig%links, fgrad(:, 1:ne, :), rhs_div(1:nd, 1:ne, :), .true., &
+                                    sig%factor, patch_sigma(1:nf, 1:ne, :))
+      do k = 1, ne
+         sigma(:, order(k), :) = sigma(:, order(k), :) + patch_sigma(1:nf, k, :)
+      end do
+   end subroutine interior_patch
 end module twomem_estimate_disc_flux

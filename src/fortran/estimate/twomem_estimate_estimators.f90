@@ -32,13 +32,14 @@ module twomem_estimate_estimators
    use twomem_fem_assembly, only: p1_gradients
    use twomem_linalg_dense, only: lu_factor, lu_solve
    use twomem_linalg_halo, only: halo_t
-   use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, make_frame
+   use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, frame_of
    use twomem_estimate_lifting, only: algebraic_residuals, residual_lifting
    use twomem_estimate_disc_flux, only: discretization_flux, load_moments
    use twomem_estimate_alg_flux, only: algebraic_flux_t, level_flux_t
    use twomem_estimate_shapes, only: shape_classes_t, triangle_class
    use twomem_estimate_coloring, only: coloring_t
    use twomem_estimate_ghosts, only: ghost_cells_t
+   use twomem_estimate_patch_classes, only: patch_table_t
    implicit none
    private
 
@@ -67,6 +68,9 @@ module twomem_estimate_estimators
       type(algebraic_flux_t) :: alg
       !> the triangle operators of every level, per shape class
       type(shape_classes_t) :: shapes
+      !> the signatures of the interior vertices' patches: on the finest mesh's own triangles
+      !> (discretization flux, single-mesh algebraic flux) and on refined coarse triangles
+      type(patch_table_t) :: single, refined
       !> the finest mesh's vertex colouring for the discretization-flux patches
       type(coloring_t) :: colors
       !> (f_α ψ_i, q_k)_K and, for RT1, (h_K/π)‖f_α − Π_1 f_α‖_K (data only, fixed on the mesh)
@@ -137,10 +141,38 @@ contains
          call self%alg%init(self%space, hierarchy, data, alg_meshes, err, self%comm)
          call self%comm%agree(err)
          if (allocated(err)) return
+         call patch_tables(self, hierarchy, err)
+         call self%comm%agree(err)
+         if (allocated(err)) return
          allocate (self%sigma(self%space%n_flux, mesh%nt, 2), self%u(mesh%nv, 2), self%s(mesh%nv, 2), &
                    self%residual(mesh%nv, 2), self%lambda(mesh%nv), self%grad_u(2, mesh%nt, 2), self%r(3, mesh%nt, 2))
       end associate
    end subroutine init
+
+   !> The patch signatures of every patch mesh: the finest mesh for the discretization flux (and
+   !> the single-mesh algebraic flux), the coarse meshes of the refined algebraic-flux levels.
+   subroutine patch_tables(self, hierarchy, err)
+      type(estimator_t), intent(inout) :: self
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
+      type(error_t), allocatable, intent(out) :: err
+
+      integer :: j, finest
+      integer(ip) :: no_parents(2, 0)
+
+      finest = hierarchy%levels
+      call self%single%init(.false., finest)
+      call self%single%add_mesh(self%space, hierarchy%meshes(finest), hierarchy%meshes(finest), finest, no_parents)
+      call self%single%finish(self%space, self%shapes, err)
+      if (allocated(err)) return
+      call self%refined%init(.true., finest)
+      if (self%alg%base < finest) then
+         do j = self%alg%first(), finest
+            call self%refined%add_mesh(self%space, hierarchy%meshes(j - 1), hierarchy%meshes(j), j - 1, &
+                                       hierarchy%maps(j)%vertex_parents)
+         end do
+      end if
+      call self%refined%finish(self%space, self%shapes, err)
+   end subroutine patch_tables
 
    !> (h_K/π) μ_α^{−1/2} ‖f_α − Π_1 f_α‖_K with the load's degree-5 rule.
    subroutine data_oscillation(space, mesh, data, mu, osc)
@@ -160,7 +192,7 @@ contains
       !$omp parallel do default(none) shared(space, mesh, data, mu, osc) &
       !$omp private(t, frame, x, w, q, gram, b, projection, f, ff, k, i, alpha, piv, ok) schedule(static)
       do t = 1, mesh%nt
-         frame = make_frame(mesh%vertices(:, mesh%triangles(:, t)))
+         frame = frame_of(mesh%vertices, mesh%triangles(:, t))
          gram = 0.0_dp
          b = 0.0_dp
          ff = 0.0_dp
@@ -239,12 +271,12 @@ contains
          end do
 
          call discretization_flux(self%space, self%shapes, mesh, hierarchy%levels, self%colors, self%mu, self%moments, &
-                                  grad_u, lambda, r, self%sigma, ok)
+                                  grad_u, lambda, r, self%sigma, ok, self%single)
          if (self%comm%any_true(.not. ok)) then
             call make_error(err, exit_io, 'discretization flux', 'a patch system is singular (degenerate triangles?)')
             return
          end if
-         call self%alg%compute(self%shapes, hierarchy, residual, r, err)
+         call self%alg%compute(self%shapes, hierarchy, residual, r, err, self%single, self%refined)
          call self%comm%agree(err)
          if (allocated(err)) return
 
@@ -301,15 +333,16 @@ contains
       real(dp), intent(in) :: u(:, :)
       real(dp), intent(out) :: grad_u(:, :, :)
 
-      integer(ip) :: t
+      integer(ip) :: t, v(3)
       integer :: alpha
 
-      !$omp parallel do default(none) shared(mesh, grad_u, u) private(t, alpha) schedule(static)
+      !$omp parallel do default(none) shared(mesh, grad_u, u) private(t, v, alpha) schedule(static)
       do t = 1, mesh%nt
+         v = mesh%triangles(:, t)
          do alpha = 1, 2
             ! the same expression as for ∇s_h in element_estimators: ∇(s_h − u_h) is then exactly
             ! zero where s_h = u_h in every build (η_nonc,3 takes a square root of it)
-            grad_u(:, t, alpha) = matmul(p1_gradients(mesh, t), u(mesh%triangles(:, t), alpha))
+            grad_u(:, t, alpha) = matmul(p1_gradients(mesh, t), u(v, alpha))
          end do
       end do
       !$omp end parallel do
@@ -329,7 +362,7 @@ contains
       type(estimates_t), intent(inout) :: est
       real(dp), intent(out) :: positive_sq
 
-      type(rt_frame_t) :: frame, level_frame
+      type(rt_frame_t) :: frame, level_frames(size(levels))
       real(dp) :: x(2), w, sq(3, 2), f(2), lam_x, osc_mean(2), osc_sq(2), osc_w, ratio
       real(dp) :: c_disc(self%space%n_flux), c_alg(self%space%n_flux), c_sum(self%space%n_flux)
       real(dp) :: pos_lw, pos_ll, neg_lw, neg_ll, sum_pos, grad_s(2, 2)
@@ -358,13 +391,22 @@ contains
       end do
       !$omp parallel do default(none) &
       !$omp shared(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, finest, generations, nt_own) &
-      !$omp private(t, anc, k, j, alpha, v, frame, level_frame, x, w, sq, f, lam_x, osc_mean, osc_sq, ratio, class) &
+      !$omp private(t, anc, k, j, alpha, v, frame, level_frames, x, w, sq, f, lam_x, osc_mean, osc_sq, ratio, class) &
       !$omp private(c_disc, c_alg, c_sum, osc_w, pos_lw, pos_ll, neg_lw, neg_ll, grad_s, osc_values) &
       !$omp reduction(+:sum_pos) schedule(static)
       do t = 1, nt_own
          v = hierarchy%meshes(finest)%triangles(:, t)
-         frame = make_frame(hierarchy%meshes(finest)%vertices(:, v))
+         frame = frame_of(hierarchy%meshes(finest)%vertices, v)
          call triangle_class(finest, t, class, ratio)
+         do j = 1, size(levels)
+            ! the ancestors' frames, once for both membranes
+            if (levels(j)%level /= finest) then
+               anc = (t - 1)/generations(j) + 1
+               associate (lm => hierarchy%meshes(levels(j)%level))
+                  level_frames(j) = frame_of(lm%vertices, lm%triangles(:, anc))
+               end associate
+            end if
+         end do
          do alpha = 1, 2
             c_disc = sigma(:, t, alpha)
             c_disc(1:2) = c_disc(1:2) + self%mu(alpha)*grad_u(:, t, alpha)
@@ -374,10 +416,7 @@ contains
                if (levels(j)%level == finest) then
                   c_alg = c_alg + levels(j)%sigma(:, anc, alpha)
                else
-                  associate (lm => hierarchy%meshes(levels(j)%level))
-                     level_frame = make_frame(lm%vertices(:, lm%triangles(:, anc)))
-                  end associate
-                  call to_child_basis(self%space%order, level_frame, frame, levels(j)%sigma(:, anc, alpha), c_sum)
+                  call to_child_basis(self%space%order, level_frames(j), frame, levels(j)%sigma(:, anc, alpha), c_sum)
                   c_alg = c_alg + c_sum
                end if
             end do
@@ -437,6 +476,17 @@ contains
       real(dp) :: row
 
       q = 0.0_dp
+      if (n == 8) then
+         ! RT1: a loop of constant length, unrolled
+         do j = 1, 8
+            row = 0.0_dp
+            do i = 1, 8
+               row = row + m(i, j)*c(i)
+            end do
+            q = q + c(j)*row
+         end do
+         return
+      end if
       do j = 1, n
          row = 0.0_dp
          do i = 1, n

@@ -23,6 +23,25 @@ module twomem_estimate_patch
    private
 
    public :: solve_patch, solve_condensed_patch, inner_edge, edge_free, edge_neumann
+   public :: patch_factor_t, condensed_factor, solve_condensed_factored, max_theta
+
+   !> the largest multiplier system of a factorized patch (larger ones take the general path),
+   !> so that the per-patch work arrays have fixed sizes (no heap allocation per patch)
+   integer, parameter :: max_theta = 192
+
+   !> The multiplier matrix H of a condensed patch system, factorized once for every patch with
+   !> the same classes, edges and relative trace signs (twomem_estimate_patch_classes): H does
+   !> not depend on the ratio of the triangles nor on the data, only the right-hand side does.
+   !> d: Cholesky factors of the n_blocks leading diagonal blocks (size g), x = D⁻¹ H_bt on the
+   !> tail columns cols(1:n_cols) each block touches, s: the Cholesky factor of the tail's Schur
+   !> complement (of the whole H when n_blocks = 0).
+   type :: patch_factor_t
+      integer :: n_theta = 0, n_blocks = 0, g = 0
+      real(dp), allocatable :: d(:, :, :), x(:, :, :), s(:, :)
+      integer, allocatable :: cols(:, :), n_cols(:)
+      !> per patch triangle: its inner trace rows and their multipliers (inner_rows)
+      integer, allocatable :: n_rows(:), rows(:, :), glob(:, :)
+   end type patch_factor_t
 
    !> edge kinds in `links`: a positive value numbers an inner edge of the patch
    integer, parameter :: edge_free = 0, edge_neumann = -1
@@ -318,7 +337,222 @@ contains
       end do
    end subroutine solve_condensed_patch
 
-   !> y = A x for a contiguous m×n matrix.
+   !> The factor of H for solve_condensed_factored: the assembly of solve_condensed_patch with
+   !> the patch's relative trace signs (each multiplier oriented as in the first triangle that
+   !> touches it, so that H depends on the geometry only) and its first multiplier pinned.
+   pure subroutine condensed_factor(space, shapes, classes, signs, neumann, links, n_blocks, factor, ok)
+      type(rt_space_t), intent(in) :: space
+      type(shape_classes_t), intent(in) :: shapes
+      integer, intent(in) :: classes(:), neumann(:), links(:, :)
+      real(dp), intent(in) :: signs(:, :)
+      integer, intent(in) :: n_blocks
+      type(patch_factor_t), intent(out) :: factor
+      logical, intent(out) :: ok
+
+      integer :: nt, k, c, i, a, q, n_rows, rows(3*space%n_trace), glob(3*space%n_trace)
+      real(dp) :: h(space%n_trace*maxval(links), space%n_trace*maxval(links))
+      real(dp) :: sg(3*space%n_trace), a_k(3*space%n_trace, 3*space%n_trace)
+
+      nt = space%n_trace
+      h = 0.0_dp
+      do k = 1, size(classes)
+         c = classes(k)
+         call inner_rows(nt, neumann(k), links(:, k), n_rows, rows, glob)
+         sg(1:n_rows) = signs(rows(1:n_rows), k)
+         i = neumann(k)
+         if (i > 0) then
+            a_k(1:n_rows, 1:n_rows) = shapes%cond_a(:, :, i, c)
+         else
+            a_k(1:n_rows, 1:n_rows) = shapes%czc(:, :, c)
+         end if
+         do a = 1, n_rows
+            do q = 1, n_rows
+               h(glob(q), glob(a)) = h(glob(q), glob(a)) + sg(q)*sg(a)*a_k(q, a)
+            end do
+         end do
+      end do
+      h(1, :) = 0.0_dp
+      h(:, 1) = 0.0_dp
+      h(1, 1) = 1.0_dp
+      call block_factor(h, n_blocks, 3*nt, factor, ok)
+      allocate (factor%n_rows(size(classes)), factor%rows(3*nt, size(classes)), factor%glob(3*nt, size(classes)))
+      factor%rows = 0
+      factor%glob = 0
+      do k = 1, size(classes)
+         call inner_rows(nt, neumann(k), links(:, k), factor%n_rows(k), factor%rows(:, k), factor%glob(:, k))
+      end do
+   end subroutine condensed_factor
+
+   !> solve_condensed_patch with H factorized beforehand (condensed_factor, for a patch with
+   !> the same classes, neumann, links and relative signs): only the right-hand sides and the
+   !> triangles' fluxes are computed per patch. The signs are the patch's own; the orientation
+   !> o of each multiplier (the sign of its first row) turns them into the relative ones,
+   !> H_patch = O H O.
+   pure subroutine solve_condensed_factored(space, shapes, classes, ratios, signs, neumann, links, fgrad, rhs_div, &
+                                            flux_data, factor, sigma)
+      type(rt_space_t), intent(in) :: space
+      type(shape_classes_t), intent(in) :: shapes
+      integer, intent(in) :: classes(:), neumann(:), links(:, :)
+      real(dp), intent(in) :: ratios(:), signs(:, :), fgrad(:, :, :), rhs_div(:, :, :)
+      logical, intent(in) :: flux_data
+      type(patch_factor_t), intent(in) :: factor
+      real(dp), intent(out) :: sigma(:, :, :)
+
+      integer, parameter :: max_rows = 6, max_flux = 8, max_div = 3
+      integer :: nf, nd, nc, k, c, i, a, r, n_rows, n_theta, nr
+      real(dp) :: b(max_theta, 2), o(max_theta)
+      real(dp) :: rho, sg, t1(max_rows), theta(max_rows), g(max_div), f(max_flux)
+
+      nf = space%n_flux
+      nd = space%n_div
+      nc = 3*space%n_trace
+      n_theta = factor%n_theta
+      nr = size(rhs_div, 3)
+      b(1:n_theta, 1:nr) = 0.0_dp
+      o(1:n_theta) = 0.0_dp
+      do k = 1, size(classes)
+         c = classes(k)
+         rho = ratios(k)
+         n_rows = factor%n_rows(k)
+         i = neumann(k)
+         do r = 1, nr
+            g(1:nd) = rhs_div(:, k, r)
+            if (i > 0) then
+               call mat_vec(n_rows, nd, shapes%cond_qg(:, :, i, c), g(1:nd), t1(1:n_rows))
+               if (flux_data) call mat_vec_add(n_rows, 2, shapes%cond_qf(:, :, i, c), fgrad(:, k, r), 1/rho, t1(1:n_rows))
+            else
+               call mat_vec(n_rows, nd, shapes%cy(:, :, c), g(1:nd), t1(1:n_rows))
+            end if
+            do a = 1, n_rows
+               sg = signs(factor%rows(a, k), k)
+               b(factor%glob(a, k), r) = b(factor%glob(a, k), r) + sg*t1(a)
+               if (o(factor%glob(a, k)) == 0.0_dp) o(factor%glob(a, k)) = sg
+            end do
+         end do
+      end do
+      do r = 1, nr
+         b(1:n_theta, r) = o(1:n_theta)*b(1:n_theta, r)
+      end do
+      b(1, 1:nr) = 0.0_dp
+      call block_apply(factor, b(1:n_theta, 1:nr))
+      do r = 1, nr
+         b(1:n_theta, r) = o(1:n_theta)*b(1:n_theta, r)
+      end do
+      do k = 1, size(classes)
+         c = classes(k)
+         rho = ratios(k)
+         n_rows = factor%n_rows(k)
+         i = neumann(k)
+         do r = 1, nr
+            do a = 1, n_rows
+               theta(a) = -rho*signs(factor%rows(a, k), k)*b(factor%glob(a, k), r)
+            end do
+            g(1:nd) = rho*rhs_div(:, k, r)
+            if (i > 0) then
+               call mat_vec(nf, nd, shapes%cond_rg(:, :, i, c), g(1:nd), f(1:nf))
+               call mat_vec_add(nf, n_rows, shapes%cond_rt(:, :, i, c), theta(1:n_rows), 1.0_dp, f(1:nf))
+               if (flux_data) call mat_vec_add(nf, 2, shapes%cond_rf(:, :, i, c), fgrad(:, k, r), 1.0_dp, f(1:nf))
+            else
+               call mat_vec(nf, nd, shapes%y(:, :, c), g(1:nd), f(1:nf))
+               call mat_vec_add(nf, nc, shapes%zc(:, :, c), theta(1:nc), 1.0_dp, f(1:nf))
+            end if
+            sigma(:, k, r) = f(1:nf)
+         end do
+      end do
+   end subroutine solve_condensed_factored
+
+   !> The factor of block_solve's elimination (see patch_factor_t), for block_apply.
+   pure subroutine block_factor(h, n_blocks, g, f, ok)
+      real(dp), intent(in) :: h(:, :)
+      integer, intent(in) :: n_blocks, g
+      type(patch_factor_t), intent(out) :: f
+      logical, intent(out) :: ok
+
+      integer :: nb, ns, ib, r0, i, j, q, n_cpl, max_cpl
+      real(dp) :: acc
+
+      nb = n_blocks*g
+      ns = size(h, 1) - nb
+      f%n_theta = size(h, 1)
+      f%n_blocks = n_blocks
+      f%g = g
+      allocate (f%n_cols(n_blocks))
+      max_cpl = 0
+      do ib = 1, n_blocks
+         r0 = (ib - 1)*g
+         f%n_cols(ib) = count([(any(h(r0 + 1:r0 + g, nb + j) /= 0.0_dp), j=1, ns)])
+         max_cpl = max(max_cpl, f%n_cols(ib))
+      end do
+      allocate (f%d(g, g, n_blocks), f%x(g, max_cpl, n_blocks), f%cols(max_cpl, n_blocks), f%s(ns, ns))
+      f%s = h(nb + 1:, nb + 1:)
+      ok = .true.
+      do ib = 1, n_blocks
+         r0 = (ib - 1)*g
+         f%d(:, :, ib) = h(r0 + 1:r0 + g, r0 + 1:r0 + g)
+         call chol_factor(g, f%d(:, :, ib), ok)
+         if (.not. ok) return
+         n_cpl = 0
+         do j = 1, ns
+            if (any(h(r0 + 1:r0 + g, nb + j) /= 0.0_dp)) then
+               n_cpl = n_cpl + 1
+               f%cols(n_cpl, ib) = j
+               f%x(:, n_cpl, ib) = h(r0 + 1:r0 + g, nb + j)
+            end if
+         end do
+         call chol_solve(g, f%d(:, :, ib), n_cpl, f%x(:, :, ib))
+         ! S = H_tt − H_tb D⁻¹ H_bt on the touched tail entries
+         do j = 1, n_cpl
+            do i = 1, n_cpl
+               acc = 0.0_dp
+               do q = 1, g
+                  acc = acc + h(r0 + q, nb + f%cols(i, ib))*f%x(q, j, ib)
+               end do
+               f%s(f%cols(i, ib), f%cols(j, ib)) = f%s(f%cols(i, ib), f%cols(j, ib)) - acc
+            end do
+         end do
+      end do
+      if (ns > 0) call chol_factor(ns, f%s, ok)
+   end subroutine block_factor
+
+   !> b = H⁻¹ b with the factor of block_factor.
+   pure subroutine block_apply(f, b)
+      type(patch_factor_t), intent(in) :: f
+      real(dp), intent(inout) :: b(:, :)
+
+      integer :: nb, ns, nr, ib, r0, i, r, g
+      real(dp) :: y(6, 2)
+
+      g = f%g
+      nb = f%n_blocks*g
+      ns = f%n_theta - nb
+      nr = size(b, 2)
+      ! b_t − H_tb D⁻¹ b_b = b_t − xᵀ b_b, and D⁻¹ b_b kept in place of b_b
+      do ib = 1, f%n_blocks
+         r0 = (ib - 1)*g
+         do r = 1, nr
+            do i = 1, f%n_cols(ib)
+               b(nb + f%cols(i, ib), r) = b(nb + f%cols(i, ib), r) - dot_product(f%x(:, i, ib), b(r0 + 1:r0 + g, r))
+            end do
+         end do
+         ! (blocks of at most 6 multipliers and two right-hand sides: fixed-size work array)
+         y(1:g, 1:nr) = b(r0 + 1:r0 + g, :)
+         call chol_solve(g, f%d(:, :, ib), nr, y(1:g, 1:nr))
+         b(r0 + 1:r0 + g, :) = y(1:g, 1:nr)
+      end do
+      if (ns > 0) call chol_solve(ns, f%s, nr, b(nb + 1:, :))
+      do ib = 1, f%n_blocks
+         r0 = (ib - 1)*g
+         do r = 1, nr
+            do i = 1, f%n_cols(ib)
+               b(r0 + 1:r0 + g, r) = b(r0 + 1:r0 + g, r) - f%x(:, i, ib)*b(nb + f%cols(i, ib), r)
+            end do
+         end do
+      end do
+   end subroutine block_apply
+
+   !> y = A x for a contiguous m×n matrix. The flux (m = 8) and condensed trace (m = 4) sizes of
+   !> RT1 take loops of constant length, which the compiler unrolls: these products run a few
+   !> hundred times per patch.
    pure subroutine mat_vec(m, n, a, x, y)
       integer, intent(in) :: m, n
       real(dp), intent(in) :: a(m, n), x(n)
@@ -326,13 +560,26 @@ contains
 
       integer :: j
 
-      y = a(:, 1)*x(1)
-      do j = 2, n
-         y = y + a(:, j)*x(j)
-      end do
+      select case (m)
+      case (8)
+         y(1:8) = a(1:8, 1)*x(1)
+         do j = 2, n
+            y(1:8) = y(1:8) + a(1:8, j)*x(j)
+         end do
+      case (4)
+         y(1:4) = a(1:4, 1)*x(1)
+         do j = 2, n
+            y(1:4) = y(1:4) + a(1:4, j)*x(j)
+         end do
+      case default
+         y = a(:, 1)*x(1)
+         do j = 2, n
+            y = y + a(:, j)*x(j)
+         end do
+      end select
    end subroutine mat_vec
 
-   !> y = y + s A x for a contiguous m×n matrix.
+   !> y = y + s A x for a contiguous m×n matrix (constant-length loops as in mat_vec).
    pure subroutine mat_vec_add(m, n, a, x, s, y)
       integer, intent(in) :: m, n
       real(dp), intent(in) :: a(m, n), x(n), s
@@ -340,9 +587,20 @@ contains
 
       integer :: j
 
-      do j = 1, n
-         y = y + a(:, j)*(s*x(j))
-      end do
+      select case (m)
+      case (8)
+         do j = 1, n
+            y(1:8) = y(1:8) + a(1:8, j)*(s*x(j))
+         end do
+      case (4)
+         do j = 1, n
+            y(1:4) = y(1:4) + a(1:4, j)*(s*x(j))
+         end do
+      case default
+         do j = 1, n
+            y = y + a(:, j)*(s*x(j))
+         end do
+      end select
    end subroutine mat_vec_add
 
    !> In place, lower triangle of a contiguous n×n matrix: a = L Lᵀ; ok is .false. if a is not

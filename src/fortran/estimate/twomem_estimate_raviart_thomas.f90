@@ -16,7 +16,7 @@ module twomem_estimate_raviart_thomas
    implicit none
    private
 
-   public :: rt_space_t, rt_frame_t, make_frame, edge_gauss
+   public :: rt_space_t, rt_frame_t, make_frame, frame_of, edge_gauss
 
    !> 3-point Gauss–Legendre on [−1, 1] (exact to degree 5): traces of RT1 times P1 are cubic.
    real(dp), parameter :: edge_gauss(2, 3) = reshape([-sqrt(0.6_dp), 5.0_dp/9, 0.0_dp, 8.0_dp/9, &
@@ -72,6 +72,22 @@ contains
       frame%area = 0.5_dp*abs((vertices(1, 2) - vertices(1, 1))*(vertices(2, 3) - vertices(2, 1)) - &
                               (vertices(1, 3) - vertices(1, 1))*(vertices(2, 2) - vertices(2, 1)))
    end function make_frame
+
+   !> make_frame of the triangle with vertices v of the mesh coordinates `vertices` (2, nv),
+   !> gathered vertex by vertex: the vector subscript vertices(:, v) costs a heap temporary.
+   pure function frame_of(vertices, v) result(frame)
+      real(dp), intent(in) :: vertices(:, :)
+      integer(ip), intent(in) :: v(3)
+      type(rt_frame_t) :: frame
+
+      real(dp) :: p(2, 3)
+      integer :: i
+
+      do i = 1, 3
+         p(:, i) = vertices(:, v(i))
+      end do
+      frame = make_frame(p)
+   end function frame_of
 
    !> φ_i(x), (2, n_flux).
    pure function flux_values(self, frame, x) result(phi)

@@ -29,7 +29,10 @@ contains
       real(dp) :: p(2, 3), twice_area
       integer :: i, j, k
 
-      p = mesh%vertices(:, mesh%triangles(:, t))
+      ! vertex by vertex: a vector subscript of a component takes a heap temporary
+      do i = 1, 3
+         p(:, i) = mesh%vertices(:, mesh%triangles(i, t))
+      end do
       twice_area = 2*mesh%area(t)
       do i = 1, 3
          j = modulo(i, 3) + 1

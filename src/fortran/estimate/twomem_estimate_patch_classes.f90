@@ -1,0 +1,325 @@
+!> Patch classes: in a red-refined hierarchy the patch of a vertex inside a coarse triangle is,
+!> on every level, a scaled and translated copy of one patch per coarse triangle, and likewise
+!> for the vertices on a coarse edge and at a coarse vertex. The condensed multiplier matrix H of
+!> a patch problem (twomem_estimate_patch) depends only on its triangles' shape classes, their
+!> edges and the relative orientation of their traces, not on the ratio to the class size nor on
+!> the data, so it is factorized once per distinct patch (a signature) for the whole hierarchy
+!> and both membranes, and each evaluation only assembles right-hand sides and applies the
+!> factor. A signature lists, with the patch triangles in a canonical order (by class and local
+!> index of the patch vertex, so that it does not depend on the mesh numbering), their classes,
+!> zero-flux edges, inner-edge numbering and relative trace signs: exactly what H is made of, so
+!> patches of one signature share H by construction, whatever the geometry. Patches of vertices
+!> on ∂Ω (O(√N) of them) keep the general path. Two tables: `single` for the patches of a
+!> mesh's own triangles (discretization flux, single-mesh algebraic flux), `refined` for the
+!> patches of a coarse vertex on the red refinement of its triangles (multilevel algebraic flux),
+!> whose multipliers inside each coarse triangle come first as a block (twomem_estimate_patch).
+module twomem_estimate_patch_classes
+   use twomem_base_kinds, only: dp, ip
+   use twomem_base_errors, only: error_t, make_error, exit_io
+   use twomem_mesh_triangulation, only: mesh_t
+   use twomem_estimate_raviart_thomas, only: rt_space_t
+   use twomem_estimate_shapes, only: shape_classes_t, triangle_class, trace_signs
+   use twomem_estimate_patch, only: patch_factor_t, condensed_factor, inner_edge, edge_free, edge_neumann, max_theta
+   implicit none
+   private
+
+   public :: patch_table_t, patch_signature_t, patch_order, edge_signs, max_patch
+
+   !> the most triangles of a factorized patch (larger ones take the general path), so that the
+   !> per-patch work arrays have fixed sizes
+   integer, parameter :: max_patch = 64
+
+   !> One distinct patch: per patch triangle (canonical order, children of a coarse triangle
+   !> consecutively for `refined`) its class, its zero-flux edge (0: none) and its edge links
+   !> (twomem_estimate_patch), and the factor of H.
+   type :: patch_signature_t
+      integer, allocatable :: classes(:), neumann(:), links(:, :)
+      type(patch_factor_t) :: factor
+      !> the key while the table is built
+      integer, allocatable :: key(:)
+   end type patch_signature_t
+
+   type :: level_ids_t
+      !> per vertex of the patch mesh: its signature, 0 for a vertex on ∂Ω (general path)
+      integer, allocatable :: id(:)
+   end type level_ids_t
+
+   type :: patch_table_t
+      integer :: n = 0
+      logical :: refined = .false.
+      type(patch_signature_t), allocatable :: sig(:)
+      !> by level of the patch mesh (the coarse mesh for `refined`)
+      type(level_ids_t), allocatable :: levels(:)
+      !> open addressing on the keys while building: signature number or 0
+      integer, allocatable :: hash(:)
+   contains
+      procedure :: init
+      procedure :: add_mesh
+      procedure :: finish
+   end type patch_table_t
+
+contains
+
+   !> An empty table for patch meshes of levels 0..finest.
+   subroutine init(self, refined, finest)
+      class(patch_table_t), intent(out) :: self
+      logical, intent(in) :: refined
+      integer, intent(in) :: finest
+
+      self%refined = refined
+      allocate (self%sig(64), self%levels(0:finest), self%hash(256))
+      self%hash = 0
+   end subroutine init
+
+   !> The triangles of the patch of vertex a of `mesh` (level `level`) in canonical order: by
+   !> class, then local index of a, then number.
+   pure subroutine patch_order(mesh, level, a, order)
+      type(mesh_t), intent(in) :: mesh
+      integer, intent(in) :: level
+      integer(ip), intent(in) :: a
+      integer(ip), intent(out) :: order(:)
+
+      integer(ip) :: keys(max_patch), key, t
+      integer :: n, k, j, class
+      real(dp) :: ratio
+
+      n = size(order)
+      do k = 1, n
+         t = mesh%patch_triangles(mesh%patch_ptr(a) + k - 1)
+         call triangle_class(level, t, class, ratio)
+         key = 4_ip*class + findloc(mesh%triangles(:, t), a, dim=1)
+         ! insertion sort: patches have a handful of triangles
+         j = k - 1
+         do while (j >= 1)
+            if (keys(j) < key .or. (keys(j) == key .and. order(j) < t)) exit
+            keys(j + 1) = keys(j)
+            order(j + 1) = order(j)
+            j = j - 1
+         end do
+         keys(j + 1) = key
+         order(j + 1) = t
+      end do
+   end subroutine patch_order
+
+   !> trace_signs without a run-time-sized function result (no temporary per call): s(1:3 n_trace).
+   pure subroutine edge_signs(n_trace, v, s)
+      integer, intent(in) :: n_trace
+      integer(ip), intent(in) :: v(3)
+      real(dp), intent(out) :: s(:)
+
+      s(1:3*n_trace) = 1.0_dp
+      if (n_trace == 2) then
+         if (v(2) > v(3)) s(2) = -1.0_dp
+         if (v(3) > v(1)) s(4) = -1.0_dp
+         if (v(1) > v(2)) s(6) = -1.0_dp
+      end if
+   end subroutine edge_signs
+
+   !> Signatures of the patches of the interior vertices of `coarse` (level `level`): on its own
+   !> triangles (`single`) or, for `refined`, on their children in `fine` (vertex_parents
+   !> `parents` of the refinement). New signatures are factorized at `finish`.
+   subroutine add_mesh(self, space, coarse, fine, level, parents)
+      class(patch_table_t), intent(inout) :: self
+      type(rt_space_t), intent(in) :: space
+      type(mesh_t), intent(in) :: coarse, fine
+      integer, intent(in) :: level
+      integer(ip), intent(in) :: parents(:, :)
+
+      integer(ip) :: a
+      integer :: n_coarse, n_children, ne, kc, c, m, k, i, n_inner, n_theta, max_valence, l, child_level
+      integer(ip), allocatable :: order(:), inner(:)
+      integer, allocatable :: classes(:), neumann(:), links(:, :), key(:), local(:)
+      real(dp), allocatable :: signs(:, :), o(:)
+      integer(ip) :: t, child, e
+      real(dp) :: ratio
+      logical :: opposite
+      logical, allocatable :: inside(:)
+
+      n_children = merge(4, 1, self%refined)
+      child_level = merge(level + 1, level, self%refined)
+      max_valence = int(maxval(coarse%patch_ptr(2:) - coarse%patch_ptr(:coarse%nv)))
+      allocate (order(max_valence), inner(9*max_valence), local(max_valence))
+      allocate (classes(n_children*max_valence), neumann(n_children*max_valence), links(3, n_children*max_valence))
+      allocate (signs(3*space%n_trace, n_children*max_valence), o(space%n_trace*9*max_valence))
+      allocate (self%levels(level)%id(coarse%nv))
+      self%levels(level)%id = 0
+      ! on a rank's piece of a distributed mesh, the patches outside its subdomain are not whole
+      inside = coarse%in_subdomain()
+      do a = 1, coarse%nv
+         if (coarse%boundary_vertex(a) .or. .not. inside(a)) cycle
+         n_coarse = int(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a))
+         if (n_children*n_coarse > max_patch) cycle
+         call patch_order(coarse, level, a, order(1:n_coarse))
+         n_inner = 0
+         if (self%refined) then
+            ! the inner edges of each coarse triangle (its middle child's) first, one block each
+            do kc = 1, n_coarse
+               do m = 1, 3
+                  n_inner = n_inner + 1
+                  inner(n_inner) = fine%triangle_edges(m, 4*order(kc))
+               end do
+            end do
+         end if
+         ne = 0
+         do kc = 1, n_coarse
+            t = order(kc)
+            local(kc) = findloc(coarse%triangles(:, t), a, dim=1)
+            do c = 1, n_children
+               ne = ne + 1
+               child = merge(4*(t - 1) + c, t, self%refined)
+               call triangle_class(child_level, child, classes(ne), ratio)
+               signs(:, ne) = trace_signs(space, fine%triangles(:, child))
+               do m = 1, 3
+                  e = fine%triangle_edges(m, child)
+                  ! on the coarse edge opposite a: neither end point descends from a
+                  if (self%refined) then
+                     opposite = all(parents(:, fine%edges(1, e)) /= a) .and. all(parents(:, fine%edges(2, e)) /= a)
+                  else
+                     opposite = fine%edges(1, e) /= a .and. fine%edges(2, e) /= a
+                  end if
+                  if (opposite) then
+                     links(m, ne) = edge_neumann
+                  else if (fine%boundary_edge(e)) then
+                     links(m, ne) = edge_free
+                  else
+                     call inner_edge(inner, n_inner, e, links(m, ne))
+                  end if
+               end do
+               neumann(ne) = findloc(links(:, ne), edge_neumann, dim=1)
+            end do
+         end do
+         ! relative signs: each multiplier oriented as in its first triangle
+         n_theta = space%n_trace*n_inner
+         if (n_theta > max_theta) cycle
+         o(1:n_theta) = 0.0_dp
+         do k = 1, ne
+            do m = 1, 3
+               if (links(m, k) <= 0) then
+                  ! not a multiplier of H (a zero-flux edge is condensed in its class's operators):
+                  ! its mesh orientation must not split signatures
+                  signs((m - 1)*space%n_trace + 1:m*space%n_trace, k) = 1.0_dp
+                  cycle
+               end if
+               do l = 1, space%n_trace
+                  i = (links(m, k) - 1)*space%n_trace + l
+                  if (o(i) == 0.0_dp) o(i) = signs((m - 1)*space%n_trace + l, k)
+                  signs((m - 1)*space%n_trace + l, k) = signs((m - 1)*space%n_trace + l, k)*o(i)
+               end do
+            end do
+         end do
+         key = [ne, local(1:n_coarse), classes(1:ne), neumann(1:ne), reshape(links(:, 1:ne), [3*ne]), &
+                nint(reshape(signs(:, 1:ne), [3*space%n_trace*ne]))]
+         self%levels(level)%id(a) = lookup(self, key, classes(1:ne), neumann(1:ne), links(:, 1:ne))
+      end do
+   end subroutine add_mesh
+
+   !> The signature of `key`, added if new.
+   integer function lookup(self, key, classes, neumann, links) result(id)
+      type(patch_table_t), intent(inout) :: self
+      integer, intent(in) :: key(:), classes(:), neumann(:), links(:, :)
+
+      integer :: slot
+      type(patch_signature_t), allocatable :: grown(:)
+
+      slot = find(self%hash, self%sig, key)
+      id = self%hash(slot)
+      if (id > 0) return
+      self%n = self%n + 1
+      id = self%n
+      if (id > size(self%sig)) then
+         allocate (grown(2*size(self%sig)))
+         grown(1:id - 1) = self%sig(1:id - 1)
+         call move_alloc(grown, self%sig)
+      end if
+      self%sig(id)%key = key
+      self%sig(id)%classes = classes
+      self%sig(id)%neumann = neumann
+      self%sig(id)%links = links
+      self%hash(slot) = id
+      if (2*self%n > size(self%hash)) call rehash(self)
+   end function lookup
+
+   !> The slot of key in hash: its signature's, or the empty one where it belongs.
+   pure integer function find(hash, sig, key) result(slot)
+      integer, intent(in) :: hash(:)
+      type(patch_signature_t), intent(in) :: sig(:)
+      integer, intent(in) :: key(:)
+
+      integer(kind=8) :: h
+      integer :: i
+
+      ! FNV-1a over the key's integers, modulo the power-of-two table size
+      h = 1469598103934665603_8
+      do i = 1, size(key)
+         h = ieor(h, int(key(i), 8))
+         h = h*1099511628211_8
+      end do
+      slot = int(iand(h, int(size(hash) - 1, 8))) + 1
+      do
+         if (hash(slot) == 0) return
+         if (size(sig(hash(slot))%key) == size(key)) then
+            if (all(sig(hash(slot))%key == key)) return
+         end if
+         slot = modulo(slot, size(hash)) + 1
+      end do
+   end function find
+
+   subroutine rehash(self)
+      type(patch_table_t), intent(inout) :: self
+
+      integer :: id, n_slots
+
+      ! a power of two: find takes the slot from the hash's low bits
+      n_slots = 2*size(self%hash)
+      do while (n_slots < 4*self%n)
+         n_slots = 2*n_slots
+      end do
+      deallocate (self%hash)
+      allocate (self%hash(n_slots))
+      self%hash = 0
+      do id = 1, self%n
+         self%hash(find(self%hash, self%sig, self%sig(id)%key)) = id
+      end do
+   end subroutine rehash
+
+   !> Factorize the signatures (once: H is the same on every level) and drop the build data.
+   subroutine finish(self, space, shapes, err)
+      class(patch_table_t), intent(inout) :: self
+      type(rt_space_t), intent(in) :: space
+      type(shape_classes_t), intent(in) :: shapes
+      type(error_t), allocatable, intent(out) :: err
+
+      integer :: id, n_blocks
+      logical :: ok, all_ok
+      type(patch_signature_t), allocatable :: kept(:)
+      real(dp), allocatable :: signs(:, :)
+
+      all_ok = .true.
+      !$omp parallel do default(none) shared(self, space, shapes) private(id, n_blocks, ok, signs) &
+      !$omp reduction(.and.:all_ok) schedule(dynamic, 8)
+      do id = 1, self%n
+         associate (s => self%sig(id))
+            n_blocks = merge(size(s%classes)/4, 0, self%refined)
+            call key_signs(s%key, size(s%classes), space%n_trace, signs)
+            call condensed_factor(space, shapes, s%classes, signs, s%neumann, s%links, n_blocks, s%factor, ok)
+            all_ok = all_ok .and. ok
+            deallocate (s%key)
+         end associate
+      end do
+      !$omp end parallel do
+      if (allocated(self%hash)) deallocate (self%hash)
+      allocate (kept(self%n))
+      kept = self%sig(1:self%n)
+      call move_alloc(kept, self%sig)
+      if (.not. all_ok) call make_error(err, exit_io, 'estimators', 'a patch system is singular (degenerate triangles?)')
+   end subroutine finish
+
+   !> The relative signs stored at the end of a key.
+   pure subroutine key_signs(key, ne, n_trace, signs)
+      integer, intent(in) :: key(:), ne, n_trace
+      real(dp), allocatable, intent(out) :: signs(:, :)
+
+      allocate (signs(3*n_trace, ne))
+      signs = reshape(real(key(size(key) - 3*n_trace*ne + 1:), dp), [3*n_trace, ne])
+   end subroutine key_signs
+end module twomem_estimate_patch_classes
