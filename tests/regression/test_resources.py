@@ -90,7 +90,8 @@ def test_size_beyond_32_bit_indices_is_refused(work):
 
 @pytest.mark.skipif(UNDER_ASAN, reason="RLIMIT_AS and AddressSanitizer do not mix")
 def test_ulimit_v_is_the_limit_seen(work):
-    proc = twomem("run", DEFAULT_CASE, "mesh.levels=4", f"output.file={work / 'a.h5'}",
+    # 5 levels: about 4 GB with the default method (4 levels, 0.7 GB, fit)
+    proc = twomem("run", DEFAULT_CASE, "mesh.levels=5", f"output.file={work / 'a.h5'}",
                   preexec=limit_address_space(1.0))
     m = SIZE.match(one_error_line(proc, 2))
     assert m and "ulimit -v" in m[4], proc.stderr

@@ -7,6 +7,9 @@ files as Gmsh writes them.
   the coarse or on the finest mesh) must agree with the formula run to round-off.
 - Bad formulas, bad files and non-disk meshes with `exact` are bad input (exit 2, nothing
   written), with the column, the point or the vertex in the message.
+- A Gmsh mesh whose coarse level has no interior vertex (two triangles, as users start from):
+  nested iteration and multigrid begin on the first level with unknowns, and every method
+  reaches the direct solution.
 """
 from __future__ import annotations
 
@@ -176,6 +179,25 @@ def test_gmsh_unused_nodes_dropped_with_a_note():
                "newton.initial=paper", "estimate.enabled=.false.", f"output.file={target}")
     assert proc.stdout.count("note: 2 nodes used by no triangle dropped") == 1
     assert result(target)["summary"]["nv"] == 25
+
+
+def test_coarse_mesh_without_interior_vertex():
+    # unused_nodes.msh: a square of two triangles; level 0 has no unknown, level 1 one
+    common = ("mesh.domain=gmsh", f"mesh.file={UNUSED}", "mesh.levels=3", "problem.exact=none",
+              "newton.tol=1e-12", "gmres.rtol=1e-13")
+    reference = out_file("coarse_empty_direct.h5")
+    run(*common, "newton.linear=direct", "newton.initial=paper", f"output.file={reference}")
+    ref = result(reference)
+    for linear in ("gmres", "adaptive"):
+        target = out_file(f"coarse_empty_{linear}.h5")
+        proc = run(*common, f"newton.linear={linear}", "gmres.precond=mg", "newton.initial=nested",
+                   f"output.file={target}")
+        assert "nested: levels 0..0 have no interior vertex" in proc.stdout
+        got = result(target)
+        scale = np.max(np.abs(ref["u1"]))
+        tol = 1e-8 if linear == "gmres" else 1e-4  # adaptive stops at the discretization error
+        for key in ("u1", "u2"):
+            assert np.max(np.abs(got[key] - ref[key])) <= tol * scale, f"{linear}: {key}"
 
 
 def test_formula_example_runs():

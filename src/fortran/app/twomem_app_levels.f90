@@ -56,16 +56,19 @@ contains
       type(multigrid_transfer_t), target :: transfer
       real(dp), allocatable :: fine(:, :)
       real(dp) :: t_level
-      integer :: l, finest
+      integer :: l, finest, bottom
 
       finest = hierarchy%levels
-      call build_transfer(comm, hierarchy, options, transfer, err)
+      bottom = first_with_unknowns(comm, hierarchy)
+      call build_transfer(comm, hierarchy, bottom, options, transfer, err)
       if (allocated(err)) return
-      if (trim(cfg%newton%initial) /= 'nested' .or. finest == 0) then
+      if (trim(cfg%newton%initial) /= 'nested' .or. finest == bottom) then
          call newton_solve(p, options, [spread(data%g, 1, p%n), spread(0.0_dp, 1, 2*p%n)], newton, err, observer, &
-                           transfer, finest)
+                           transfer, finest - bottom)
          return
       end if
+      if (bottom > 0 .and. comm%is_root()) write (output_unit, '("nested: levels 0..",i0,&
+         &" have no interior vertex (the boundary values decide them): starting on level ",i0)') bottom - 1, bottom
       quiet = options
       quiet%verbose = .false.
       ! the estimators live on the finest hierarchy: coarser levels of an adaptive run use the
@@ -74,17 +77,17 @@ contains
          quiet%linear = method_gmres
          quiet%forcing = forcing_paper
       end if
-      do l = 0, finest - 1
+      do l = bottom, finest - 1
          t_level = wall_time()
          call clock%switch(phase_assembly)
          call pl%init(hierarchy%meshes(l), data, err, comm)
          call clock%switch(phase_solve)
          if (allocated(err)) return
-         if (l == 0) then
+         if (l == bottom) then
             call newton_solve(pl, quiet, [spread(data%g, 1, pl%n), spread(0.0_dp, 1, 2*pl%n)], step, err, &
-                              transfer=transfer, level=l)
+                              transfer=transfer, level=l - bottom)
          else
-            call newton_solve(pl, quiet, interior_values(pl, fine), step, err, transfer=transfer, level=l)
+            call newton_solve(pl, quiet, interior_values(pl, fine), step, err, transfer=transfer, level=l - bottom)
          end if
          if (allocated(err)) return
          coarse%newton_iterations = coarse%newton_iterations + step%iterations
@@ -97,32 +100,49 @@ contains
          end if
          call interpolate(hierarchy, l, pl, data%g, step%x, fine)
       end do
-      call newton_solve(p, options, interior_values(p, fine), newton, err, observer, transfer, finest)
+      call newton_solve(p, options, interior_values(p, fine), newton, err, observer, transfer, finest - bottom)
    end subroutine solve_levels
 
-   !> The multigrid transfers of the hierarchy (none when no solve uses multigrid). Collective.
-   subroutine build_transfer(comm, hierarchy, options, transfer, err)
+   !> The first level of the hierarchy with an interior vertex on some rank: below it the
+   !> boundary values decide everything, and there is nothing to solve or to coarsen to (a
+   !> Gmsh mesh of a few triangles). Collective.
+   integer function first_with_unknowns(comm, hierarchy) result(bottom)
       type(comm_t), intent(in) :: comm
       type(mesh_hierarchy_t), intent(in) :: hierarchy
+
+      do bottom = 0, hierarchy%levels - 1
+         if (comm%any_true(any(.not. hierarchy%meshes(bottom)%boundary_vertex))) return
+      end do
+      bottom = hierarchy%levels
+   end function first_with_unknowns
+
+   !> The multigrid transfers of levels bottom..top of the hierarchy (level l of the hierarchy is
+   !> level l − bottom of the transfers; top = bottom when no solve uses multigrid). Collective.
+   subroutine build_transfer(comm, hierarchy, bottom, options, transfer, err)
+      type(comm_t), intent(in) :: comm
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
+      integer, intent(in) :: bottom
       type(newton_options_t), intent(in) :: options
       type(multigrid_transfer_t), intent(inout) :: transfer
       type(error_t), allocatable, intent(out) :: err
 
       type(halo_t), allocatable :: halos(:)
+      type(csr_t), allocatable :: prolongations(:)
       integer(ip), allocatable :: unknown(:), interior(:), keys(:)
       integer(ip) :: a
       integer :: l, top
 
       ! the multigrid preconditioner of every level uses the levels below it
-      top = merge(hierarchy%levels, 0, options%precond == precond_mg .and. options%linear /= method_direct)
-      allocate (halos(0:top))
-      do l = 0, top
+      top = merge(hierarchy%levels, bottom, options%precond == precond_mg .and. options%linear /= method_direct)
+      allocate (halos(0:top - bottom))
+      do l = bottom, top
          unknown = interior_numbering(hierarchy%meshes(l))
          interior = pack([(a, a=1, hierarchy%meshes(l)%nv)], unknown > 0)
-         call interior_halo(hierarchy%meshes(l), interior, comm, halos(l))
-         if (l == 0) keys = hierarchy%meshes(0)%global_vertex(interior)
+         call interior_halo(hierarchy%meshes(l), interior, comm, halos(l - bottom))
+         if (l == bottom) keys = hierarchy%meshes(l)%global_vertex(interior)
       end do
-      call transfer%init(interior_prolongations(hierarchy, top), err, halos=halos, coarse_keys=keys)
+      prolongations = interior_prolongations(hierarchy, top)
+      call transfer%init(prolongations(bottom + 1:top), err, halos=halos, coarse_keys=keys)
    end subroutine build_transfer
 
    !> fine(:, k): the nodal fields u1, u2, λ of level l's solution x, interpolated to level l+1.
