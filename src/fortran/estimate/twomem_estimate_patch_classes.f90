@@ -14,7 +14,7 @@
 !> patches of a coarse vertex on the red refinement of its triangles (multilevel algebraic flux),
 !> whose multipliers inside each coarse triangle come first as a block (twomem_estimate_patch).
 module twomem_estimate_patch_classes
-   use twomem_base_kinds, only: dp, ip
+   use twomem_base_kinds, only: dp, ip, i8
    use twomem_base_errors, only: error_t, make_error, exit_io
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_estimate_raviart_thomas, only: rt_space_t
@@ -245,16 +245,19 @@ contains
       type(patch_signature_t), intent(in) :: sig(:)
       integer, intent(in) :: key(:)
 
-      integer(kind=8) :: h
+      integer(i8), parameter :: mask32 = 4294967295_i8
+      integer(i8) :: h
       integer :: i
 
-      ! FNV-1a over the key's integers, modulo the power-of-two table size
-      h = 1469598103934665603_8
+      ! 32-bit FNV-1a over the key's integers, modulo the power-of-two table size; kept in 32
+      ! bits of a 64-bit integer so that the product never overflows (signed overflow is
+      ! undefined, and the sanitizer build reports it)
+      h = 2166136261_i8
       do i = 1, size(key)
-         h = ieor(h, int(key(i), 8))
-         h = h*1099511628211_8
+         h = ieor(h, iand(int(key(i), i8), mask32))
+         h = iand(h*16777619_i8, mask32)
       end do
-      slot = int(iand(h, int(size(hash) - 1, 8))) + 1
+      slot = int(iand(h, int(size(hash) - 1, i8))) + 1
       do
          if (hash(slot) == 0) return
          if (size(sig(hash(slot))%key) == size(key)) then
