@@ -13,6 +13,7 @@ module test_formula
    use twomem_fem_user_data, only: user_data_t, new_user_data
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_testing, only: unittest_t, new_unittest, check, check_close, error_t
+   use twomem_base_text, only: int_text
    implicit none
    private
 
@@ -52,7 +53,7 @@ contains
       if (allocated(err)) return
       call parse_formula(text, f, where, why)
       if (allocated(why)) then
-         call check(err, .false., "'"//text//"' does not parse: column "//itoa(where)//': '//why)
+         call check(err, .false., "'"//text//"' does not parse: column "//int_text(where)//': '//why)
          return
       end if
       call f%evaluate_point([x0, y0], v, status)
@@ -75,7 +76,7 @@ contains
       call parse_formula(text, f, where, why)
       call check(err, allocated(why), "'"//text//"' parses but must not")
       if (allocated(err)) return
-      call check(err, where == column, "'"//text//"': error at column "//itoa(where)//', expected '//itoa(column)// &
+      call check(err, where == column, "'"//text//"': error at column "//int_text(where)//', expected '//int_text(column)// &
                  ' ('//why//')')
       call check(err, index(why, reason) > 0, "'"//text//"': reason '"//why//"' lacks '"//reason//"'")
    end subroutine expect_parse_error
@@ -187,7 +188,7 @@ contains
       if (allocated(err)) return
       call check(err, f%constant .and. f%n == 1, 'a formula without x, y, r is one constant')
       call parse_formula('x*(2 + 3) + sqrt(4)', f, where, why)
-      call check(err, f%n == 5, 'x*(2 + 3) + sqrt(4): x, 5, *, 2, + (got '//itoa(f%n)//' instructions)')
+      call check(err, f%n == 5, 'x*(2 + 3) + sqrt(4): x, 5, *, 2, + (got '//int_text(f%n)//' instructions)')
    end subroutine test_folding
 
    subroutine test_parse_errors(err)
@@ -253,12 +254,12 @@ contains
       if (allocated(err)) return
       do k = 1, 37
          call check_close(err, v(k), x(1, k)**2 - 2*x(2, k) + merge(1.0_dp, 0.0_dp, norm2(x(:, k)) > 3), &
-                          4*epsilon(1.0_dp), 1.0e-300_dp, 'point '//itoa(k))
+                          4*epsilon(1.0_dp), 1.0e-300_dp, 'point '//int_text(k))
       end do
       ! x = 0.1 k, so log(2.05 − x) fails first at k = 21, in the second internal batch
       call parse_formula('log(2.05 - x)', f, where, why)
       call f%evaluate(x, v, status, bad)
-      call check(err, status /= status_ok .and. bad == 21, 'first failing point 21 (x = 2.1), got '//itoa(bad))
+      call check(err, status /= status_ok .and. bad == 21, 'first failing point 21 (x = 2.1), got '//int_text(bad))
    end subroutine test_batches
 
    !> f1, f2 take a number or a formula, in a file (quoted) or an override (quoted or not);
@@ -341,16 +342,6 @@ contains
       if (allocated(err)) return
       call check(err, x <= 0 .and. abs(x) < 1 .and. abs(y) < 1, 'the point lies in the square where x <= 0')
    end subroutine test_bad_load_point
-
-   pure function itoa(n) result(s)
-      integer, intent(in) :: n
-      character(len=:), allocatable :: s
-
-      character(len=12) :: buf
-
-      write (buf, '(i0)') n
-      s = trim(buf)
-   end function itoa
    !> Overrides as string_t values, filled component by component: gfortran 12 leaks the
    !> components of a string_t array constructor (LeakSanitizer in the sanitize preset).
    function words(a, b) result(o)

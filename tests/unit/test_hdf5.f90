@@ -7,6 +7,7 @@ module test_hdf5
    use twomem_io_hdf5, only: h5_file_t
    use twomem_io_xdmf, only: write_xdmf
    use twomem_testing, only: unittest_t, new_unittest, check, error_t
+   use twomem_base_text, only: int_text
    implicit none
    private
 
@@ -398,16 +399,6 @@ contains
       close (unit)
       call check(err, ios == 0, 'cannot read '//path)
    end function read_text
-
-   pure function int_text(i) result(text)
-      integer, intent(in) :: i
-      character(len=:), allocatable :: text
-
-      character(len=24) :: buffer
-
-      write (buffer, '(i0)') i
-      text = trim(buffer)
-   end function int_text
 
    pure integer function count_of(text, pattern) result(n)
       character(len=*), intent(in) :: text, pattern

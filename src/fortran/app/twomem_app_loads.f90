@@ -15,6 +15,7 @@ module twomem_app_loads
    use twomem_fem_cases, only: make_problem
    use twomem_fem_user_data, only: user_data_t, new_user_data
    use twomem_io_hdf5, only: h5_file_t
+   use twomem_base_text, only: int_text
    implicit none
    private
 
@@ -126,9 +127,9 @@ contains
          level = hierarchy%levels
       else
          call file%close(ignored)
-         call make_error(err, exit_bad_input, key//': '//spec, itoa8(int(n, i8))//' values, but the coarse mesh has '// &
-                         itoa8(int(hierarchy%meshes(0)%nv_global, i8))//' vertices and the finest '// &
-                         itoa8(int(hierarchy%meshes(hierarchy%levels)%nv_global, i8)))
+         call make_error(err, exit_bad_input, key//': '//spec, int_text(int(n, i8))//' values, but the coarse mesh has '// &
+                         int_text(int(hierarchy%meshes(0)%nv_global, i8))//' vertices and the finest '// &
+                         int_text(int(hierarchy%meshes(hierarchy%levels)%nv_global, i8)))
          return
       end if
       associate (mesh => hierarchy%meshes(level))
@@ -142,7 +143,7 @@ contains
             if (size(xy, 1) /= 2 .or. size(xy, 2, kind=ip) /= n) then
                call file%close(ignored)
                call make_error(err, exit_bad_input, key//': '//path//':/mesh/vertices', 'expected ('// &
-                               itoa8(int(n, i8))//', 2) coordinates for the '//itoa8(int(n, i8))//' values of '//dataset)
+                               int_text(int(n, i8))//', 2) coordinates for the '//int_text(int(n, i8))//' values of '//dataset)
                return
             end if
             scale = max(1.0_dp, maxval(abs(mesh%vertices)))
@@ -152,7 +153,7 @@ contains
                if (maxval(abs(xy(:, g) - mesh%vertices(:, a))) > tol) then
                   call file%close(ignored)
                   call make_error(err, exit_bad_input, key//': '//path//':/mesh/vertices', 'vertex '// &
-                                  itoa8(int(g - 1, i8))//' (0-based) lies at '//pair(xy(:, g))// &
+                                  int_text(int(g - 1, i8))//' (0-based) lies at '//pair(xy(:, g))// &
                                   ' in the file but at '//pair(mesh%vertices(:, a))//' in the mesh')
                   return
                end if
@@ -182,7 +183,7 @@ contains
       if (allocated(err)) return
       if (size(dims) /= 1) then
          call make_error(err, exit_bad_input, path//':'//dataset, 'expected a 1-D dataset of nodal values, got '// &
-                         itoa8(int(size(dims), i8))//' dimensions')
+                         int_text(int(size(dims), i8))//' dimensions')
          return
       end if
       call file%read_real(dataset, whole, err)
@@ -192,7 +193,7 @@ contains
       end if
       do k = 1, size(whole, kind=ip)
          if (.not. ieee_is_finite(whole(k))) then
-            call make_error(err, exit_bad_input, path//':'//dataset, 'value '//itoa8(int(k - 1, i8))// &
+            call make_error(err, exit_bad_input, path//':'//dataset, 'value '//int_text(int(k - 1, i8))// &
                             ' (0-based) is not finite')
             return
          end if
@@ -208,14 +209,4 @@ contains
       write (buf, '("(",g0.10,", ",g0.10,")")') x
       s = trim(buf)
    end function pair
-
-   pure function itoa8(n) result(s)
-      integer(i8), intent(in) :: n
-      character(len=:), allocatable :: s
-
-      character(len=24) :: buf
-
-      write (buf, '(i0)') n
-      s = trim(buf)
-   end function itoa8
 end module twomem_app_loads

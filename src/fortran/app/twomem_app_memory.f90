@@ -11,6 +11,7 @@ module twomem_app_memory
    use twomem_base_kinds, only: dp, ip, i8
    use twomem_base_errors, only: error_t, make_error, exit_bad_input
    use twomem_base_system, only: memory_allowed_bytes
+   use twomem_base_text, only: int_text
    use twomem_input_config, only: config_t
    use twomem_mesh_triangulation, only: mesh_t
    implicit none
@@ -108,10 +109,7 @@ contains
       integer, intent(in) :: levels
       character(len=:), allocatable :: text
 
-      character(len=16) :: buffer
-
-      write (buffer, '(i0)') levels
-      text = trim(buffer)//merge(' level ', ' levels', levels == 1)
+      text = int_text(levels)//merge(' level ', ' levels', levels == 1)
       text = trim(text)
    end function levels_text
 

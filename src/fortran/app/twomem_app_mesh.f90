@@ -15,6 +15,7 @@ module twomem_app_mesh
    use twomem_mesh_gmsh, only: read_gmsh
    use twomem_mesh_partition, only: share_mesh, distribute_coarse
    use twomem_app_memory, only: check_memory
+   use twomem_base_text, only: int_text
    implicit none
    private
 
@@ -104,22 +105,12 @@ contains
          if ((mesh%boundary_vertex(a) .and. abs(r - 1) > tol) .or. r > 1 + tol) then
             write (text, '("(",g0.8,", ",g0.8,"), |x| = ",g0.10)') mesh%vertices(:, a), r
             call make_error(err, exit_bad_input, path, "problem.exact='"//exact//"' needs a mesh of the unit disk: "// &
-                            merge('boundary', 'interior', mesh%boundary_vertex(a))//' vertex '//itoa(a)//' at '// &
+                            merge('boundary', 'interior', mesh%boundary_vertex(a))//' vertex '//int_text(a)//' at '// &
                             trim(text)//' is not on the unit circle (tolerance 1e-6)')
             return
          end if
       end do
    end subroutine check_unit_disk
-
-   pure function itoa(n) result(s)
-      integer(ip), intent(in) :: n
-      character(len=:), allocatable :: s
-
-      character(len=24) :: buf
-
-      write (buf, '(i0)') n
-      s = trim(buf)
-   end function itoa
 
    !> One line per level: whole-mesh sizes and the range of element sizes. Collective.
    subroutine report_level(comm, l, m)

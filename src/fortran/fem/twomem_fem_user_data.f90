@@ -12,6 +12,7 @@ module twomem_fem_user_data
    use twomem_base_errors, only: error_t, make_error, exit_bad_input
    use twomem_input_formula, only: formula_t, parse_formula, formula_status_text, status_ok
    use twomem_fem_problem, only: problem_data_t
+   use twomem_base_text, only: int_text
    implicit none
    private
 
@@ -64,7 +65,7 @@ contains
          call parse_formula(trim(formulas(alpha)), data%formula(alpha), where, why)
          if (allocated(why)) then
             call make_error(err, exit_bad_input, 'problem.f'//achar(48 + alpha), 'column '// &
-                            itoa(where)//': '//why)
+                            int_text(where)//': '//why)
             return
          end if
          data%kind(alpha) = source_formula
@@ -255,14 +256,4 @@ contains
       call self%formula(alpha)%evaluate_point(x, v, status)
       if (status /= status_ok) why = "formula '"//self%formula(alpha)%text//"': "//formula_status_text(status)
    end function user_explain_load
-
-   pure function itoa(n) result(s)
-      integer, intent(in) :: n
-      character(len=:), allocatable :: s
-
-      character(len=12) :: buf
-
-      write (buf, '(i0)') n
-      s = trim(buf)
-   end function itoa
 end module twomem_fem_user_data

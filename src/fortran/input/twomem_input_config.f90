@@ -11,8 +11,9 @@ module twomem_input_config
    use twomem_input_namelist, only: string_t, nml_group_t, read_lines, split_lines, &
       parse_namelist, line_where
    use twomem_input_values, only: scan_integer, scan_real, scan_logical, unquote, format_real, &
-      quote, to_lower, itoa
+      quote, to_lower
    use twomem_input_formula, only: formula_t, parse_formula
+   use twomem_base_text, only: int_text
    implicit none
    private
 
@@ -191,7 +192,7 @@ contains
       integer :: ig, ia, gid, id, i
 
       if (len(path) > config_len) then
-         call make_error(err, exit_bad_input, path, 'path longer than '//itoa(config_len)//' characters')
+         call make_error(err, exit_bad_input, path, 'path longer than '//int_text(config_len)//' characters')
          return
       end if
       cfg%source = path
@@ -310,7 +311,7 @@ contains
       select case (key_kinds(id))
       case (kind_word, kind_path)
          if (len(value) > config_len) then
-            what = 'text longer than '//itoa(config_len)//' characters'
+            what = 'text longer than '//int_text(config_len)//' characters'
          else if (has_control_character(value)) then
             ! a newline would break the echo, which must reload as a case file
             what = 'text with a control character, got '//quote(excerpt(value))
@@ -346,7 +347,7 @@ contains
             ! a real literal that overflows is a bad number, not a formula: keep scan_real's message
             continue
          else if (len(value) > config_len) then
-            what = 'formula longer than '//itoa(config_len)//' characters'
+            what = 'formula longer than '//int_text(config_len)//' characters'
          else if (has_control_character(value)) then
             what = 'formula with a control character, got '//quote(excerpt(value))
          else
@@ -517,7 +518,7 @@ contains
       end if
       call parse_formula(trim(formula), f, where, why)
       if (allocated(why)) call fail(err, origin, id, 'formula '//quote(excerpt(trim(formula)))//': column '// &
-                                    itoa(where)//': '//why)
+                                    int_text(where)//': '//why)
    end subroutine check_load
 
    !> 'FILE:DATASET', and not together with a formula for the same load.
@@ -634,9 +635,9 @@ contains
 
       if (allocated(err)) return
       if (n < lo) then
-         call fail(err, origin, id, 'must be >= '//itoa(lo)//', got '//itoa(n))
+         call fail(err, origin, id, 'must be >= '//int_text(lo)//', got '//int_text(n))
       else if (n > hi) then
-         call fail(err, origin, id, 'must be <= '//itoa(hi)//', got '//itoa(n))
+         call fail(err, origin, id, 'must be <= '//int_text(hi)//', got '//int_text(n))
       end if
    end subroutine check_int
 
@@ -671,7 +672,7 @@ contains
       case (k_mesh_file); s = quote(trim(cfg%mesh%file))
       case (k_coarse_h); s = format_real(cfg%mesh%coarse_h)
       case (k_boundary_h); s = format_real(cfg%mesh%boundary_h)
-      case (k_levels); s = itoa(cfg%mesh%levels)
+      case (k_levels); s = int_text(cfg%mesh%levels)
       case (k_mu1); s = format_real(cfg%problem%mu1)
       case (k_mu2); s = format_real(cfg%problem%mu2)
       case (k_f1); s = load_text(cfg%problem%f1, cfg%problem%f1_formula)
@@ -682,19 +683,19 @@ contains
       case (k_exact); s = quote(trim(cfg%problem%exact))
       case (k_cfun); s = quote(trim(cfg%newton%cfun))
       case (k_linear); s = quote(trim(cfg%newton%linear))
-      case (k_newton_max_it); s = itoa(cfg%newton%max_it)
+      case (k_newton_max_it); s = int_text(cfg%newton%max_it)
       case (k_tol); s = format_real(cfg%newton%tol)
       case (k_gamma_lin); s = format_real(cfg%newton%gamma_lin)
-      case (k_restart); s = itoa(cfg%gmres%restart)
-      case (k_gmres_max_it); s = itoa(cfg%gmres%max_it)
+      case (k_restart); s = int_text(cfg%gmres%restart)
+      case (k_gmres_max_it); s = int_text(cfg%gmres%max_it)
       case (k_rtol); s = format_real(cfg%gmres%rtol)
       case (k_precond); s = quote(trim(cfg%gmres%precond))
       case (k_initial); s = quote(trim(cfg%newton%initial))
       case (k_line_search); s = quote(trim(cfg%newton%line_search))
       case (k_forcing); s = quote(trim(cfg%gmres%forcing))
-      case (k_every); s = itoa(cfg%estimate%every)
+      case (k_every); s = int_text(cfg%estimate%every)
       case (k_flux); s = quote(trim(cfg%estimate%flux))
-      case (k_alg_levels); s = itoa(cfg%estimate%alg_levels)
+      case (k_alg_levels); s = int_text(cfg%estimate%alg_levels)
       case (k_criteria); s = quote(trim(cfg%estimate%criteria))
       case (k_gamma_alg); s = format_real(cfg%estimate%gamma_alg)
       case (k_enabled); s = logical_text(cfg%estimate%enabled)

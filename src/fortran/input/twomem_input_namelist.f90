@@ -5,7 +5,8 @@
 !> `twomem_input_values` converts the values and `twomem_input_config` knows what the keys mean.
 module twomem_input_namelist
    use twomem_base_errors, only: error_t, make_error, exit_bad_input, excerpt
-   use twomem_input_values, only: quote, to_lower, itoa
+   use twomem_input_values, only: quote, to_lower
+   use twomem_base_text, only: int_text
    implicit none
    private
 
@@ -213,13 +214,13 @@ contains
             do j = 1, ng
                if (groups(j)%name == t(i)%text) then
                   call make_error(err, exit_bad_input, line_where(file, t(i)%line)//': &'//excerpt(t(i)%text), &
-                                  'group given twice (first at line '//itoa(groups(j)%line)//')')
+                                  'group given twice (first at line '//int_text(groups(j)%line)//')')
                   return
                end if
             end do
             if (ng == max_groups) then
                call make_error(err, exit_bad_input, line_where(file, t(i)%line), &
-                               'more than '//itoa(max_groups)//' groups: not a case file')
+                               'more than '//int_text(max_groups)//' groups: not a case file')
                return
             end if
             ng = ng + 1
@@ -296,14 +297,14 @@ contains
                return
             end if
             if (group%n == max_assignments) then
-               call make_error(err, exit_bad_input, here, 'more than '//itoa(max_assignments)// &
+               call make_error(err, exit_bad_input, here, 'more than '//int_text(max_assignments)// &
                                ' assignments in one group: not a case file')
                return
             end if
             do j = 1, group%n
                if (group%assignments(j)%key == key) then
                   call make_error(err, exit_bad_input, here//': '//excerpt(key), 'key given twice in the group (first at line ' &
-                                  //itoa(group%assignments(j)%line)//')')
+                                  //int_text(group%assignments(j)%line)//')')
                   return
                end if
             end do

@@ -8,11 +8,12 @@ module twomem_input_values
       ieee_get_halting_mode, ieee_set_halting_mode, ieee_usual
    use twomem_base_kinds, only: dp, i8
    use twomem_base_errors, only: excerpt
+   use twomem_base_text, only: int_text
    implicit none
    private
 
    public :: scan_integer, scan_real, scan_logical, unquote
-   public :: format_real, quote, to_lower, itoa
+   public :: format_real, quote, to_lower
 
 contains
 
@@ -251,7 +252,7 @@ contains
          end if
       else
          if (len(digits) == 1) digits = digits//'0'
-         s = s//digits(1:1)//'.'//digits(2:)//'e'//itoa(e)
+         s = s//digits(1:1)//'.'//digits(2:)//'e'//int_text(e)
       end if
       call scan_real(s, y, what)
       if (allocated(what) .or. .not. same_bits(x, y)) then
@@ -296,15 +297,4 @@ contains
          l(i:i) = achar(c)
       end do
    end function to_lower
-
-   !> Decimal text of an integer, for messages.
-   pure function itoa(i) result(s)
-      integer, intent(in) :: i
-      character(len=:), allocatable :: s
-
-      character(len=16) :: buf
-
-      write (buf, '(i0)') i
-      s = trim(buf)
-   end function itoa
 end module twomem_input_values

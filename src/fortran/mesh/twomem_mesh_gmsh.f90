@@ -12,7 +12,8 @@ module twomem_mesh_gmsh
    use twomem_base_kinds, only: dp, ip, i8
    use twomem_base_errors, only: error_t, make_error, exit_bad_input, excerpt
    use twomem_mesh_triangulation, only: mesh_t
-   use twomem_mesh_gmsh_text, only: text_reader_t, str
+   use twomem_mesh_gmsh_text, only: text_reader_t
+   use twomem_base_text, only: int_text
    implicit none
    private
 
@@ -206,7 +207,7 @@ contains
          call reader%next(eof, err)
          if (allocated(err)) return
          if (eof) then
-            call make_error(err, exit_bad_input, reader%path//':'//str(start), &
+            call make_error(err, exit_bad_input, reader%path//':'//int_text(start), &
                             'section '//excerpt(name)//' is never closed by '// &
                             excerpt('$End'//name(2:)))
             return
@@ -297,8 +298,8 @@ contains
          done = done + int(in_block, ip)
       end do
       if (done /= n) then
-         call make_error(err, exit_bad_input, reader%path//':'//str(header_line), 'the header '// &
-                         'announces '//str(n)//' nodes but the entity blocks hold '//str(done))
+         call make_error(err, exit_bad_input, reader%path//':'//int_text(header_line), 'the header '// &
+                         'announces '//int_text(n)//' nodes but the entity blocks hold '//int_text(done))
          return
       end if
       call reader%expect_end('$Nodes', err)
@@ -413,8 +414,8 @@ contains
          done = done + in_block
       end do
       if (done /= n) then
-         call make_error(err, exit_bad_input, reader%path//':'//str(header_line), 'the header '// &
-                         'announces '//str(n)//' elements but the entity blocks hold '//str(done))
+         call make_error(err, exit_bad_input, reader%path//':'//int_text(header_line), 'the header '// &
+                         'announces '//int_text(n)//' elements but the entity blocks hold '//int_text(done))
          return
       end if
       call reader%expect_end('$Elements', err)
@@ -441,7 +442,7 @@ contains
       new = min(raw%max_nodes, max(2*old, initial_capacity))
       allocate (tag(new), xyz(3, new), line(new), stat=stat)
       if (stat /= 0) then
-         call reader%fail(err, 'cannot allocate memory for '//str(new)//' nodes')
+         call reader%fail(err, 'cannot allocate memory for '//int_text(new)//' nodes')
          return
       end if
       if (old > 0) then
@@ -472,7 +473,7 @@ contains
       new = min(raw%max_triangles, max(2*old, initial_capacity))
       allocate (nodes(3, new), tag(new), line(new), stat=stat)
       if (stat /= 0) then
-         call reader%fail(err, 'cannot allocate memory for '//str(new)//' elements')
+         call reader%fail(err, 'cannot allocate memory for '//int_text(new)//' elements')
          return
       end if
       if (old > 0) then
@@ -554,7 +555,7 @@ contains
          name = 'unknown to this reader'
       end select
       if (entity_dim == 3 .and. index(name, '3D') /= 1) name = '3D element: '//name
-      call reader%fail(err, 'element type '//str(element_type)//' ('//name//') is not '// &
+      call reader%fail(err, 'element type '//int_text(element_type)//' ('//name//') is not '// &
                        'supported: twomem reads planar meshes of linear triangles (type 2) only')
    end subroutine element_nodes
 
@@ -578,8 +579,8 @@ contains
       scale = max(1.0_dp, maxval(abs(raw%xyz(1:2, 1:raw%n_nodes))))
       do k = 1, raw%n_nodes
          if (abs(raw%xyz(3, k)) > 1.0e3_dp*epsilon(1.0_dp)*scale) then
-            call make_error(err, exit_bad_input, path//':'//str(raw%node_line(k)), 'node tag '// &
-                            str(raw%node_tag(k))//' has z /= 0: the mesh must lie in the xy-plane')
+            call make_error(err, exit_bad_input, path//':'//int_text(raw%node_line(k)), 'node tag '// &
+                            int_text(raw%node_tag(k))//' has z /= 0: the mesh must lie in the xy-plane')
             return
          end if
       end do
@@ -592,8 +593,8 @@ contains
             dup = min(dup, max(order(k), order(k - 1)))
       end do
       if (dup < huge(dup)) then
-         call make_error(err, exit_bad_input, path//':'//str(raw%node_line(dup)), &
-                         'duplicate node tag '//str(raw%node_tag(dup)))
+         call make_error(err, exit_bad_input, path//':'//int_text(raw%node_line(dup)), &
+                         'duplicate node tag '//int_text(raw%node_tag(dup)))
          return
       end if
 
@@ -617,9 +618,9 @@ contains
                if (raw%node_tag(order(lo)) == raw%triangle_nodes(i, t)) k = order(lo)
             end if
             if (k == 0) then
-               call make_error(err, exit_bad_input, path//':'//str(raw%triangle_line(t)), &
-                               'triangle '//str(raw%triangle_tag(t))//' refers to node tag '// &
-                               str(raw%triangle_nodes(i, t))//', which is not in $Nodes')
+               call make_error(err, exit_bad_input, path//':'//int_text(raw%triangle_line(t)), &
+                               'triangle '//int_text(raw%triangle_tag(t))//' refers to node tag '// &
+                               int_text(raw%triangle_nodes(i, t))//', which is not in $Nodes')
                return
             end if
             triangles(i, t) = k

@@ -8,16 +8,13 @@ module twomem_mesh_gmsh_text
    use, intrinsic :: iso_fortran_env, only: iostat_end, iostat_eor
    use twomem_base_kinds, only: dp, i8
    use twomem_base_errors, only: error_t, make_error, exit_bad_input, excerpt
+   use twomem_base_text, only: int_text
    implicit none
    private
 
-   public :: text_reader_t, str
+   public :: text_reader_t
 
    !> Integer to text, for messages.
-   interface str
-      module procedure str_int, str_i8
-   end interface str
-
    integer, parameter :: chunk_len = 1024
    !> Largest decimal exponent accepted: keeps every conversion clear of overflow.
    integer, parameter :: max_exponent10 = range(1.0_dp) - 1
@@ -111,7 +108,7 @@ contains
             return
          end if
          if (ios /= 0 .and. ios /= iostat_eor) then
-            call make_error(err, exit_bad_input, self%path//':'//str(self%line_no + 1), &
+            call make_error(err, exit_bad_input, self%path//':'//int_text(self%line_no + 1), &
                             'cannot read the line: '//trim(msg))
             return
          end if
@@ -178,7 +175,7 @@ contains
          call self%next(eof, err)
          if (allocated(err)) return
          if (eof) then
-            call make_error(err, exit_bad_input, self%path//':'//str(self%line_no), &
+            call make_error(err, exit_bad_input, self%path//':'//int_text(self%line_no), &
                             'the file ends inside the '//section//' section, before '// &
                             numbered(what, item, total))
             return
@@ -199,7 +196,7 @@ contains
       character(len=:), allocatable :: text
 
       text = what
-      if (present(item) .and. present(total)) text = what//' '//str(item)//' of '//str(total)
+      if (present(item) .and. present(total)) text = what//' '//int_text(item)//' of '//int_text(total)
    end function numbered
 
    !> The line after the last entry must close the section; anything else means the section holds
@@ -217,7 +214,7 @@ contains
          call self%next(eof, err)
          if (allocated(err)) return
          if (eof) then
-            call make_error(err, exit_bad_input, self%path//':'//str(self%line_no), &
+            call make_error(err, exit_bad_input, self%path//':'//int_text(self%line_no), &
                             'the file ends before '//closing)
             return
          end if
@@ -251,7 +248,7 @@ contains
       class(text_reader_t), intent(in) :: self
       character(len=:), allocatable :: where
 
-      where = self%path//':'//str(self%line_no)
+      where = self%path//':'//int_text(self%line_no)
    end function at
 
    subroutine fail(self, err, what)
@@ -269,8 +266,8 @@ contains
       type(error_t), allocatable, intent(out) :: err
 
       if (self%n_tokens /= n) then
-         call self%fail(err, 'expected '//str(n)//trim(merge(' entry  ', ' entries', n == 1))// &
-                        ' ('//what//'), found '//str(self%n_tokens))
+         call self%fail(err, 'expected '//int_text(n)//trim(merge(' entry  ', ' entries', n == 1))// &
+                        ' ('//what//'), found '//int_text(self%n_tokens))
       end if
    end subroutine expect_tokens
 
@@ -294,8 +291,8 @@ contains
       if (.not. ok) then
          call self%fail(err, '"'//self%shown(i)//'" is not an integer ('//what//')')
       else if (value < lo .or. value > hi) then
-         call self%fail(err, what//' '//self%shown(i)//' is out of range ['//str(lo)//', '// &
-                        str(hi)//']')
+         call self%fail(err, what//' '//self%shown(i)//' is out of range ['//int_text(lo)//', '// &
+                        int_text(hi)//']')
       end if
    end subroutine get_int
 
@@ -457,24 +454,4 @@ contains
          end if
       end do
    end function to_lower
-
-   pure function str_int(i) result(s)
-      integer, intent(in) :: i
-      character(len=:), allocatable :: s
-
-      character(len=24) :: buf
-
-      write (buf, '(i0)') i
-      s = trim(buf)
-   end function str_int
-
-   pure function str_i8(i) result(s)
-      integer(i8), intent(in) :: i
-      character(len=:), allocatable :: s
-
-      character(len=24) :: buf
-
-      write (buf, '(i0)') i
-      s = trim(buf)
-   end function str_i8
 end module twomem_mesh_gmsh_text
