@@ -20,6 +20,7 @@ module test_estimate
    use twomem_estimate_shapes, only: shape_classes_t
    use twomem_estimate_coloring, only: coloring_t
    use twomem_estimate_alg_flux, only: algebraic_flux_t, level_flux_t
+   use twomem_estimate_patch_classes, only: patch_table_t
    use twomem_estimate_estimators, only: estimator_t, estimates_t, poincare_constant
    use twomem_testing, only: unittest_t, new_unittest, check, check_close, error_t
    use test_refinement, only: square_hierarchy
@@ -193,6 +194,8 @@ contains
       type(shape_classes_t) :: shapes
       type(coloring_t) :: colors
       type(level_flux_t) :: levels(1)
+      !> no signatures: the general path of every patch is what this test checks
+      type(patch_table_t) :: no_signatures
       type(rt_frame_t) :: frame
       real(dp), allocatable :: lambda(:), grad_u(:, :, :), residual(:, :), r(:, :, :), moments(:, :, :, :), lhs(:), rhs(:)
       real(dp) :: x(2), w, dev, scale, q(3, 3), fv(3), exact, tri(3, 3, 3), mu(2)
@@ -218,7 +221,7 @@ contains
                allocate (moments(space%n_div, 3, mesh%nt, 2), lhs(space%n_div), rhs(space%n_div), &
                          levels(1)%sigma(space%n_flux, mesh%nt, 2))
                call load_moments(space, mesh, data, moments)
-               call discretization_flux(space, shapes, mesh, 0, colors, mu, moments, grad_u, lambda, r, &
+               call discretization_flux(space, shapes, no_signatures, mesh, 0, colors, mu, moments, grad_u, lambda, r, &
                                         levels(1)%sigma, ok)
                call check(err, ok, 'patch systems regular')
                dev = 0.0_dp
@@ -277,6 +280,8 @@ contains
       type(rt_space_t) :: space
       type(algebraic_flux_t) :: alg
       type(shape_classes_t) :: shapes
+      !> no signatures: the general path of every patch is what this test checks
+      type(patch_table_t) :: no_signatures
       real(dp), allocatable :: lambda(:), grad_u(:, :, :), residual(:, :), r(:, :, :)
       real(dp) :: x(2), value(2), div, r_x, dev
       integer(ip) :: t
@@ -295,7 +300,7 @@ contains
                if (allocated(err)) return
                call shapes%init(space, h, err)
                if (allocated(err)) return
-               call alg%compute(shapes, h, residual, r, err)
+               call alg%compute(shapes, h, residual, r, no_signatures, no_signatures, err)
                if (allocated(err)) return
                call check(err, size(alg%levels) == max(1, n_meshes - 1), 'one flux part per level with patches')
                dev = 0.0_dp

@@ -148,32 +148,16 @@ contains
 
    !> self%levels returns σ_alg level by level (levels b+1..J, or J alone with a single mesh)
    !> from the nodal algebraic residuals (nv_J, 2), zero at boundary vertices, and the lifting
-   !> r (3, nt_J, 2). With the patch signatures (twomem_estimate_patch_classes) of the finest
-   !> mesh (`single`) and of the coarse meshes of the refined levels (`refined`), the interior
-   !> vertices' patches use their factors.
-   subroutine compute(self, shapes, hierarchy, residual, r, err, single, refined)
+   !> r (3, nt_J, 2). The interior vertices' patches use the factors of their signatures
+   !> (twomem_estimate_patch_classes) in `single` (the finest mesh) and `refined` (the coarse
+   !> meshes of the refined levels); with tables that hold no signatures every patch is
+   !> assembled and factorized on its own.
+   subroutine compute(self, shapes, hierarchy, residual, r, single, refined, err)
       class(algebraic_flux_t), intent(inout) :: self
       type(shape_classes_t), intent(in) :: shapes
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       real(dp), intent(in) :: residual(:, :), r(:, :, :)
-      type(error_t), allocatable, intent(out) :: err
-      type(patch_table_t), intent(in), optional :: single, refined
-
-      type(patch_table_t) :: none
-
-      if (present(single) .and. present(refined)) then
-         call compute_levels(self, shapes, single, refined, hierarchy, residual, r, err)
-      else
-         call compute_levels(self, shapes, none, none, hierarchy, residual, r, err)
-      end if
-   end subroutine compute
-
-   subroutine compute_levels(self, shapes, single, refined, hierarchy, residual, r, err)
-      class(algebraic_flux_t), intent(inout) :: self
-      type(shape_classes_t), intent(in) :: shapes
       type(patch_table_t), intent(in) :: single, refined
-      type(mesh_hierarchy_t), intent(in) :: hierarchy
-      real(dp), intent(in) :: residual(:, :), r(:, :, :)
       type(error_t), allocatable, intent(out) :: err
 
       integer :: j, first
@@ -205,7 +189,7 @@ contains
             return
          end if
       end do
-   end subroutine compute_levels
+   end subroutine compute
 
    !> The first level with patch problems: b + 1, or J for a single mesh.
    pure integer function first(self)

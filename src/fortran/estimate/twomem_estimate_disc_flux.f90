@@ -59,31 +59,11 @@ contains
    !> sigma(:, t, α): coefficients of σ_α,disc on triangle t of `mesh`, level `level` of the
    !> hierarchy of `shapes`, whose vertex colouring is `colors`. grad_u(:, t, α) is ∇u_α on t,
    !> lambda the nodal λ_h, r(:, t, α) the residual lifting's vertex values, moments from
-   !> load_moments. With `table`, the patch signatures of `mesh`'s interior vertices
-   !> (twomem_estimate_patch_classes), their patches use the signatures' factors; without, every
-   !> patch is assembled and factorized on its own. ok is .false. if some patch system is singular.
-   subroutine discretization_flux(space, shapes, mesh, level, colors, mu, moments, grad_u, lambda, r, sigma, ok, table)
-      type(rt_space_t), intent(in) :: space
-      type(shape_classes_t), intent(in) :: shapes
-      type(mesh_t), intent(in) :: mesh
-      integer, intent(in) :: level
-      type(coloring_t), intent(in) :: colors
-      real(dp), intent(in) :: mu(2), moments(:, :, :, :), grad_u(:, :, :), lambda(:), r(:, :, :)
-      real(dp), intent(inout) :: sigma(:, :, :)
-      logical, intent(out) :: ok
-      type(patch_table_t), intent(in), optional :: table
-
-      type(patch_table_t) :: none
-
-      if (present(table)) then
-         call patch_loop(space, shapes, table, mesh, level, colors, mu, moments, grad_u, lambda, r, sigma, ok)
-      else
-         call patch_loop(space, shapes, none, mesh, level, colors, mu, moments, grad_u, lambda, r, sigma, ok)
-      end if
-   end subroutine discretization_flux
-
-   !> discretization_flux; table without levels: no signatures.
-   subroutine patch_loop(space, shapes, table, mesh, level, colors, mu, moments, grad_u, lambda, r, sigma, ok)
+   !> load_moments. `table` holds the patch signatures of `mesh`'s interior vertices
+   !> (twomem_estimate_patch_classes), whose patches use the signatures' factors; a table that
+   !> holds none makes every patch assembled and factorized on its own. ok is .false. if some
+   !> patch system is singular.
+   subroutine discretization_flux(space, shapes, table, mesh, level, colors, mu, moments, grad_u, lambda, r, sigma, ok)
       type(rt_space_t), intent(in) :: space
       type(shape_classes_t), intent(in) :: shapes
       type(patch_table_t), intent(in) :: table
@@ -123,7 +103,7 @@ contains
          !$omp end do
       end do
       !$omp end parallel
-   end subroutine patch_loop
+   end subroutine discretization_flux
 
    subroutine vertex_patch(space, shapes, mesh, level, a, mu, moments, grad_u, lambda_a, r, sigma, ok)
       type(rt_space_t), intent(in) :: space

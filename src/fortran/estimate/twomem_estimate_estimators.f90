@@ -270,13 +270,13 @@ contains
             call self%ghosts%fill(hierarchy%levels, r(:, :, alpha))
          end do
 
-         call discretization_flux(self%space, self%shapes, mesh, hierarchy%levels, self%colors, self%mu, self%moments, &
-                                  grad_u, lambda, r, self%sigma, ok, self%single)
+         call discretization_flux(self%space, self%shapes, self%single, mesh, hierarchy%levels, self%colors, self%mu, &
+                                  self%moments, grad_u, lambda, r, self%sigma, ok)
          if (self%comm%any_true(.not. ok)) then
             call make_error(err, exit_io, 'discretization flux', 'a patch system is singular (degenerate triangles?)')
             return
          end if
-         call self%alg%compute(self%shapes, hierarchy, residual, r, err, self%single, self%refined)
+         call self%alg%compute(self%shapes, hierarchy, residual, r, self%single, self%refined, err)
          call self%comm%agree(err)
          if (allocated(err)) return
 

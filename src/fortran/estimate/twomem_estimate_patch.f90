@@ -22,7 +22,7 @@ module twomem_estimate_patch
    implicit none
    private
 
-   public :: solve_patch, solve_condensed_patch, inner_edge, edge_free, edge_neumann
+   public :: solve_patch, inner_edge, edge_free, edge_neumann
    public :: patch_factor_t, condensed_factor, solve_condensed_factored, max_theta
 
    !> the largest multiplier system of a factorized patch (larger ones take the general path),
@@ -242,104 +242,13 @@ contains
       end do
    end subroutine solve_patch
 
-   !> solve_patch for a patch without edges on ∂Ω (an interior vertex's patch), with the
-   !> triangles condensed by their class (twomem_estimate_shapes, cond_*): neumann(k) is the
-   !> edge of triangle k that carries zero flux, or 0 when all three are inner edges (then
-   !> flux_data must be .false.); links(m, k) numbers every other edge. The flux datum of
-   !> triangle k is (σ_0, φ_j)_K = ρ⁻² Φ_i fgrad(:, k, r) with Φ_i = psi_phi(:, :, neumann(k)) of
-   !> the class, i.e. σ_0 = fgrad ψ_i for the vertex opposite the zero-flux edge. The
-   !> multipliers are defined up to a constant: the first one is pinned.
-   pure subroutine solve_condensed_patch(space, shapes, classes, ratios, signs, neumann, links, fgrad, rhs_div, &
-                                         flux_data, n_blocks, sigma, ok)
-      type(rt_space_t), intent(in) :: space
-      type(shape_classes_t), intent(in) :: shapes
-      integer, intent(in) :: classes(:), neumann(:), links(:, :)
-      real(dp), intent(in) :: ratios(:), signs(:, :), fgrad(:, :, :), rhs_div(:, :, :)
-      logical, intent(in) :: flux_data
-      integer, intent(in) :: n_blocks
-      real(dp), intent(out) :: sigma(:, :, :)
-      logical, intent(out) :: ok
-
-      integer :: nt, nf, nd, nc, ne, nr, n_theta, k, c, i, a, q, r, n_rows, rows(3*space%n_trace), glob(3*space%n_trace)
-      real(dp) :: h(space%n_trace*maxval(links), space%n_trace*maxval(links)), b(size(h, 1), size(rhs_div, 3))
-      real(dp) :: rho, sg(3*space%n_trace), t1(3*space%n_trace), theta(3*space%n_trace), g(space%n_div)
-      real(dp) :: f(space%n_flux), a_k(3*space%n_trace, 3*space%n_trace)
-
-      nt = space%n_trace
-      nf = space%n_flux
-      nd = space%n_div
-      nc = 3*nt
-      ne = size(classes)
-      nr = size(rhs_div, 3)
-      n_theta = size(h, 1)
-      h = 0.0_dp
-      b = 0.0_dp
-      do k = 1, ne
-         c = classes(k)
-         rho = ratios(k)
-         call inner_rows(nt, neumann(k), links(:, k), n_rows, rows, glob)
-         sg(1:n_rows) = signs(rows(1:n_rows), k)
-         i = neumann(k)
-         if (i > 0) then
-            a_k(1:n_rows, 1:n_rows) = shapes%cond_a(:, :, i, c)
-         else
-            a_k(1:n_rows, 1:n_rows) = shapes%czc(:, :, c)
-         end if
-         do a = 1, n_rows
-            do q = 1, n_rows
-               h(glob(q), glob(a)) = h(glob(q), glob(a)) + sg(q)*sg(a)*a_k(q, a)
-            end do
-         end do
-         do r = 1, nr
-            g = rhs_div(:, k, r)
-            if (i > 0) then
-               call mat_vec(n_rows, nd, shapes%cond_qg(:, :, i, c), g, t1)
-               if (flux_data) call mat_vec_add(n_rows, 2, shapes%cond_qf(:, :, i, c), fgrad(:, k, r), 1/rho, t1)
-            else
-               call mat_vec(n_rows, nd, shapes%cy(:, :, c), g, t1)
-            end if
-            do a = 1, n_rows
-               b(glob(a), r) = b(glob(a), r) + sg(a)*t1(a)
-            end do
-         end do
-      end do
-      h(1, :) = 0.0_dp
-      h(:, 1) = 0.0_dp
-      h(1, 1) = 1.0_dp
-      b(1, :) = 0.0_dp
-      if (n_blocks > 0) then
-         call block_solve(h, b, n_blocks, nc, ok)
-      else
-         call chol_factor(n_theta, h, ok)
-         if (ok) call chol_solve(n_theta, h, nr, b)
-      end if
-      if (.not. ok) return
-      do k = 1, ne
-         c = classes(k)
-         rho = ratios(k)
-         call inner_rows(nt, neumann(k), links(:, k), n_rows, rows, glob)
-         i = neumann(k)
-         do r = 1, nr
-            do a = 1, n_rows
-               theta(a) = -rho*signs(rows(a), k)*b(glob(a), r)
-            end do
-            g = rho*rhs_div(:, k, r)
-            if (i > 0) then
-               call mat_vec(nf, nd, shapes%cond_rg(:, :, i, c), g, f)
-               call mat_vec_add(nf, n_rows, shapes%cond_rt(:, :, i, c), theta, 1.0_dp, f)
-               if (flux_data) call mat_vec_add(nf, 2, shapes%cond_rf(:, :, i, c), fgrad(:, k, r), 1.0_dp, f)
-            else
-               call mat_vec(nf, nd, shapes%y(:, :, c), g, f)
-               call mat_vec_add(nf, nc, shapes%zc(:, :, c), theta, 1.0_dp, f)
-            end if
-            sigma(:, k, r) = f
-         end do
-      end do
-   end subroutine solve_condensed_patch
-
-   !> The factor of H for solve_condensed_factored: the assembly of solve_condensed_patch with
-   !> the patch's relative trace signs (each multiplier oriented as in the first triangle that
-   !> touches it, so that H depends on the geometry only) and its first multiplier pinned.
+   !> The factor of the multiplier matrix H of a patch without edges on ∂Ω (an interior
+   !> vertex's patch), with the triangles condensed by their class (twomem_estimate_shapes,
+   !> cond_*): neumann(k) is the edge of triangle k that carries zero flux, or 0 when all three
+   !> are inner edges; links(m, k) numbers every other edge. H is assembled with the patch's
+   !> relative trace signs (each multiplier oriented as in the first triangle that touches it,
+   !> so that H depends on the geometry only); the multipliers are defined up to a constant, so
+   !> the first one is pinned.
    pure subroutine condensed_factor(space, shapes, classes, signs, neumann, links, n_blocks, factor, ok)
       type(rt_space_t), intent(in) :: space
       type(shape_classes_t), intent(in) :: shapes
@@ -383,9 +292,12 @@ contains
       end do
    end subroutine condensed_factor
 
-   !> solve_condensed_patch with H factorized beforehand (condensed_factor, for a patch with
-   !> the same classes, neumann, links and relative signs): only the right-hand sides and the
-   !> triangles' fluxes are computed per patch. The signs are the patch's own; the orientation
+   !> solve_patch for an interior vertex's patch whose H was factorized beforehand
+   !> (condensed_factor, for a patch with the same classes, neumann, links and relative signs):
+   !> only the right-hand sides and the triangles' fluxes are computed per patch. The flux datum
+   !> of triangle k is (σ_0, φ_j)_K = ρ⁻² Φ_i fgrad(:, k, r) with Φ_i = psi_phi(:, :, neumann(k))
+   !> of the class, i.e. σ_0 = fgrad ψ_i for the vertex opposite the zero-flux edge (flux_data
+   !> must be .false. when a triangle has no zero-flux edge). The signs are the patch's own; the orientation
    !> o of each multiplier (the sign of its first row) turns them into the relative ones,
    !> H_patch = O H O.
    pure subroutine solve_condensed_factored(space, shapes, classes, ratios, signs, neumann, links, fgrad, rhs_div, &
