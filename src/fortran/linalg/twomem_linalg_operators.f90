@@ -132,59 +132,58 @@ contains
       z = r
    end subroutine identity_apply
 
-   !> Sums of fixed-size blocks added in block order: the result is the same bits for any
-   !> thread count (an OpenMP reduction adds the threads' sums in whatever order they finish,
-   !> which would make GMRES iterates, and regression results, depend on the thread count).
    real(dp) function euclidean_dot(self, x, y) result(s)
       class(euclidean_product_t), intent(in) :: self
       real(dp), intent(in) :: x(:), y(:)
 
-      integer(ip), parameter :: block = 4096
-      real(dp), allocatable :: partial(:)
-      real(dp) :: acc
-      integer(ip) :: n, nb, b, i
-
-      n = size(x, kind=ip)
-      nb = (n + block - 1)/block
-      allocate (partial(nb))
-      ! each block's sum in a private accumulator, stored once: accumulating in the shared array
-      ! made the threads write neighbouring entries of one cache line at every element (false
-      ! sharing: with 2 threads the products of the Newton solve spent 15% of their time here)
-      !$omp parallel do default(none) shared(x, y, partial, n, nb) private(b, i, acc) schedule(static) if(nb > 1)
-      do b = 1, nb
-         acc = 0.0_dp
-         do i = (b - 1)*block + 1, min(b*block, n)
-            acc = acc + x(i)*y(i)
-         end do
-         partial(b) = acc
-      end do
-      !$omp end parallel do
-      s = sum(partial)
+      s = blocked_dot(x, y)
    end function euclidean_dot
+
    !> As `euclidean_dot`, over the owned entries, then summed over the ranks.
    real(dp) function distributed_dot(self, x, y) result(s)
       class(distributed_product_t), intent(in) :: self
       real(dp), intent(in) :: x(:), y(:)
 
+      s = self%comm%sum(blocked_dot(x, y, self%owned))
+   end function distributed_dot
+
+   !> xᵀy (over the entries where `owned` is true, when given) as sums of fixed-size blocks
+   !> added in block order: the result is the same bits for any thread count (an OpenMP
+   !> reduction adds the threads' sums in whatever order they finish, which would make GMRES
+   !> iterates, and regression results, depend on the thread count).
+   real(dp) function blocked_dot(x, y, owned) result(s)
+      real(dp), intent(in) :: x(:), y(:)
+      logical, intent(in), optional :: owned(:)
+
       integer(ip), parameter :: block = 4096
       real(dp), allocatable :: partial(:)
       real(dp) :: acc
       integer(ip) :: n, nb, b, i
+      logical :: masked
 
       n = size(x, kind=ip)
       nb = (n + block - 1)/block
+      masked = present(owned)
       allocate (partial(nb))
-      ! blocks summed in private accumulators, as in euclidean_dot (no false sharing)
-      !$omp parallel do default(none) shared(self, x, y, partial, n, nb) private(b, i, acc) schedule(static) &
-      !$omp if(nb > 1)
+      ! each block's sum in a private accumulator, stored once: accumulating in the shared array
+      ! made the threads write neighbouring entries of one cache line at every element (false
+      ! sharing: with 2 threads the products of the Newton solve spent 15% of their time here)
+      !$omp parallel do default(none) shared(x, y, owned, masked, partial, n, nb) private(b, i, acc) &
+      !$omp schedule(static) if(nb > 1)
       do b = 1, nb
          acc = 0.0_dp
-         do i = (b - 1)*block + 1, min(b*block, n)
-            if (self%owned(i)) acc = acc + x(i)*y(i)
-         end do
+         if (masked) then
+            do i = (b - 1)*block + 1, min(b*block, n)
+               if (owned(i)) acc = acc + x(i)*y(i)
+            end do
+         else
+            do i = (b - 1)*block + 1, min(b*block, n)
+               acc = acc + x(i)*y(i)
+            end do
+         end if
          partial(b) = acc
       end do
       !$omp end parallel do
-      s = self%comm%sum(sum(partial))
-   end function distributed_dot
+      s = sum(partial)
+   end function blocked_dot
 end module twomem_linalg_operators
