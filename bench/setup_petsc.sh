@@ -15,20 +15,9 @@ py=/usr/bin/python3
 [ -x "$py" ] || die "$py not found (Debian's petsc4py runs under the system interpreter)"
 
 packages=(python3-petsc4py python3-h5py python3-scipy python3-numpy)
-missing=()
-for p in "${packages[@]}"; do
-  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
-done
-if ((${#missing[@]})); then
-  say "installing Debian packages: ${missing[*]}"
-  sudo_cmd=()
-  [ "$(id -u)" -eq 0 ] || sudo_cmd=(sudo)
-  export DEBIAN_FRONTEND=noninteractive
-  "${sudo_cmd[@]}" apt-get update -qq
-  "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
-else
-  say "Debian packages already installed: ${packages[*]}"
-fi
+# shellcheck source=scripts/debian_packages.sh
+source "$(dirname "${BASH_SOURCE[0]}")/../scripts/debian_packages.sh"
+install_missing_packages setup_petsc "${packages[@]}"
 
 [ -d "$PETSC_DIR" ] || die "PETSC_DIR=$PETSC_DIR does not exist"
 

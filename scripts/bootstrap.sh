@@ -20,18 +20,9 @@ say() { printf '[bootstrap] %s\n' "$*"; }
 # --- Debian packages ---------------------------------------------------------------------
 packages=(gfortran gcc g++ cmake ninja-build pkg-config libsuitesparse-dev libmetis-dev
           libhdf5-dev libopenmpi-dev openmpi-bin python3 python3-venv python3-pip)
-missing=()
-for p in "${packages[@]}"; do
-  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
-done
-if ((${#missing[@]})); then
-  say "installing Debian packages: ${missing[*]}"
-  sudo_cmd=()
-  [ "$(id -u)" -eq 0 ] || sudo_cmd=(sudo)
-  export DEBIAN_FRONTEND=noninteractive
-  "${sudo_cmd[@]}" apt-get update -qq
-  "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
-fi
+# shellcheck source=scripts/debian_packages.sh
+source "$root/scripts/debian_packages.sh"
+install_missing_packages bootstrap "${packages[@]}"
 
 # --- Python venv for postproc (h5py, numpy, matplotlib; pytest for the tests) --------------
 venv="$root/.venv"
