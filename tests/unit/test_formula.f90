@@ -6,7 +6,8 @@
 module test_formula
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: exit_bad_input
-   use twomem_input_formula, only: formula_t, parse_formula, status_ok
+   use twomem_input_formula, only: formula_t, status_ok
+   use twomem_input_formula_parser, only: parse_formula
    use twomem_input_config, only: config_t, string_t, load_config_text, config_echo
    use twomem_mesh_generators, only: make_square
    use twomem_mesh_triangulation, only: mesh_t

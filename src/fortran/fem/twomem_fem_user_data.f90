@@ -10,7 +10,8 @@ module twomem_fem_user_data
    use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_bad_input
-   use twomem_input_formula, only: formula_t, parse_formula, formula_status_text, status_ok
+   use twomem_input_formula, only: formula_t, formula_status_text, status_ok
+   use twomem_input_formula_parser, only: parse_formula
    use twomem_fem_problem, only: problem_data_t
    use twomem_base_text, only: int_text
    implicit none

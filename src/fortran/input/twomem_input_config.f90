@@ -12,7 +12,8 @@ module twomem_input_config
       parse_namelist, line_where
    use twomem_input_values, only: scan_integer, scan_real, scan_logical, unquote, format_real, &
       quote, to_lower
-   use twomem_input_formula, only: formula_t, parse_formula
+   use twomem_input_formula, only: formula_t
+   use twomem_input_formula_parser, only: parse_formula
    use twomem_base_text, only: int_text
    implicit none
    private
