@@ -59,7 +59,7 @@ contains
       integer :: l, finest, bottom
 
       finest = hierarchy%levels
-      bottom = first_with_unknowns(comm, hierarchy)
+      bottom = hierarchy%first_with_unknowns(comm)
       call build_transfer(comm, hierarchy, bottom, options, transfer, err)
       if (allocated(err)) return
       if (trim(cfg%newton%initial) /= 'nested' .or. finest == bottom) then
@@ -102,19 +102,6 @@ contains
       end do
       call newton_solve(p, options, interior_values(p, fine), newton, err, observer, transfer, finest - bottom)
    end subroutine solve_levels
-
-   !> The first level of the hierarchy with an interior vertex on some rank: below it the
-   !> boundary values decide everything, and there is nothing to solve or to coarsen to (a
-   !> Gmsh mesh of a few triangles). Collective.
-   integer function first_with_unknowns(comm, hierarchy) result(bottom)
-      type(comm_t), intent(in) :: comm
-      type(mesh_hierarchy_t), intent(in) :: hierarchy
-
-      do bottom = 0, hierarchy%levels - 1
-         if (comm%any_true(any(.not. hierarchy%meshes(bottom)%boundary_vertex))) return
-      end do
-      bottom = hierarchy%levels
-   end function first_with_unknowns
 
    !> The multigrid transfers of levels bottom..top of the hierarchy (level l of the hierarchy is
    !> level l − bottom of the transfers; top = bottom when no solve uses multigrid). Collective.

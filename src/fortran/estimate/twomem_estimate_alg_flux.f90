@@ -107,13 +107,8 @@ contains
       if (present(comm)) self%comm = comm
       self%space = space
       self%finest = hierarchy%levels
-      self%base = max(0, self%finest - n_meshes + 1)
-      ! a mesh without interior vertices has no coarse problem (its ρ_α would be zero): the
-      ! first mesh of the hierarchy that has one is the base (a Gmsh mesh of a few triangles)
-      do while (self%base < self%finest)
-         if (self%comm%any_true(any(.not. hierarchy%meshes(self%base)%boundary_vertex))) exit
-         self%base = self%base + 1
-      end do
+      ! a mesh without interior vertices has no coarse problem (its ρ_α would be zero)
+      self%base = max(0, self%finest - n_meshes + 1, hierarchy%first_with_unknowns(self%comm))
       first = self%first()
       allocate (self%colors(first:self%finest), self%levels(self%finest - first + 1), self%p2(first:self%finest))
       do j = first, self%finest

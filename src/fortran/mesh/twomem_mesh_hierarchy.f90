@@ -7,6 +7,7 @@
 module twomem_mesh_hierarchy
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t
+   use twomem_base_comm, only: comm_t
    use twomem_mesh_triangulation, only: mesh_t, signed_area, corner_of, position_of
    implicit none
    private
@@ -32,6 +33,7 @@ module twomem_mesh_hierarchy
       procedure :: init => hierarchy_init
       procedure :: free => hierarchy_free
       procedure :: prolong
+      procedure :: first_with_unknowns
    end type mesh_hierarchy_t
 
 contains
@@ -79,6 +81,19 @@ contains
          end do
       end associate
    end subroutine prolong
+
+   !> The first level with an interior vertex on some rank of `comm` (levels when none has):
+   !> below it the boundary values decide everything, so there is nothing to solve, to coarsen
+   !> to or to take as a coarse problem (a Gmsh mesh of a few triangles). Collective.
+   integer function first_with_unknowns(self, comm) result(level)
+      class(mesh_hierarchy_t), intent(in) :: self
+      type(comm_t), intent(in) :: comm
+
+      do level = 0, self%levels - 1
+         if (comm%any_true(any(.not. self%meshes(level)%boundary_vertex))) return
+      end do
+      level = self%levels
+   end function first_with_unknowns
 
    !> The red refinement of `coarse`, with everything `mesh_t%init` would derive built directly
    !> from the parent in parallel loops: children of a valid mesh are valid (counter-clockwise,
