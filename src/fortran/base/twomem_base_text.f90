@@ -1,12 +1,12 @@
-!> Numbers as text for the progress output and messages: fixed decimals with the leading zero
-!> that `f0.d` drops ('.43'), and integers without blanks: the one place every module takes
-!> them from.
+!> Text helpers for the progress output, messages and parsers: fixed decimals with the leading
+!> zero that `f0.d` drops ('.43'), integers without blanks, and ASCII lower case; the one place
+!> every module takes them from.
 module twomem_base_text
    use twomem_base_kinds, only: dp, i8
    implicit none
    private
 
-   public :: fixed, int_text
+   public :: fixed, int_text, to_lower
 
    interface int_text
       module procedure int_text_default, int_text_i8
@@ -47,4 +47,17 @@ contains
       write (buffer, '(i0)') i
       text = trim(buffer)
    end function int_text_i8
+
+   !> s with the ASCII capitals A–Z in lower case (keys, words and names are case-insensitive).
+   pure function to_lower(s) result(l)
+      character(len=*), intent(in) :: s
+      character(len=len(s)) :: l
+
+      integer :: i
+
+      l = s
+      do i = 1, len(s)
+         if (s(i:i) >= 'A' .and. s(i:i) <= 'Z') l(i:i) = achar(iachar(s(i:i)) + 32)
+      end do
+   end function to_lower
 end module twomem_base_text

@@ -11,10 +11,10 @@ module twomem_input_config
    use twomem_input_namelist, only: string_t, nml_group_t, read_lines, split_lines, &
       parse_namelist, line_where
    use twomem_input_values, only: scan_integer, scan_real, scan_logical, unquote, format_real, &
-      quote, to_lower
+      quote
    use twomem_input_formula, only: formula_t
    use twomem_input_formula_parser, only: parse_formula
-   use twomem_base_text, only: int_text
+   use twomem_base_text, only: int_text, to_lower
    implicit none
    private
 

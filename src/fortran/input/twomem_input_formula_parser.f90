@@ -5,6 +5,7 @@
 !> error that names the key.
 module twomem_input_formula_parser
    use twomem_base_kinds, only: dp
+   use twomem_base_text, only: to_lower
    use twomem_input_values, only: scan_real
    use twomem_input_formula, only: formula_t, formula_status_text, status_ok, max_depth, apply, compare, &
       is_binary, op_const, op_x, op_y, op_r, op_add, op_sub, op_mul, op_div, op_pow, op_neg, op_lt, op_le, &
@@ -253,7 +254,7 @@ contains
          if (.not. (is_letter(c) .or. is_digit(c) .or. c == '_')) exit
          p%pos = p%pos + 1
       end do
-      name = lower(p%s(start:p%pos - 1))
+      name = to_lower(p%s(start:p%pos - 1))
       select case (name)
       case ('x'); call emit(p, op_x); return
       case ('y'); call emit(p, op_y); return
@@ -506,16 +507,4 @@ contains
 
       is_letter = (c >= 'a' .and. c <= 'z') .or. (c >= 'A' .and. c <= 'Z')
    end function is_letter
-
-   pure function lower(s) result(t)
-      character(len=*), intent(in) :: s
-      character(len=len(s)) :: t
-
-      integer :: i
-
-      t = s
-      do i = 1, len(s)
-         if (s(i:i) >= 'A' .and. s(i:i) <= 'Z') t(i:i) = achar(iachar(s(i:i)) + 32)
-      end do
-   end function lower
 end module twomem_input_formula_parser

@@ -5,8 +5,8 @@
 !> `twomem_input_values` converts the values and `twomem_input_config` knows what the keys mean.
 module twomem_input_namelist
    use twomem_base_errors, only: error_t, make_error, exit_bad_input, excerpt
-   use twomem_input_values, only: quote, to_lower
-   use twomem_base_text, only: int_text
+   use twomem_input_values, only: quote
+   use twomem_base_text, only: int_text, to_lower
    implicit none
    private
 

@@ -8,12 +8,12 @@ module twomem_input_values
       ieee_get_halting_mode, ieee_set_halting_mode, ieee_usual
    use twomem_base_kinds, only: dp, i8
    use twomem_base_errors, only: excerpt
-   use twomem_base_text, only: int_text
+   use twomem_base_text, only: int_text, to_lower
    implicit none
    private
 
    public :: scan_integer, scan_real, scan_logical, unquote
-   public :: format_real, quote, to_lower
+   public :: format_real, quote
 
 contains
 
@@ -284,17 +284,4 @@ contains
       end do
       q = q//"'"
    end function quote
-
-   pure function to_lower(s) result(l)
-      character(len=*), intent(in) :: s
-      character(len=len(s)) :: l
-
-      integer :: i, c
-
-      do i = 1, len(s)
-         c = iachar(s(i:i))
-         if (c >= iachar('A') .and. c <= iachar('Z')) c = c + 32
-         l(i:i) = achar(c)
-      end do
-   end function to_lower
 end module twomem_input_values

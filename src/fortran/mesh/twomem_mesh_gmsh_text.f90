@@ -8,7 +8,7 @@ module twomem_mesh_gmsh_text
    use, intrinsic :: iso_fortran_env, only: iostat_end, iostat_eor
    use twomem_base_kinds, only: dp, i8
    use twomem_base_errors, only: error_t, make_error, exit_bad_input, excerpt
-   use twomem_base_text, only: int_text
+   use twomem_base_text, only: int_text, to_lower
    implicit none
    private
 
@@ -440,18 +440,4 @@ contains
 
       is_digit = c >= '0' .and. c <= '9'
    end function is_digit
-
-   pure function to_lower(text) result(lower)
-      character(len=*), intent(in) :: text
-      character(len=len(text)) :: lower
-
-      integer :: i
-
-      lower = text
-      do i = 1, len(text)
-         if (text(i:i) >= 'A' .and. text(i:i) <= 'Z') then
-            lower(i:i) = achar(iachar(text(i:i)) + 32)
-         end if
-      end do
-   end function to_lower
 end module twomem_mesh_gmsh_text
