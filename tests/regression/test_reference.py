@@ -15,7 +15,11 @@ round-off: the debug and release builds differ there by up to 3e-10 (dot product
 in a fixed order, so thread counts do not matter). The multigrid references (`*_mg`, the
 default preconditioner) were checked before they were stored: the GMRES solution agrees with
 the direct one to 3e-12 (u) and 2e-10 (λ), and the adaptive run's estimate bounds its error
-(effectivity 1.15). Regenerate (after checking why a result changed) with:
+(effectivity 1.15). The iterates' energy errors (/history/energy_error) were replaced, and
+nothing else, when runs began to take them from the exact solution's element moments
+(src/fortran/fem/twomem_fem_error.f90): the first iterate's moved by 1.6e-6, because the
+direct adaptive rule, judged on a large error, had accepted free-boundary elements too early
+(unit test estimate/cached_energy_error compares both with a uniform subdivision). Regenerate (after checking why a result changed) with:
     twomem run input/default.nml mesh.levels=1 METHOD_OVERRIDES \
         output.file=tests/regression/reference/radial_small_METHOD.h5
 using the overrides of METHODS below.

@@ -22,7 +22,6 @@ module twomem_app_run
    use twomem_fem_problem, only: problem_data_t
    use twomem_app_loads, only: make_data
    use twomem_fem_discrete, only: discrete_problem_t
-   use twomem_fem_error, only: energy_error_per_element
    use twomem_newton_solver, only: newton_options_t, newton_result_t, method_direct, method_gmres, method_adaptive, &
       forcing_paper, forcing_fixed
    use twomem_newton_cfun, only: cfun_kind, c_function_fb
@@ -209,7 +208,8 @@ contains
          rec%energy_error_total = nan
          if (data%has_exact()) then
             call clock%switch(phase_error)
-            energy = energy_error_per_element(mesh, data, u1, u2)
+            if (.not. observer%exact_energy%ready(mesh)) call observer%exact_energy%init(mesh, data)
+            energy = observer%exact_energy%per_element(mesh, u1, u2)
             rec%energy_error = plan%cells(energy)
             rec%energy_error_total = sqrt(comm%sum(sum(energy(1:mesh%nt_owned)**2)))
          end if
