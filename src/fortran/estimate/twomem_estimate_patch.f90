@@ -32,9 +32,11 @@ module twomem_estimate_patch
    !> The multiplier matrix H of a condensed patch system, factorized once for every patch with
    !> the same classes, edges and relative trace signs (twomem_estimate_patch_classes): H does
    !> not depend on the ratio of the triangles nor on the data, only the right-hand side does.
-   !> d: Cholesky factors of the n_blocks leading diagonal blocks (size g), x = D⁻¹ H_bt on the
-   !> tail columns cols(1:n_cols) each block touches, s: the Cholesky factor of the tail's Schur
-   !> complement (of the whole H when n_blocks = 0).
+   !> d: the inverses of the n_blocks leading diagonal blocks (size g), x = D⁻¹ H_bt on the
+   !> tail columns cols(1:n_cols) each block touches, s: the inverse of the tail's Schur
+   !> complement (of the whole H when n_blocks = 0). Inverses, not Cholesky factors: the factor
+   !> serves thousands of patches, and a product with an inverse has no chain of dependent
+   !> operations, unlike the two triangular substitutions (which took a tenth of an evaluation).
    type :: patch_factor_t
       integer :: n_theta = 0, n_blocks = 0, g = 0
       real(dp), allocatable :: d(:, :, :), x(:, :, :), s(:, :)
@@ -412,6 +414,7 @@ contains
             end if
          end do
          call chol_solve(g, f%d(:, :, ib), n_cpl, f%x(:, :, ib))
+         call chol_invert(g, f%d(:, :, ib))
          ! S = H_tt − H_tb D⁻¹ H_bt on the touched tail entries
          do j = 1, n_cpl
             do i = 1, n_cpl
@@ -423,7 +426,10 @@ contains
             end do
          end do
       end do
-      if (ns > 0) call chol_factor(ns, f%s, ok)
+      if (ns > 0) then
+         call chol_factor(ns, f%s, ok)
+         if (ok) call chol_invert(ns, f%s)
+      end if
    end subroutine block_factor
 
    !> b = H⁻¹ b with the factor of block_factor.
@@ -432,7 +438,6 @@ contains
       real(dp), intent(inout) :: b(:, :)
 
       integer :: nb, ns, nr, ib, r0, i, r, g
-      real(dp) :: y(6, 2)
 
       g = f%g
       nb = f%n_blocks*g
@@ -446,12 +451,9 @@ contains
                b(nb + f%cols(i, ib), r) = b(nb + f%cols(i, ib), r) - dot_product(f%x(:, i, ib), b(r0 + 1:r0 + g, r))
             end do
          end do
-         ! (blocks of at most 6 multipliers and two right-hand sides: fixed-size work array)
-         y(1:g, 1:nr) = b(r0 + 1:r0 + g, :)
-         call chol_solve(g, f%d(:, :, ib), nr, y(1:g, 1:nr))
-         b(r0 + 1:r0 + g, :) = y(1:g, 1:nr)
+         call inverse_apply(g, f%d(:, :, ib), b(r0 + 1:r0 + g, :))
       end do
-      if (ns > 0) call chol_solve(ns, f%s, nr, b(nb + 1:, :))
+      if (ns > 0) call inverse_apply(ns, f%s, b(nb + 1:, :))
       do ib = 1, f%n_blocks
          r0 = (ib - 1)*g
          do r = 1, nr
@@ -569,6 +571,40 @@ contains
          end do
       end do
    end subroutine chol_solve
+
+   !> a = (L Lᵀ)⁻¹, whole (both triangles), from the factor L of chol_factor.
+   pure subroutine chol_invert(n, a)
+      integer, intent(in) :: n
+      real(dp), intent(inout) :: a(n, n)
+
+      real(dp) :: e(n, n)
+      integer :: i
+
+      e = 0.0_dp
+      do i = 1, n
+         e(i, i) = 1.0_dp
+      end do
+      call chol_solve(n, a, n, e)
+      a = e
+   end subroutine chol_invert
+
+   !> b = A b for the columns of b (at most two, both membranes) with a contiguous n×n matrix A.
+   pure subroutine inverse_apply(n, a, b)
+      integer, intent(in) :: n
+      real(dp), intent(in) :: a(n, n)
+      real(dp), intent(inout) :: b(:, :)
+
+      real(dp) :: y(n)
+      integer :: r, j
+
+      do r = 1, size(b, 2)
+         y = a(:, 1)*b(1, r)
+         do j = 2, n
+            y = y + a(:, j)*b(j, r)
+         end do
+         b(1:n, r) = y
+      end do
+   end subroutine inverse_apply
 
    !> The inner trace rows of a patch triangle whose edge `neumann` (0: none) carries zero flux:
    !> in the order of the class's condensed operators (edges neumann+1, neumann+2), with their
