@@ -7,7 +7,7 @@ module test_estimate
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_mesh_generators, only: make_disk, make_square
    use twomem_mesh_hierarchy, only: mesh_hierarchy_t
-   use twomem_fem_problem, only: problem_data_t
+   use twomem_fem_problem, only: problem_data_t, constant_data_t
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_fem_assembly, only: p1_gradients
    use twomem_fem_cases, only: make_problem
@@ -17,7 +17,7 @@ module test_estimate
    use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_solve, method_direct
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, make_frame, edge_gauss
    use twomem_estimate_lifting, only: algebraic_residuals, residual_lifting
-   use twomem_estimate_disc_flux, only: discretization_flux, load_moments
+   use twomem_estimate_disc_flux, only: discretization_flux, load_moments_t
    use twomem_estimate_shapes, only: shape_classes_t
    use twomem_estimate_coloring, only: coloring_t
    use twomem_estimate_alg_flux, only: algebraic_flux_t, level_flux_t
@@ -183,9 +183,11 @@ contains
    end subroutine test_lifting
 
    !> σ_disc for a random iterate and linear loads, RT0 and RT1, on a disk and on a 7×7 square
-   !> (whose corner triangles have three boundary vertices): load_moments are the exact
+   !> (whose corner triangles have three boundary vertices): the load moments are the exact
    !> (f ψ_i, q_k)_K, on every triangle the moments of ∇·σ_α against P_p are those of
-   !> f_α ± λ_h − r_α, and σ·n is continuous across interior edges.
+   !> f_α ± λ_h − r_α, and σ·n is continuous across interior edges. Constant loads, whose
+   !> moments come from the class integrals, give the σ_disc of the same loads integrated per
+   !> triangle.
    subroutine test_disc_flux(err)
       type(error_t), allocatable, intent(out) :: err
       character(len=6), parameter :: domains(2) = ['disk  ', 'square']
@@ -199,7 +201,10 @@ contains
       !> no signatures: the general path of every patch is what this test checks
       type(patch_table_t) :: no_signatures
       type(rt_frame_t) :: frame
-      real(dp), allocatable :: lambda(:), grad_u(:, :, :), residual(:, :), r(:, :, :), moments(:, :, :, :), lhs(:), rhs(:)
+      type(load_moments_t) :: loads, flat_loads
+      type(poly_data_t) :: flat_poly
+      type(constant_data_t) :: flat
+      real(dp), allocatable :: lambda(:), grad_u(:, :, :), residual(:, :), r(:, :, :), lhs(:), rhs(:), flat_sigma(:, :, :)
       real(dp) :: x(2), w, dev, scale, q(3, 3), fv(3), exact, tri(3, 3, 3), mu(2)
       integer(ip) :: t, v(3)
       integer :: domain, order, alpha, k, i, j, l
@@ -219,11 +224,26 @@ contains
                call shapes%init(space, h, err)
                if (allocated(err)) return
                call colors%init(mesh)
-               if (allocated(moments)) deallocate (moments, lhs, rhs, levels(1)%sigma)
-               allocate (moments(space%n_div, 3, mesh%nt, 2), lhs(space%n_div), rhs(space%n_div), &
-                         levels(1)%sigma(space%n_flux, mesh%nt, 2))
-               call load_moments(space, mesh, data, moments)
-               call discretization_flux(space, shapes, no_signatures, mesh, 0, colors, mu, moments, grad_u, lambda, r, &
+               if (allocated(lhs)) deallocate (lhs, rhs, levels(1)%sigma, flat_sigma)
+               allocate (lhs(space%n_div), rhs(space%n_div), levels(1)%sigma(space%n_flux, mesh%nt, 2), &
+                         flat_sigma(space%n_flux, mesh%nt, 2))
+               ! constant loads: by class integrals, and as the polynomial loads a_α + 0·x
+               flat = constant_data_t(mu1=data%mu1, mu2=data%mu2, f1=data%a(1), f2=data%a(2))
+               call flat_loads%init(space, mesh, flat)
+               call check(err, flat_loads%constant .and. .not. allocated(flat_loads%moments), 'constant loads stored')
+               call discretization_flux(space, shapes, no_signatures, mesh, 0, colors, mu, flat_loads, grad_u, lambda, &
+                                        r, flat_sigma, ok)
+               flat_poly = data
+               flat_poly%b = 0.0_dp
+               flat_poly%c = 0.0_dp
+               call loads%init(space, mesh, flat_poly)
+               call discretization_flux(space, shapes, no_signatures, mesh, 0, colors, mu, loads, grad_u, lambda, r, &
+                                        levels(1)%sigma, ok)
+               call check(err, maxval(abs(flat_sigma - levels(1)%sigma)) <= 1.0e-13_dp*maxval(abs(flat_sigma)), &
+                          'constant loads by class integrals')
+               call loads%init(space, mesh, data)
+               call check(err, .not. loads%constant, 'polynomial loads integrated')
+               call discretization_flux(space, shapes, no_signatures, mesh, 0, colors, mu, loads, grad_u, lambda, r, &
                                         levels(1)%sigma, ok)
                call check(err, ok, 'patch systems regular')
                dev = 0.0_dp
@@ -237,12 +257,12 @@ contains
                      do i = 1, 3
                         do k = 1, space%n_div
                            exact = mesh%area(t)*dot_product(fv, matmul(tri(i, :, :), q(k, :)))
-                           dev = max(dev, abs(moments(k, i, t, alpha) - exact))
+                           dev = max(dev, abs(loads%moments(k, i, t, alpha) - exact))
                         end do
                      end do
                   end do
                end do
-               call check(err, dev <= 1.0e-14_dp*maxval(abs(moments)), 'load moments exact')
+               call check(err, dev <= 1.0e-14_dp*maxval(abs(loads%moments)), 'load moments exact')
                dev = 0.0_dp
                scale = 0.0_dp
                do t = 1, mesh%nt
@@ -250,7 +270,7 @@ contains
                   frame = make_frame(mesh%vertices(:, v))
                   do alpha = 1, 2
                      lhs = 0.0_dp
-                     rhs = sum(moments(:, :, t, alpha), dim=2)
+                     rhs = sum(loads%moments(:, :, t, alpha), dim=2)
                      do k = 1, space%rule%n
                         x = matmul(mesh%vertices(:, v), space%rule%bary(:, k))
                         w = space%rule%weights(k)*mesh%area(t)

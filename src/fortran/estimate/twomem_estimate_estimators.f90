@@ -34,7 +34,7 @@ module twomem_estimate_estimators
    use twomem_linalg_halo, only: halo_t
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, frame_of
    use twomem_estimate_lifting, only: algebraic_residuals, residual_lifting
-   use twomem_estimate_disc_flux, only: discretization_flux, load_moments
+   use twomem_estimate_disc_flux, only: discretization_flux, load_moments_t
    use twomem_estimate_alg_flux, only: algebraic_flux_t, level_flux_t
    use twomem_estimate_shapes, only: shape_classes_t, triangle_class
    use twomem_estimate_coloring, only: coloring_t
@@ -74,7 +74,8 @@ module twomem_estimate_estimators
       !> the finest mesh's vertex colouring for the discretization-flux patches
       type(coloring_t) :: colors
       !> (f_α ψ_i, q_k)_K and, for RT1, (h_K/π)‖f_α − Π_1 f_α‖_K (data only, fixed on the mesh)
-      real(dp), allocatable :: moments(:, :, :, :), osc_data(:, :)
+      type(load_moments_t) :: loads
+      real(dp), allocatable :: osc_data(:, :)
       !> workspaces of `evaluate`, kept between evaluations: σ_disc (n_flux, nt, 2), nodal u, s_h,
       !> residuals (nv, 2) and λ_h, ∇u_α and the residual lifting per triangle
       real(dp), allocatable :: sigma(:, :, :), u(:, :), s(:, :), residual(:, :), lambda(:), grad_u(:, :, :), r(:, :, :)
@@ -135,8 +136,7 @@ contains
          call self%comm%agree(err)
          if (allocated(err)) return
          call self%colors%init(mesh)
-         allocate (self%moments(self%space%n_div, 3, mesh%nt, 2))
-         call load_moments(self%space, mesh, data, self%moments)
+         call self%loads%init(self%space, mesh, data)
          if (flux_order == 1) call data_oscillation(self%space, mesh, data, self%mu, self%osc_data)
          call self%alg%init(self%space, hierarchy, data, alg_meshes, err, self%comm)
          call self%comm%agree(err)
@@ -271,7 +271,7 @@ contains
          end do
 
          call discretization_flux(self%space, self%shapes, self%single, mesh, hierarchy%levels, self%colors, self%mu, &
-                                  self%moments, grad_u, lambda, r, self%sigma, ok)
+                                  self%loads, grad_u, lambda, r, self%sigma, ok)
          if (self%comm%any_true(.not. ok)) then
             call make_error(err, exit_io, 'discretization flux', 'a patch system is singular (degenerate triangles?)')
             return

@@ -15,6 +15,7 @@ module twomem_fem_problem
    contains
       procedure(load_interface), deferred :: load
       procedure :: loads_at
+      procedure :: constant_loads
       procedure :: has_exact
       procedure :: exact
       procedure :: explain_load
@@ -36,6 +37,8 @@ module twomem_fem_problem
    contains
       procedure :: load => constant_load
       procedure :: loads_at => constant_loads_at
+      !> (an extension that overrides `load` must override this too)
+      procedure :: constant_loads => constant_loads_values
    end type constant_data_t
 
 contains
@@ -54,6 +57,26 @@ contains
          f(2, k) = self%load(2, x(:, k))
       end do
    end subroutine loads_at
+
+   !> constant = .true. with f = [f1, f2] when both loads are constant on Ω, so that their
+   !> integrals against fixed functions need no quadrature per element; .false. by default.
+   pure subroutine constant_loads(self, f, constant)
+      class(problem_data_t), intent(in) :: self
+      real(dp), intent(out) :: f(2)
+      logical, intent(out) :: constant
+
+      f = 0.0_dp
+      constant = .false.
+   end subroutine constant_loads
+
+   pure subroutine constant_loads_values(self, f, constant)
+      class(constant_data_t), intent(in) :: self
+      real(dp), intent(out) :: f(2)
+      logical, intent(out) :: constant
+
+      f = [self%f1, self%f2]
+      constant = .true.
+   end subroutine constant_loads_values
 
    pure subroutine constant_loads_at(self, x, f)
       class(constant_data_t), intent(in) :: self
