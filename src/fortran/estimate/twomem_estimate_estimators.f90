@@ -137,7 +137,9 @@ contains
          if (allocated(err)) return
          call self%colors%init(mesh)
          call self%loads%init(self%space, mesh, data)
-         if (flux_order == 1) call data_oscillation(self%space, mesh, data, self%mu, self%osc_data)
+         ! (constant loads are their own projection: no oscillation to store)
+         if (flux_order == 1 .and. .not. self%loads%constant) &
+            call data_oscillation(self%space, mesh, data, self%mu, self%osc_data)
          call self%alg%init(self%space, hierarchy, data, alg_meshes, err, self%comm)
          call self%comm%agree(err)
          if (allocated(err)) return
@@ -449,8 +451,10 @@ contains
                osc_sq = osc_sq + osc_w*(osc_values(:, k) - osc_mean)**2
             end do
             est%osc_k(:, t) = hierarchy%meshes(finest)%h(t)/acos(-1.0_dp)*sqrt(osc_sq/self%mu)
-         else
+         else if (allocated(self%osc_data)) then
             est%osc_k(:, t) = self%osc_data(:, t)
+         else
+            est%osc_k(:, t) = 0.0_dp
          end if
 
          call sign_split(frame%vertices, lambda(v), u(v, 1) - u(v, 2), pos_lw, pos_ll)
