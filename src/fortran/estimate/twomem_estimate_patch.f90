@@ -313,13 +313,16 @@ contains
       real(dp), intent(out) :: sigma(:, :, :)
 
       integer, parameter :: max_rows = 6, max_flux = 8, max_div = 3
-      integer :: nf, nd, nc, k, c, i, a, r, n_rows, n_theta, nr
+      integer :: nf, nd, nc, k, c, i, a, r, n_rows, n_theta, nr, n_data
       real(dp) :: b(max_theta, 2), o(max_theta)
-      real(dp) :: rho, sg, t1(max_rows), theta(max_rows), g(max_div), f(max_flux)
+      !> a triangle's data for the condensed operators: [g; ρ⁻¹ fgrad] and [ρ g; θ; fgrad]
+      real(dp) :: rho, sg, t1(max_rows), data_q(max_div + 2), data_r(max_div + max_rows + 2), f(max_flux)
 
       nf = space%n_flux
       nd = space%n_div
       nc = 3*space%n_trace
+      ! without a flux datum the operators' fgrad columns are left out
+      n_data = merge(2, 0, flux_data)
       n_theta = factor%n_theta
       nr = size(rhs_div, 3)
       b(1:n_theta, 1:nr) = 0.0_dp
@@ -330,12 +333,12 @@ contains
          n_rows = factor%n_rows(k)
          i = neumann(k)
          do r = 1, nr
-            g(1:nd) = rhs_div(:, k, r)
+            data_q(1:nd) = rhs_div(:, k, r)
             if (i > 0) then
-               call mat_vec(n_rows, nd, shapes%cond_qg(:, :, i, c), g(1:nd), t1(1:n_rows))
-               if (flux_data) call mat_vec_add(n_rows, 2, shapes%cond_qf(:, :, i, c), fgrad(:, k, r), 1/rho, t1(1:n_rows))
+               if (flux_data) data_q(nd + 1:nd + 2) = (1/rho)*fgrad(:, k, r)
+               call mat_vec(n_rows, nd + n_data, shapes%cond_q(:, 1:nd + n_data, i, c), data_q(1:nd + n_data), t1(1:n_rows))
             else
-               call mat_vec(n_rows, nd, shapes%cy(:, :, c), g(1:nd), t1(1:n_rows))
+               call mat_vec(n_rows, nd, shapes%cy(:, :, c), data_q(1:nd), t1(1:n_rows))
             end if
             do a = 1, n_rows
                sg = signs(factor%rows(a, k), k)
@@ -358,17 +361,16 @@ contains
          n_rows = factor%n_rows(k)
          i = neumann(k)
          do r = 1, nr
+            data_r(1:nd) = rho*rhs_div(:, k, r)
             do a = 1, n_rows
-               theta(a) = -rho*signs(factor%rows(a, k), k)*b(factor%glob(a, k), r)
+               data_r(nd + a) = -rho*signs(factor%rows(a, k), k)*b(factor%glob(a, k), r)
             end do
-            g(1:nd) = rho*rhs_div(:, k, r)
             if (i > 0) then
-               call mat_vec(nf, nd, shapes%cond_rg(:, :, i, c), g(1:nd), f(1:nf))
-               call mat_vec_add(nf, n_rows, shapes%cond_rt(:, :, i, c), theta(1:n_rows), 1.0_dp, f(1:nf))
-               if (flux_data) call mat_vec_add(nf, 2, shapes%cond_rf(:, :, i, c), fgrad(:, k, r), 1.0_dp, f(1:nf))
+               if (flux_data) data_r(nd + n_rows + 1:nd + n_rows + 2) = fgrad(:, k, r)
+               call mat_vec(nf, nd + n_rows + n_data, shapes%cond_r(:, 1:nd + n_rows + n_data, i, c), &
+                            data_r(1:nd + n_rows + n_data), f(1:nf))
             else
-               call mat_vec(nf, nd, shapes%y(:, :, c), g(1:nd), f(1:nf))
-               call mat_vec_add(nf, nc, shapes%zc(:, :, c), theta(1:nc), 1.0_dp, f(1:nf))
+               call mat_vec(nf, nd + nc, shapes%y_zc(:, :, c), data_r(1:nd + nc), f(1:nf))
             end if
             sigma(:, k, r) = f(1:nf)
          end do
@@ -492,30 +494,6 @@ contains
          end do
       end select
    end subroutine mat_vec
-
-   !> y = y + s A x for a contiguous m×n matrix (constant-length loops as in mat_vec).
-   pure subroutine mat_vec_add(m, n, a, x, s, y)
-      integer, intent(in) :: m, n
-      real(dp), intent(in) :: a(m, n), x(n), s
-      real(dp), intent(inout) :: y(m)
-
-      integer :: j
-
-      select case (m)
-      case (8)
-         do j = 1, n
-            y(1:8) = y(1:8) + a(1:8, j)*(s*x(j))
-         end do
-      case (4)
-         do j = 1, n
-            y(1:4) = y(1:4) + a(1:4, j)*(s*x(j))
-         end do
-      case default
-         do j = 1, n
-            y = y + a(:, j)*(s*x(j))
-         end do
-      end select
-   end subroutine mat_vec_add
 
    !> In place, lower triangle of a contiguous n×n matrix: a = L Lᵀ; ok is .false. if a is not
    !> positive definite.

@@ -43,9 +43,12 @@ module twomem_estimate_shapes
       !> cond_rt = zc(:, I) − Z (C z Cᵀ)_NI                           (nf, 2 n_trace)
       !> cond_qf = [zc(:, I)ᵀ − (C z Cᵀ)_IN (C z Cᵀ)_NN⁻¹ zc(:, N)ᵀ] Φ_iᵀ  (2 n_trace, 2)
       !> cond_rf = [z − Z zc(:, N)ᵀ] Φ_iᵀ                              (nf, 2)
-      !> where Φ_i = psi_phi(:, :, i): the last two take a flux datum −μ ψ_i ∇u directly.
-      real(dp), allocatable :: cond_a(:, :, :, :), cond_qg(:, :, :, :), cond_rg(:, :, :, :), cond_rt(:, :, :, :)
-      real(dp), allocatable :: cond_qf(:, :, :, :), cond_rf(:, :, :, :)
+      !> where Φ_i = psi_phi(:, :, i): the last two take a flux datum −μ ψ_i ∇u directly. They
+      !> are stored side by side as the operators a patch solve applies to a triangle's data,
+      !> cond_q = [cond_qg | cond_qf] and cond_r = [cond_rg | cond_rt | cond_rf], so that each
+      !> takes one product (fewer, longer loops: this runs for every triangle of every patch);
+      !> likewise y_zc = [y | zc] for a triangle with no zero-flux edge.
+      real(dp), allocatable :: cond_a(:, :, :, :), cond_q(:, :, :, :), cond_r(:, :, :, :), y_zc(:, :, :)
    contains
       procedure :: init
       procedure :: free
@@ -117,9 +120,8 @@ contains
          allocate (self%psi_phi(2, nf, 3, n_classes), self%psi_q(nd, 3, n_classes), &
                    self%bary_psi_q(nd, 3, 3, n_classes), self%q_int(nd, n_classes))
          allocate (self%cond_a(nc - space%n_trace, nc - space%n_trace, 3, n_classes), &
-                   self%cond_qg(nc - space%n_trace, nd, 3, n_classes), self%cond_rg(nf, nd, 3, n_classes), &
-                   self%cond_rt(nf, nc - space%n_trace, 3, n_classes), self%cond_qf(nc - space%n_trace, 2, 3, n_classes), &
-                   self%cond_rf(nf, 2, 3, n_classes))
+                   self%cond_q(nc - space%n_trace, nd + 2, 3, n_classes), &
+                   self%cond_r(nf, nd + nc - space%n_trace + 2, 3, n_classes), self%y_zc(nf, nd + nc, n_classes))
          all_ok = .true.
          !$omp parallel do default(none) shared(self, space, hierarchy, nf, nd, nc, n_classes) &
          !$omp private(c, t0, v0, centre, frame, mass, div, trace, c_rows, mixed, inverse, piv, ok, i, l) &
@@ -157,6 +159,8 @@ contains
             self%zc(:, :, c) = matmul(inverse(1:nf, 1:nf), transpose(c_rows))
             self%czc(:, :, c) = matmul(c_rows, self%zc(:, :, c))
             self%cy(:, :, c) = matmul(c_rows, inverse(1:nf, nf + 1:))
+            self%y_zc(:, 1:nd, c) = self%y(:, :, c)
+            self%y_zc(:, nd + 1:, c) = self%zc(:, :, c)
             call class_integrals(space, frame, self%psi_phi(:, :, :, c), self%psi_q(:, :, c), &
                                  self%bary_psi_q(:, :, :, c), self%q_int(:, c))
             do i = 1, 3
@@ -185,12 +189,13 @@ contains
       integer, intent(in) :: c, i
       logical, intent(out) :: ok
 
-      integer :: nt, nn, ni, l, m, rows_n(space%n_trace), rows_i(2*space%n_trace), piv(space%n_trace)
+      integer :: nt, nn, ni, nd, l, m, rows_n(space%n_trace), rows_i(2*space%n_trace), piv(space%n_trace)
       real(dp) :: schur(space%n_trace, space%n_trace), z_n(space%n_flux, space%n_trace)
       real(dp) :: x_ni(space%n_trace, 2*space%n_trace), x_ny(space%n_trace, space%n_div)
       real(dp) :: x_nf(space%n_trace, space%n_flux), phi(space%n_flux, 2)
 
       nt = space%n_trace
+      nd = space%n_div
       nn = nt
       ni = 2*nt
       rows_n = [((i - 1)*nt + l, l=1, nt)]
@@ -210,11 +215,11 @@ contains
          z_n = zc(:, rows_n)
          phi = transpose(self%psi_phi(:, :, i, c))
          self%cond_a(:, :, i, c) = czc(rows_i, rows_i) - matmul(czc(rows_i, rows_n), x_ni)
-         self%cond_qg(:, :, i, c) = cy(rows_i, :) - matmul(czc(rows_i, rows_n), x_ny)
-         self%cond_rg(:, :, i, c) = y - matmul(z_n, x_ny)
-         self%cond_rt(:, :, i, c) = zc(:, rows_i) - matmul(z_n, x_ni)
-         self%cond_qf(:, :, i, c) = matmul(transpose(zc(:, rows_i)) - matmul(czc(rows_i, rows_n), x_nf), phi)
-         self%cond_rf(:, :, i, c) = matmul(z - matmul(z_n, x_nf), phi)
+         self%cond_q(:, 1:nd, i, c) = cy(rows_i, :) - matmul(czc(rows_i, rows_n), x_ny)
+         self%cond_q(:, nd + 1:, i, c) = matmul(transpose(zc(:, rows_i)) - matmul(czc(rows_i, rows_n), x_nf), phi)
+         self%cond_r(:, 1:nd, i, c) = y - matmul(z_n, x_ny)
+         self%cond_r(:, nd + 1:nd + ni, i, c) = zc(:, rows_i) - matmul(z_n, x_ni)
+         self%cond_r(:, nd + ni + 1:, i, c) = matmul(z - matmul(z_n, x_nf), phi)
       end associate
    end subroutine condense
 
@@ -281,7 +286,6 @@ contains
 
       if (allocated(self%z)) deallocate (self%z, self%y, self%zc, self%czc, self%cy, self%mass)
       if (allocated(self%psi_phi)) deallocate (self%psi_phi, self%psi_q, self%bary_psi_q, self%q_int)
-      if (allocated(self%cond_a)) deallocate (self%cond_a, self%cond_qg, self%cond_rg, self%cond_rt, self%cond_qf, &
-                                              self%cond_rf)
+      if (allocated(self%cond_a)) deallocate (self%cond_a, self%cond_q, self%cond_r, self%y_zc)
    end subroutine free
 end module twomem_estimate_shapes
