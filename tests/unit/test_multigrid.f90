@@ -2,8 +2,10 @@
 !> Galerkin product against dense Pᵀ A P (truncated at fixed unknowns) and, for the Laplacian,
 !> against the stiffness matrix assembled on the coarse mesh; the V-cycle's contraction on the
 !> Poisson problem at several mesh sizes; truncation (fixed unknowns never move); the
-!> elimination without coarsening against UMFPACK on the assembled Newton matrix; and GMRES
-!> iteration counts with the preconditioner for both C-functions as the mesh is refined.
+!> elimination without coarsening against UMFPACK on the assembled Newton matrix; the partial
+!> rebuild of the w-block hierarchy for a new Newton step against a fresh build and against a
+!> plain full product; and GMRES iteration counts with the preconditioner for both C-functions
+!> as the mesh is refined.
 module test_multigrid
    use twomem_base_kinds, only: dp, ip, i8
    use twomem_linalg_csr, only: csr_t
@@ -36,6 +38,7 @@ contains
                new_unittest('vcycle_contraction_is_mesh_independent', test_vcycle_contraction), &
                new_unittest('vcycle_never_moves_fixed_unknowns', test_vcycle_fixed), &
                new_unittest('elimination_without_coarsening_is_exact', test_elimination_exact), &
+               new_unittest('partial_rebuild_matches_full_rebuild', test_partial_rebuild), &
                new_unittest('gmres_with_multigrid_iterations_bounded', test_gmres_iterations)]
    end subroutine collect_multigrid
 
@@ -352,6 +355,109 @@ contains
          deallocate (r, z, az)
       end do
    end subroutine test_elimination_exact
+
+   !> C-function rows for step `step` of a made-up Newton iteration on the square: Fischer–
+   !> Burmeister rows whose contact region (x < x_contact) grows from step to step, shifts that
+   !> change only in the upper part (y > 0.3), and exactly fixed rows (b = 0) at every 13th (step
+   !> 1) or 17th (later) unknown of the contact region.
+   subroutine made_up_step(h, p, levels, step, da, db)
+      type(mesh_hierarchy_t), intent(in) :: h
+      type(discrete_problem_t), intent(in) :: p
+      integer, intent(in) :: levels, step
+      real(dp), intent(out) :: da(:), db(:)
+
+      real(dp) :: x, y, x_contact
+      integer(ip) :: i
+
+      x_contact = -0.3_dp + 0.2_dp*step
+      do i = 1, p%n
+         x = h%meshes(levels)%vertices(1, p%interior(i))
+         y = h%meshes(levels)%vertices(2, p%interior(i))
+         da(i) = merge(-0.9_dp, -0.05_dp, x < x_contact) - 0.01_dp*mod(i, 3)
+         db(i) = merge(-0.02_dp, -0.8_dp, x < x_contact)
+         if (y > 0.3_dp) db(i) = db(i)*(1 + 0.1_dp*step)
+         if (x < x_contact .and. mod(i, merge(13, 17, step == 1)) == 0) db(i) = 0.0_dp
+      end do
+   end subroutine made_up_step
+
+   !> A Newton step changes the fixed rows and part of the shift: the w-block hierarchy updated
+   !> on the rows the change reaches must hold the bits of one built afresh for that step, and
+   !> agree to round-off with the plain product P_tᵀ A P_t of the finest operator (no split of
+   !> K and shift, no partial update). Two steps: a Fischer–Burmeister one, then a Newton-min
+   !> one (no shift at all, a few flipped rows).
+   subroutine test_partial_rebuild(err)
+      type(error_t), allocatable, intent(out) :: err
+      integer, parameter :: levels = 4
+      type(mesh_hierarchy_t) :: h
+      type(discrete_problem_t), target :: p
+      type(constant_data_t) :: data
+      type(multigrid_transfer_t), target :: transfer
+      type(elimination_preconditioner_t) :: updated, fresh
+      type(multigrid_t) :: plain
+      type(multigrid_options_t) :: options
+      real(dp), allocatable :: da(:), db(:), da_min(:), db_min(:)
+      logical, allocatable :: fixed_before(:)
+      real(dp) :: scale, deviation
+      integer :: l, step
+      logical :: identical
+      character(len=80) :: msg
+
+      call square_hierarchy(levels, h, err)
+      if (allocated(err)) return
+      data%mu1 = 1.0_dp
+      data%mu2 = 4.0_dp
+      call p%init(h%meshes(levels), data, err)
+      if (allocated(err)) return
+      call transfer%init(interior_prolongations(h, levels), err)
+      if (allocated(err)) return
+      allocate (da(p%n), db(p%n), da_min(p%n), db_min(p%n))
+      call updated%init(p, transfer, levels, options, err)
+      if (allocated(err)) return
+      call made_up_step(h, p, levels, 1, da, db)
+      call updated%set_linearization(da, db, err)
+      if (allocated(err)) return
+      ! Newton-min rows for the second update: contact in the second step's contact region except
+      ! at its fixed rows, which come free
+      call made_up_step(h, p, levels, 2, da, db)
+      da_min = merge(1.0_dp, 0.0_dp, db /= 0.0_dp .and. da < -0.5_dp)
+      db_min = 1.0_dp - da_min
+      do step = 2, 3
+         fixed_before = updated%fixed
+         if (step == 2) then
+            call updated%set_linearization(da, db, err)
+         else
+            call updated%set_linearization(da_min, db_min, err)
+         end if
+         if (allocated(err)) return
+         call check(err, any(updated%fixed .and. .not. fixed_before) .and. any(fixed_before .and. .not. updated%fixed), &
+                    'rows became fixed and free')
+         call check(err, .not. all(updated%w_mg%levels(levels - 1)%updated), 'the update is partial')
+         call fresh%init(p, transfer, levels, options, err)
+         if (allocated(err)) return
+         if (step == 2) then
+            call fresh%set_linearization(da, db, err)
+         else
+            call fresh%set_linearization(da_min, db_min, err)
+         end if
+         if (allocated(err)) return
+         call plain%init(updated%w_matrix, transfer, levels, options, .false., err)
+         if (allocated(err)) return
+         call plain%refresh(updated%fixed, err)
+         if (allocated(err)) return
+         identical = .true.
+         deviation = 0.0_dp
+         do l = 0, levels - 1
+            associate (a => updated%w_mg%levels(l)%a)
+               identical = identical .and. all(a%val == fresh%w_mg%levels(l)%a%val)
+               scale = maxval(abs(plain%levels(l)%a%val))
+               deviation = max(deviation, maxval(abs(a%val - plain%levels(l)%a%val))/scale)
+            end associate
+         end do
+         write (msg, '("step ",i0,": largest relative deviation ",es9.2)') step, deviation
+         call check(err, identical, trim(msg)//': the partial update has the bits of a fresh build')
+         call check(err, deviation <= 1.0e-14_dp, trim(msg)//': split product and plain product agree')
+      end do
+   end subroutine test_partial_rebuild
 
    subroutine test_gmres_iterations(err)
       type(error_t), allocatable, intent(out) :: err

@@ -17,7 +17,8 @@
 !> any mesh size, while its residual stays the full system's, which the estimators need. The S
 !> hierarchy is built once per mesh; the w operator changes with the Newton step through its
 !> diagonal and its fixed rows, and `set_linearization` rebuilds its coarse levels (truncated
-!> at the fixed rows). In a distributed run K is each rank's part: its products are summed
+!> at the fixed rows): only the rows its changed shifts and fixed flags reach, with K's part of
+!> the coarse operators kept apart from the shift's (`multigrid_t`'s split finest operator). In a distributed run K is each rank's part: its products are summed
 !> across ranks, and only the owner of a shared row adds the diagonal shift and identity rows.
 module twomem_newton_elimination
    use twomem_base_kinds, only: dp, ip
@@ -53,6 +54,8 @@ module twomem_newton_elimination
       !> the C-function rows of the current Newton matrix: a = ∂C/∂(u1 − u2), b = ∂C/∂λ
       real(dp), allocatable :: a(:), b(:)
       logical, allocatable :: fixed(:)
+      !> rows whose shift or fixed flag the current Newton step changed
+      logical, allocatable :: row_changed(:)
       !> rows whose X3 comes from the membrane balance (ii): fixed rows and large shifts
       logical, allocatable :: by_balance(:)
       !> the w-block's shift and fixed rows as last built: a Newton step that leaves them alone
@@ -96,7 +99,7 @@ contains
       call self%s_mg%init(p%stiffness, transfer, top, options, .true., err)
       if (allocated(err)) return
       self%w_matrix = p%stiffness
-      call self%w_mg%init(self%w_matrix, transfer, top, options, .false., err, pattern_of=self%s_mg)
+      call self%w_mg%init(self%w_matrix, transfer, top, options, .false., err, pattern_of=self%s_mg, base=p%stiffness)
       if (allocated(err)) return
       allocate (self%diag(n), self%k_diag(n))
       do i = 1, n
@@ -104,7 +107,8 @@ contains
          self%k_diag(i) = p%stiffness%val(self%diag(i))
       end do
       call self%halo%add(self%k_diag)
-      allocate (self%a(n), self%b(n), self%fixed(n), self%by_balance(n), self%shift(n), self%rhs_s(n), self%rhs_w(n), &
+      allocate (self%a(n), self%b(n), self%fixed(n), self%row_changed(n), self%by_balance(n), self%shift(n), &
+                self%rhs_s(n), self%rhs_w(n), &
                 self%s(n), self%w(n), self%w_fixed(n), self%kw(n))
       self%fixed = .false.
       self%shift = 0.0_dp
@@ -159,12 +163,13 @@ contains
             fixed = self%c_mu*self%mass(i)*da(i)/db(i) > fixed_ratio*self%k_diag(i)
          end if
          if (fixed) then
-            changed = changed .or. .not. self%fixed(i) .or. self%shift(i) /= 0.0_dp
+            self%row_changed(i) = .not. self%fixed(i) .or. self%shift(i) /= 0.0_dp
             self%shift(i) = 0.0_dp
          else
-            changed = changed .or. self%fixed(i) .or. self%shift(i) /= self%c_mu*self%mass(i)*da(i)/db(i)
+            self%row_changed(i) = self%fixed(i) .or. self%shift(i) /= self%c_mu*self%mass(i)*da(i)/db(i)
             self%shift(i) = self%c_mu*self%mass(i)*da(i)/db(i)
          end if
+         changed = changed .or. self%row_changed(i)
          self%fixed(i) = fixed
          self%by_balance(i) = fixed .or. self%shift(i) > self%k_diag(i)
          zero_row = zero_row .or. (fixed .and. da(i) == 0.0_dp)
@@ -176,7 +181,12 @@ contains
       end if
       if (.not. self%halo%comm%any_true(changed)) return
       call fill_w_operator(self%k, self%diag, self%fixed, self%shift, self%halo%owned, self%w_matrix)
-      call self%w_mg%refresh(self%fixed, err)
+      ! a failed refresh leaves the hierarchy to be rebuilt whole
+      if (self%built) then
+         call self%w_mg%refresh(self%fixed, err, changed=self%row_changed, shift=self%shift)
+      else
+         call self%w_mg%refresh(self%fixed, err, shift=self%shift)
+      end if
       self%built = .not. allocated(err)
    end subroutine set_linearization
 
