@@ -173,13 +173,16 @@ contains
    end subroutine find_injection
 
    !> The hierarchy for the finest operator `finest` on levels 0..top of `transfer` (top = 0: a
-   !> direct solve). The coarse patterns are copied from `pattern_of` when given (another
-   !> multigrid on the same pattern), else analysed. With `assemble`, ends with `refresh` for no
-   !> fixed unknown; otherwise the caller refreshes when it has the values. The caller keeps
+   !> direct solve). With `start_from` (a refreshed multigrid on the same transfer, levels and
+   !> finest pattern, with no fixed unknown) the coarse patterns and values are copied from it:
+   !> the hierarchy is then ready for a finest operator equal to start_from's, and the first
+   !> refresh can be partial (the w-block starts as the S-block: K, nothing fixed, no shift).
+   !> Otherwise the patterns are analysed, and with `assemble` init ends with `refresh` for no
+   !> fixed unknown; without, the caller refreshes when it has the values. The caller keeps
    !> `finest` and `transfer` alive and in place while the multigrid is used. With `base` (kept
    !> alive too, on the pattern of `finest`), every refresh's finest operator is base plus a
    !> diagonal shift on its free unknowns (see `refresh`). Collective.
-   subroutine init(self, finest, transfer, top, options, assemble, err, pattern_of, base)
+   subroutine init(self, finest, transfer, top, options, assemble, err, start_from, base)
       class(multigrid_t), intent(inout) :: self
       type(csr_t), target, intent(in) :: finest
       type(multigrid_transfer_t), target, intent(inout) :: transfer
@@ -187,7 +190,7 @@ contains
       type(multigrid_options_t), intent(in) :: options
       logical, intent(in) :: assemble
       type(error_t), allocatable, intent(out) :: err
-      type(multigrid_t), intent(in), optional :: pattern_of
+      type(multigrid_t), intent(in), optional :: start_from
       type(csr_t), target, intent(in), optional :: base
 
       integer :: l
@@ -204,8 +207,8 @@ contains
       self%transfer => transfer
       allocate (self%levels(0:top))
       do l = top, 1, -1
-         if (present(pattern_of)) then
-            self%levels(l - 1)%a = pattern_of%levels(l - 1)%a
+         if (present(start_from)) then
+            self%levels(l - 1)%a = start_from%levels(l - 1)%a
          else if (l == top) then
             call galerkin_pattern(transfer%r(l), finest, transfer%p(l), self%levels(l - 1)%a)
          else
@@ -230,8 +233,63 @@ contains
          call self%shift_matrix%init_pattern([(i, i=1, n + 1)], [(i, i=1, n)])
       end if
       call self%coarse%init(transfer%halos(0)%comm, transfer%coarse_keys, transfer%halos(0)%owned)
-      if (assemble) call self%refresh(self%levels(top)%fixed, err)
+      if (present(start_from)) then
+         call start_as(self, start_from, err)
+      else if (assemble) then
+         call self%refresh(self%levels(top)%fixed, err)
+      end if
    end subroutine init
+
+   !> The coarse values, smoothers and coarsest factorization of `start`, whose patterns init
+   !> copied already. A start that cannot serve (not refreshed, or with fixed unknowns, or
+   !> without the uncut values of Pᵀ base P) leaves the first refresh to rebuild everything.
+   subroutine start_as(self, start, err)
+      type(multigrid_t), intent(inout) :: self
+      type(multigrid_t), intent(in) :: start
+      type(error_t), allocatable, intent(out) :: err
+
+      integer :: l, top
+      logical :: usable
+
+      top = self%top
+      usable = start%valid .and. start%top == top
+      if (usable) usable = .not. any(start%levels(top)%fixed)
+      if (usable .and. associated(self%base)) then
+         associate (below => start%levels(top - 1))
+            usable = allocated(below%base_part) .or. .not. any(below%cut)
+         end associate
+      end if
+      if (self%transfer%halos(top)%comm%any_true(.not. usable)) return
+      do l = 0, top
+         associate (lev => self%levels(l), src => start%levels(l))
+            if (l < top) then
+               lev%a%val = src%a%val
+               lev%part_diag = src%part_diag
+               lev%cut = src%cut
+            end if
+            if (l > 0) lev%smoother = src%smoother
+         end associate
+      end do
+      if (associated(self%base)) then
+         associate (below => start%levels(top - 1))
+            if (allocated(below%base_part)) then
+               self%levels(top - 1)%base_part = below%base_part
+            else
+               self%levels(top - 1)%base_part = below%a%val
+            end if
+         end associate
+      end if
+      if (top == 0) then
+         call self%coarse%factor(self%finest, err)
+      else
+         call self%coarse%factor(self%levels(0)%a, err)
+      end if
+      if (allocated(err)) then
+         call make_error(err, exit_io, 'multigrid', 'coarsest level: '//err%message)
+         return
+      end if
+      self%valid = .true.
+   end subroutine start_as
 
    !> Recompute the coarse levels from the finest operator's current values and its fixed
    !> unknowns, whose rows in the finest operator must be identity rows with zero columns.

@@ -58,8 +58,10 @@ module twomem_newton_elimination
       logical, allocatable :: row_changed(:)
       !> rows whose X3 comes from the membrane balance (ii): fixed rows and large shifts
       logical, allocatable :: by_balance(:)
-      !> the w-block's shift and fixed rows as last built: a Newton step that leaves them alone
-      !> (Newton-min once the active set is found) keeps the hierarchy
+      !> the w-block's shift and fixed rows as last built (none after init, when the hierarchy
+      !> is the S-block's): a Newton step that leaves them alone (Newton-min once the active set
+      !> is found) keeps the hierarchy, one that changes some updates the rows they reach; built
+      !> is false while the hierarchy holds no valid values (it is then rebuilt whole)
       real(dp), allocatable :: shift(:)
       logical :: built = .false.
       !> positions of the diagonals of K in its value array
@@ -99,7 +101,9 @@ contains
       call self%s_mg%init(p%stiffness, transfer, top, options, .true., err)
       if (allocated(err)) return
       self%w_matrix = p%stiffness
-      call self%w_mg%init(self%w_matrix, transfer, top, options, .false., err, pattern_of=self%s_mg, base=p%stiffness)
+      ! the w-block starts as the S-block (K: nothing fixed, no shift), so that even the first
+      ! Newton step only recomputes the coarse rows near the contact zone
+      call self%w_mg%init(self%w_matrix, transfer, top, options, .false., err, start_from=self%s_mg, base=p%stiffness)
       if (allocated(err)) return
       allocate (self%diag(n), self%k_diag(n))
       do i = 1, n
@@ -112,7 +116,7 @@ contains
                 self%s(n), self%w(n), self%w_fixed(n), self%kw(n))
       self%fixed = .false.
       self%shift = 0.0_dp
-      self%built = .false.
+      self%built = self%w_mg%valid
    end subroutine init
 
    !> Read the C-function rows of an assembled Newton matrix (block order X1, X2, X3) and
