@@ -383,9 +383,9 @@ contains
    !> A Newton step changes the fixed rows and part of the shift: the w-block hierarchy updated
    !> on the rows the change reaches (it starts as the S-block's) must hold the bits of one
    !> rebuilt whole for that step, and agree to round-off with the plain product P_tᵀ A P_t of
-   !> the finest operator (no split of K and shift). Four steps: from the start to a
-   !> Fischer–Burmeister step, to another, then to a Newton-min step (no shift, rows come free)
-   !> and another.
+   !> the finest operator (no split of K and shift). Five steps: from the start to a
+   !> Fischer–Burmeister step, to another, then to a Newton-min step (no shift, rows come free),
+   !> another, and one that flips two rows.
    subroutine test_partial_rebuild(err)
       type(error_t), allocatable, intent(out) :: err
       integer, parameter :: levels = 4
@@ -411,7 +411,7 @@ contains
       if (allocated(err)) return
       call transfer%init(interior_prolongations(h, levels), err)
       if (allocated(err)) return
-      allocate (da(p%n, 4), db(p%n, 4))
+      allocate (da(p%n, 5), db(p%n, 5))
       call made_up_step(h, p, levels, 1, da(:, 1), db(:, 1))
       call made_up_step(h, p, levels, 2, da(:, 2), db(:, 2))
       ! Newton-min: contact in the second step's contact region except at its fixed rows, which
@@ -421,9 +421,15 @@ contains
       ! and another, which fixes those rows again and frees every fifth of the region
       da(:, 4) = merge(1.0_dp, 0.0_dp, da(:, 2) < -0.5_dp .and. mod([(l, l=1, p%n)], 5) /= 0)
       db(:, 4) = 1.0_dp - da(:, 4)
+      ! and a last one that frees one row and fixes another (few marks: they are spread, not
+      ! gathered)
+      da(:, 5) = da(:, 4)
+      da(findloc(da(:, 4), 1.0_dp, dim=1), 5) = 0.0_dp
+      da(findloc(da(:, 4), 0.0_dp, dim=1), 5) = 1.0_dp
+      db(:, 5) = 1.0_dp - da(:, 5)
       call updated%init(p, transfer, levels, options, err)
       if (allocated(err)) return
-      do step = 1, 4
+      do step = 1, 5
          fixed_before = updated%fixed
          call updated%set_linearization(da(:, step), db(:, step), err)
          if (allocated(err)) return
@@ -444,6 +450,13 @@ contains
                identical = identical .and. all(a%val == whole%levels(l)%a%val)
                scale = maxval(abs(plain%levels(l)%a%val))
                deviation = max(deviation, maxval(abs(a%val - plain%levels(l)%a%val))/scale)
+            end associate
+         end do
+         ! and the smoothers, set up on the updated rows
+         do l = 1, levels
+            associate (smoother => updated%w_mg%levels(l)%smoother)
+               identical = identical .and. all(smoother%inv_diag == whole%levels(l)%smoother%inv_diag) .and. &
+                           smoother%upper == whole%levels(l)%smoother%upper
             end associate
          end do
          write (msg, '("step ",i0,": largest relative deviation ",es9.2)') step, deviation

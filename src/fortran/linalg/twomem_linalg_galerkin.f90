@@ -221,7 +221,9 @@ contains
    !> (`changed`; A is symmetric, so their columns changed too) and the fine unknowns whose fixed
    !> flag flipped (`flipped`: the truncated R and P change around them and, through
    !> `injection`, the coarse unknown that sits there). Dilating the fine marks through A, P and
-   !> R costs a few passes over their patterns, far less than the products it saves.
+   !> R costs a few passes over their patterns, far less than the products it saves; when the
+   !> marks are few (a Newton step near convergence), they are spread from the marked entries
+   !> instead, at a cost that shrinks with the change.
    subroutine touched_rows(r, a, p, injection, flipped, changed, touched)
       type(csr_t), intent(in) :: r, a, p
       integer(ip), intent(in) :: injection(:)
@@ -241,6 +243,10 @@ contains
          end if
       end if
       coarse_flipped = flipped(injection)
+      if (16*(count(flipped) + count(changed)) < a%n) then
+         call spread_marks(r, a, p, flipped, changed, coarse_flipped, touched)
+         return
+      end if
       allocate (moved(p%n), reach(a%n))
       !$omp parallel default(none) shared(r, a, p, flipped, changed, touched, coarse_flipped, moved, reach) &
       !$omp private(i, k)
@@ -274,6 +280,33 @@ contains
       !$omp end do
       !$omp end parallel
    end subroutine touched_rows
+
+   !> touched_rows for few marks, by scattering from them (A's pattern is symmetric, R is Pᵀ).
+   subroutine spread_marks(r, a, p, flipped, changed, coarse_flipped, touched)
+      type(csr_t), intent(in) :: r, a, p
+      logical, intent(in) :: flipped(:), changed(:), coarse_flipped(:)
+      logical, intent(out) :: touched(:)
+
+      logical, allocatable :: moved(:), reach(:)
+      integer(ip) :: i, k
+
+      moved = flipped
+      do i = 1, r%n
+         if (coarse_flipped(i)) moved(r%col(r%row_ptr(i):r%row_ptr(i + 1) - 1)) = .true.
+      end do
+      reach = flipped .or. changed
+      do i = 1, a%n
+         if (changed(i) .or. moved(i)) reach(a%col(a%row_ptr(i):a%row_ptr(i + 1) - 1)) = .true.
+      end do
+      touched = coarse_flipped
+      do i = 1, p%n
+         if (reach(i)) then
+            do k = p%row_ptr(i), p%row_ptr(i + 1) - 1
+               touched(p%col(k)) = .true.
+            end do
+         end if
+      end do
+   end subroutine spread_marks
 
    !> The numeric product on plain arrays (contiguous dummies let the compiler keep every base
    !> address in a register in the innermost loop), on the listed rows, each from 0 or, with

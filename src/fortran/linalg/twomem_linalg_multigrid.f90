@@ -352,7 +352,7 @@ contains
 
    !> Level l−1 from level l (operator a) on the rows the changes reach: its fixed unknowns, the
    !> truncated transfer values (when a fixed flag flipped), the Galerkin product, and the
-   !> smoother of level l. `flipped` marks level l's unknowns whose fixed flag flipped.
+   !> smoother of level l (on level l's updated rows). `flipped` marks level l's unknowns whose fixed flag flipped.
    subroutine coarsen(self, l, truncated, flipped, a)
       type(multigrid_t), intent(inout) :: self
       integer, intent(in) :: l
@@ -375,7 +375,8 @@ contains
             if (allocated(fine%pt)) deallocate (fine%pt, fine%rt)
             call coarse_rows(self, l, a, r%val, p%val, flipped)
          end if
-         call fine%smoother%setup(a, self%transfer%halos(l), self%options%degree, self%options%ratio)
+         call fine%smoother%setup(a, self%transfer%halos(l), self%options%degree, self%options%ratio, &
+                                  row_list(fine%updated))
       end associate
    end subroutine coarsen
 
