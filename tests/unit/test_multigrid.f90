@@ -456,6 +456,7 @@ contains
          do l = 1, levels
             associate (smoother => updated%w_mg%levels(l)%smoother)
                identical = identical .and. all(smoother%inv_diag == whole%levels(l)%smoother%inv_diag) .and. &
+                           all(smoother%part_sum == whole%levels(l)%smoother%part_sum) .and. &
                            smoother%upper == whole%levels(l)%smoother%upper
             end associate
          end do

@@ -293,9 +293,9 @@ contains
 
    !> Recompute the coarse levels from the finest operator's current values and its fixed
    !> unknowns, whose rows in the finest operator must be identity rows with zero columns.
-   !> `changed` marks the finest rows whose values changed since the last refresh (besides rows
-   !> whose fixed flag flipped, found here): then only the coarse rows they reach are recomputed,
-   !> without it every row is. With a `base` (init), `shift` is the diagonal the finest operator
+   !> `changed` marks the finest rows whose values changed since the last refresh other than by
+   !> a flipped fixed flag (the flipped rows and their columns are found here): then only the
+   !> coarse rows they reach are recomputed, without it every row is. With a `base` (init), `shift` is the diagonal the finest operator
    !> adds to base on its free unknowns, on the entries this rank owns. Collective.
    subroutine refresh(self, fixed, err, changed, shift)
       class(multigrid_t), intent(inout) :: self
@@ -314,6 +314,8 @@ contains
          if (partial) then
             flipped = fixed .neqv. finest%fixed
             finest%updated = changed .or. flipped
+            ! a flipped unknown's column is cut or restored: its neighbours' rows change too
+            call mark_neighbours(self%finest, flipped, finest%updated)
          else
             allocate (flipped(size(fixed)))
             flipped = .true.
@@ -428,6 +430,19 @@ contains
          end associate
       end subroutine product
    end subroutine coarse_rows
+
+   !> marks(j) = .true. for every neighbour j (in a's symmetric pattern) of an unknown in `seeds`.
+   subroutine mark_neighbours(a, seeds, marks)
+      type(csr_t), intent(in) :: a
+      logical, intent(in) :: seeds(:)
+      logical, intent(inout) :: marks(:)
+
+      integer(ip) :: i
+
+      do i = 1, a%n
+         if (seeds(i)) marks(a%col(a%row_ptr(i):a%row_ptr(i + 1) - 1)) = .true.
+      end do
+   end subroutine mark_neighbours
 
    !> The indices of the true entries of `mask`.
    function row_list(mask) result(rows)
