@@ -25,22 +25,27 @@ module twomem_linalg_galerkin
 contains
 
    !> The pattern of Pᵀ A P (untruncated, so it serves every fixed set), values zero. r = Pᵀ.
+   !> One pass over the triple loops: each thread lists the columns of its rows in a buffer of
+   !> its own, and the buffers are joined in row order (a static schedule gives every thread one
+   !> contiguous block of rows, in order), so the pattern does not depend on the thread count.
    subroutine galerkin_pattern(r, a, p, c)
       type(csr_t), intent(in) :: r, a, p
       type(csr_t), intent(inout) :: c
 
-      integer(ip), allocatable :: counts(:), row_ptr(:), col(:), marker(:)
-      integer(ip) :: nc, i, k, m, q, j, l, fill
+      integer(ip), allocatable :: counts(:), row_ptr(:), col(:), marker(:), buffer(:)
+      integer(ip) :: nc, i, k, m, q, j, l, fill, used, first
 
       nc = r%n
-      allocate (counts(nc))
-      ! two passes over the same loops: count the distinct columns of each row, then list them
+      allocate (counts(nc), row_ptr(nc + 1))
       !$omp parallel default(none) shared(r, a, p, nc, counts, row_ptr, col) &
-      !$omp private(marker, i, k, m, q, j, l, fill)
-      allocate (marker(nc))
+      !$omp private(marker, buffer, used, first, i, k, m, q, j, l, fill)
+      allocate (marker(nc), buffer(1024))
       marker = 0
+      used = 0
+      first = 0
       !$omp do schedule(static)
       do i = 1, nc
+         if (first == 0) first = i
          fill = 0
          do k = r%row_ptr(i), r%row_ptr(i + 1) - 1
             do m = a%row_ptr(r%col(k)), a%row_ptr(r%col(k) + 1) - 1
@@ -49,48 +54,49 @@ contains
                   l = p%col(q)
                   if (marker(l) /= i) then
                      marker(l) = i
+                     call append(buffer, used, l)
                      fill = fill + 1
                   end if
                end do
             end do
          end do
          ! the diagonal is always stored: a coarse row cut off entirely becomes an identity row
-         if (marker(i) /= i) fill = fill + 1
+         if (marker(i) /= i) then
+            call append(buffer, used, i)
+            fill = fill + 1
+         end if
          counts(i) = fill
       end do
       !$omp end do
       !$omp single
-      allocate (row_ptr(nc + 1))
       row_ptr(1) = 1
       do i = 1, nc
          row_ptr(i + 1) = row_ptr(i) + counts(i)
       end do
       allocate (col(row_ptr(nc + 1) - 1))
       !$omp end single
-      marker = 0
-      !$omp do schedule(static)
-      do i = 1, nc
-         fill = row_ptr(i)
-         do k = r%row_ptr(i), r%row_ptr(i + 1) - 1
-            do m = a%row_ptr(r%col(k)), a%row_ptr(r%col(k) + 1) - 1
-               j = a%col(m)
-               do q = p%row_ptr(j), p%row_ptr(j + 1) - 1
-                  l = p%col(q)
-                  if (marker(l) /= i) then
-                     marker(l) = i
-                     col(fill) = l
-                     fill = fill + 1
-                  end if
-               end do
-            end do
-         end do
-         if (marker(i) /= i) col(fill) = i
-      end do
-      !$omp end do
-      deallocate (marker)
+      if (first > 0) col(row_ptr(first):row_ptr(first) + used - 1) = buffer(1:used)
+      deallocate (marker, buffer)
       !$omp end parallel
       call c%init_pattern(row_ptr, col)
    end subroutine galerkin_pattern
+
+   !> buffer(used + 1) = value, doubling the buffer when full.
+   pure subroutine append(buffer, used, value)
+      integer(ip), allocatable, intent(inout) :: buffer(:)
+      integer(ip), intent(inout) :: used
+      integer(ip), intent(in) :: value
+
+      integer(ip), allocatable :: larger(:)
+
+      if (used == size(buffer)) then
+         allocate (larger(2*size(buffer)))
+         larger(1:used) = buffer
+         call move_alloc(larger, buffer)
+      end if
+      used = used + 1
+      buffer(used) = value
+   end subroutine append
 
    !> The values of P and R = Pᵀ truncated at fixed unknowns: zero where the fine or the coarse
    !> unknown of an entry is fixed.
@@ -231,19 +237,20 @@ contains
       logical, intent(out) :: touched(:)
 
       logical, allocatable :: coarse_flipped(:), moved(:), reach(:)
-      integer(ip) :: i, k
+      integer(ip) :: i, k, n_flipped, n_changed
 
-      if (.not. any(flipped)) then
-         if (.not. any(changed)) then
-            touched = .false.
-            return
-         else if (all(changed)) then
-            touched = .true.
-            return
-         end if
+      n_flipped = count(flipped)
+      n_changed = count(changed)
+      if (n_flipped == 0 .and. n_changed == 0) then
+         touched = .false.
+         return
+      else if (n_flipped == 0 .and. n_changed == size(changed)) then
+         touched = .true.
+         return
       end if
       coarse_flipped = flipped(injection)
-      if (16*(count(flipped) + count(changed)) < a%n) then
+      ! scattering costs a few dozen operations per mark, gathering ten per entry of A
+      if (4*(n_flipped + n_changed) < a%n) then
          call spread_marks(r, a, p, flipped, changed, coarse_flipped, touched)
          return
       end if
