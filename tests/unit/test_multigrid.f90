@@ -400,8 +400,10 @@ contains
       logical, allocatable :: fixed_before(:)
       real(dp) :: scale, deviation
       integer :: l, step
-      logical :: identical, both_ways, partial
+      logical :: identical, both_ways, partial, refilled
       character(len=80) :: msg
+      type(csr_t) :: expected
+      integer(ip) :: i
 
       call square_hierarchy(levels, h, err)
       if (allocated(err)) return
@@ -434,6 +436,14 @@ contains
          call updated%set_linearization(da(:, step), db(:, step), err)
          if (allocated(err)) return
          both_ways = any(updated%fixed .and. .not. fixed_before) .and. any(fixed_before .and. .not. updated%fixed)
+         ! the finest operator, refilled on the changed rows, against K + diag(shift) made afresh
+         expected = p%stiffness
+         call dirichlet_rows(expected, updated%fixed)
+         do i = 1, p%n
+            if (.not. updated%fixed(i)) expected%val(expected%find(i, i)) = expected%val(expected%find(i, i)) + &
+                                                                          updated%shift(i)
+         end do
+         refilled = all(updated%w_matrix%val == expected%val)
          partial = .not. all(updated%w_mg%levels(levels - 1)%updated)
          call whole%init(updated%w_matrix, transfer, levels, options, .false., err, base=p%stiffness)
          if (allocated(err)) return
@@ -462,6 +472,7 @@ contains
          end do
          write (msg, '("step ",i0,": largest relative deviation ",es9.2)') step, deviation
          call check(err, both_ways .or. step == 1, trim(msg)//': rows became fixed and free')
+         call check(err, refilled, trim(msg)//': the w-block operator is K + diag(shift), truncated')
          ! from the start and from Fischer–Burmeister to Newton-min every shift changes
          call check(err, partial .or. step == 1 .or. step == 3, trim(msg)//': the update is partial')
          call check(err, identical, trim(msg)//': the partial update has the bits of a whole rebuild')

@@ -54,8 +54,10 @@ module twomem_newton_elimination
       !> the C-function rows of the current Newton matrix: a = ∂C/∂(u1 − u2), b = ∂C/∂λ
       real(dp), allocatable :: a(:), b(:)
       logical, allocatable :: fixed(:)
-      !> rows whose shift or fixed flag the current Newton step changed
-      logical, allocatable :: row_changed(:)
+      !> rows whose shift or fixed flag the current Newton step changed, rows whose fixed flag
+      !> flipped, and rows of the w-block operator to refill (the changed rows and the
+      !> neighbours of flipped ones, whose column is cut or restored)
+      logical, allocatable :: row_changed(:), flipped(:), refill(:)
       !> rows whose X3 comes from the membrane balance (ii): fixed rows and large shifts
       logical, allocatable :: by_balance(:)
       !> the w-block's shift and fixed rows as last built (none after init, when the hierarchy
@@ -111,7 +113,8 @@ contains
          self%k_diag(i) = p%stiffness%val(self%diag(i))
       end do
       call self%halo%add(self%k_diag)
-      allocate (self%a(n), self%b(n), self%fixed(n), self%row_changed(n), self%by_balance(n), self%shift(n), &
+      allocate (self%a(n), self%b(n), self%fixed(n), self%row_changed(n), self%flipped(n), self%refill(n), &
+                self%by_balance(n), self%shift(n), &
                 self%rhs_s(n), self%rhs_w(n), &
                 self%s(n), self%w(n), self%w_fixed(n), self%kw(n))
       self%fixed = .false.
@@ -174,6 +177,7 @@ contains
             self%shift(i) = self%c_mu*self%mass(i)*da(i)/db(i)
          end if
          changed = changed .or. self%row_changed(i)
+         self%flipped(i) = fixed .neqv. self%fixed(i)
          self%fixed(i) = fixed
          self%by_balance(i) = fixed .or. self%shift(i) > self%k_diag(i)
          zero_row = zero_row .or. (fixed .and. da(i) == 0.0_dp)
@@ -184,7 +188,15 @@ contains
          return
       end if
       if (.not. self%halo%comm%any_true(changed)) return
-      call fill_w_operator(self%k, self%diag, self%fixed, self%shift, self%halo%owned, self%w_matrix)
+      if (self%built) then
+         self%refill = self%row_changed
+         do i = 1, self%n
+            if (self%flipped(i)) self%refill(self%k%col(self%k%row_ptr(i):self%k%row_ptr(i + 1) - 1)) = .true.
+         end do
+      else
+         self%refill = .true.
+      end if
+      call fill_w_operator(self%k, self%diag, self%fixed, self%shift, self%halo%owned, self%refill, self%w_matrix)
       ! a failed refresh leaves the hierarchy to be rebuilt whole
       if (self%built) then
          call self%w_mg%refresh(self%fixed, err, changed=self%row_changed, shift=self%shift)
@@ -194,20 +206,22 @@ contains
       self%built = .not. allocated(err)
    end subroutine set_linearization
 
-   !> w_mat = K + diag(shift) with fixed rows replaced by identity rows and fixed columns cut out;
-   !> the shift and the identity's 1 go to the owner's part of a shared row only.
-   subroutine fill_w_operator(k_mat, diag, fixed, shift, owned, w_mat)
+   !> w_mat = K + diag(shift) with fixed rows replaced by identity rows and fixed columns cut out,
+   !> on the rows in `rows`; the shift and the identity's 1 go to the owner's part of a shared
+   !> row only.
+   subroutine fill_w_operator(k_mat, diag, fixed, shift, owned, rows, w_mat)
       type(csr_t), intent(in) :: k_mat
       integer(ip), intent(in) :: diag(:)
-      logical, intent(in) :: fixed(:), owned(:)
+      logical, intent(in) :: fixed(:), owned(:), rows(:)
       real(dp), intent(in) :: shift(:)
       type(csr_t), intent(inout) :: w_mat
 
       integer(ip) :: i, k
 
-      !$omp parallel do default(none) shared(k_mat, diag, fixed, shift, owned, w_mat) private(i, k) schedule(static) &
-      !$omp if(k_mat%n > 4096)
+      !$omp parallel do default(none) shared(k_mat, diag, fixed, shift, owned, rows, w_mat) private(i, k) &
+      !$omp schedule(static) if(k_mat%n > 4096)
       do i = 1, k_mat%n
+         if (.not. rows(i)) cycle
          do k = k_mat%row_ptr(i), k_mat%row_ptr(i + 1) - 1
             if (fixed(i) .or. fixed(k_mat%col(k))) then
                w_mat%val(k) = 0.0_dp
