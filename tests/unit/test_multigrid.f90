@@ -4,7 +4,7 @@
 !> Poisson problem at several mesh sizes; truncation (fixed unknowns never move); the
 !> elimination without coarsening against UMFPACK on the assembled Newton matrix; the partial
 !> rebuild of the w-block hierarchy for a new Newton step against a whole rebuild and against
-!> a plain full product; and GMRES iteration counts with the preconditioner for both C-functions
+!> a plain full product; the hierarchy assembled in one pass against pattern then values; and GMRES iteration counts with the preconditioner for both C-functions
 !> as the mesh is refined.
 module test_multigrid
    use twomem_base_kinds, only: dp, ip, i8
@@ -39,6 +39,7 @@ contains
                new_unittest('vcycle_never_moves_fixed_unknowns', test_vcycle_fixed), &
                new_unittest('elimination_without_coarsening_is_exact', test_elimination_exact), &
                new_unittest('partial_rebuild_matches_full_rebuild', test_partial_rebuild), &
+               new_unittest('assembled_hierarchy_matches_refresh', test_assembled_hierarchy), &
                new_unittest('gmres_with_multigrid_iterations_bounded', test_gmres_iterations)]
    end subroutine collect_multigrid
 
@@ -480,6 +481,45 @@ contains
          if (allocated(err)) return
       end do
    end subroutine test_partial_rebuild
+
+   !> A hierarchy assembled by init (patterns and values in one pass per level) holds the bits of
+   !> one whose patterns init analysed and whose values refresh computed.
+   subroutine test_assembled_hierarchy(err)
+      type(error_t), allocatable, intent(out) :: err
+      integer, parameter :: levels = 4
+      type(mesh_hierarchy_t) :: h
+      type(discrete_problem_t), target :: p
+      type(constant_data_t) :: data
+      type(multigrid_transfer_t), target :: transfer
+      type(multigrid_t) :: assembled, refreshed
+      type(multigrid_options_t) :: options
+      logical :: identical
+      integer :: l
+
+      call square_hierarchy(levels, h, err)
+      if (allocated(err)) return
+      call p%init(h%meshes(levels), data, err)
+      if (allocated(err)) return
+      call transfer%init(interior_prolongations(h, levels), err)
+      if (allocated(err)) return
+      call assembled%init(p%stiffness, transfer, levels, options, .true., err)
+      if (allocated(err)) return
+      call refreshed%init(p%stiffness, transfer, levels, options, .false., err)
+      if (allocated(err)) return
+      call refreshed%refresh(refreshed%levels(levels)%fixed, err)
+      if (allocated(err)) return
+      identical = .true.
+      do l = 0, levels - 1
+         associate (a => assembled%levels(l)%a, b => refreshed%levels(l)%a)
+            identical = identical .and. all(a%row_ptr == b%row_ptr) .and. all(a%col == b%col) .and. all(a%val == b%val)
+         end associate
+      end do
+      do l = 1, levels
+         identical = identical .and. all(assembled%levels(l)%smoother%inv_diag == refreshed%levels(l)%smoother%inv_diag) &
+                     .and. assembled%levels(l)%smoother%upper == refreshed%levels(l)%smoother%upper
+      end do
+      call check(err, identical, 'patterns, values and smoothers agree bit for bit')
+   end subroutine test_assembled_hierarchy
 
    subroutine test_gmres_iterations(err)
       type(error_t), allocatable, intent(out) :: err

@@ -20,52 +20,73 @@ module twomem_linalg_galerkin
    implicit none
    private
 
-   public :: galerkin_pattern, galerkin_values, truncate_transfer, galerkin_rows, cut_rows, touched_rows
+   public :: galerkin_pattern, galerkin_assemble, galerkin_values, truncate_transfer, galerkin_rows, cut_rows, touched_rows
 
 contains
 
    !> The pattern of Pᵀ A P (untruncated, so it serves every fixed set), values zero. r = Pᵀ.
-   !> One pass over the triple loops: each thread lists the columns of its rows in a buffer of
-   !> its own, and the buffers are joined in row order (a static schedule gives every thread one
-   !> contiguous block of rows, in order), so the pattern does not depend on the thread count.
    subroutine galerkin_pattern(r, a, p, c)
       type(csr_t), intent(in) :: r, a, p
       type(csr_t), intent(inout) :: c
 
-      integer(ip), allocatable :: counts(:), row_ptr(:), col(:), marker(:), buffer(:)
-      integer(ip) :: nc, i, k, m, q, j, l, fill, used, first
+      call pattern_and_values(r, a, p, .false., c)
+   end subroutine galerkin_pattern
+
+   !> The pattern of Pᵀ A P and its values with the untruncated transfer, in one pass: for a
+   !> hierarchy built once with nothing fixed (the S-block), half the work of pattern, then
+   !> values. The values have the bits of `galerkin_rows` with R's and P's own values.
+   subroutine galerkin_assemble(r, a, p, c)
+      type(csr_t), intent(in) :: r, a, p
+      type(csr_t), intent(inout) :: c
+
+      call pattern_and_values(r, a, p, .true., c)
+   end subroutine galerkin_assemble
+
+   !> One pass over the triple loops: each thread lists the columns (and, `with_values`, the
+   !> values, summed in the order of `product_rows`) of its rows in buffers of its own, and the
+   !> buffers are joined in row order (a static schedule gives every thread one contiguous
+   !> block of rows, in order), so the result does not depend on the thread count.
+   subroutine pattern_and_values(r, a, p, with_values, c)
+      type(csr_t), intent(in) :: r, a, p
+      logical, intent(in) :: with_values
+      type(csr_t), intent(inout) :: c
+
+      integer(ip), allocatable :: counts(:), row_ptr(:), col(:), slot(:), buffer(:)
+      real(dp), allocatable :: val(:), values(:)
+      integer(ip) :: nc, i, k, m, q, j, l, used, first, start
+      real(dp) :: rik, rikakj
 
       nc = r%n
       allocate (counts(nc), row_ptr(nc + 1))
-      !$omp parallel default(none) shared(r, a, p, nc, counts, row_ptr, col) &
-      !$omp private(marker, buffer, used, first, i, k, m, q, j, l, fill)
-      allocate (marker(nc), buffer(1024))
-      marker = 0
+      !$omp parallel default(none) shared(r, a, p, nc, counts, row_ptr, col, val, with_values) &
+      !$omp private(slot, buffer, values, used, first, start, i, k, m, q, j, l, rik, rikakj)
+      ! slot(l): where column l of the current row sits in the buffer (stale if before `start`)
+      allocate (slot(nc), buffer(1024), values(1024))
+      slot = 0
       used = 0
       first = 0
       !$omp do schedule(static)
       do i = 1, nc
          if (first == 0) first = i
-         fill = 0
+         start = used + 1
          do k = r%row_ptr(i), r%row_ptr(i + 1) - 1
+            rik = r%val(k)
             do m = a%row_ptr(r%col(k)), a%row_ptr(r%col(k) + 1) - 1
+               rikakj = rik*a%val(m)
                j = a%col(m)
                do q = p%row_ptr(j), p%row_ptr(j + 1) - 1
                   l = p%col(q)
-                  if (marker(l) /= i) then
-                     marker(l) = i
-                     call append(buffer, used, l)
-                     fill = fill + 1
+                  if (slot(l) < start) then
+                     call append(buffer, values, used, l)
+                     slot(l) = used
                   end if
+                  if (with_values .and. rik /= 0.0_dp) values(slot(l)) = values(slot(l)) + rikakj*p%val(q)
                end do
             end do
          end do
          ! the diagonal is always stored: a coarse row cut off entirely becomes an identity row
-         if (marker(i) /= i) then
-            call append(buffer, used, i)
-            fill = fill + 1
-         end if
-         counts(i) = fill
+         if (slot(i) < start) call append(buffer, values, used, i)
+         counts(i) = used - start + 1
       end do
       !$omp end do
       !$omp single
@@ -73,29 +94,67 @@ contains
       do i = 1, nc
          row_ptr(i + 1) = row_ptr(i) + counts(i)
       end do
-      allocate (col(row_ptr(nc + 1) - 1))
+      allocate (col(row_ptr(nc + 1) - 1), val(row_ptr(nc + 1) - 1))
       !$omp end single
-      if (first > 0) col(row_ptr(first):row_ptr(first) + used - 1) = buffer(1:used)
-      deallocate (marker, buffer)
+      if (first > 0) then
+         col(row_ptr(first):row_ptr(first) + used - 1) = buffer(1:used)
+         val(row_ptr(first):row_ptr(first) + used - 1) = values(1:used)
+      end if
+      deallocate (slot, buffer, values)
       !$omp end parallel
+      ! columns sorted within each row, the values moved along
+      !$omp parallel do default(none) shared(nc, row_ptr, col, val) private(i) schedule(static) if(nc > 4096)
+      do i = 1, nc
+         call sort_pairs(col(row_ptr(i):row_ptr(i + 1) - 1), val(row_ptr(i):row_ptr(i + 1) - 1))
+      end do
+      !$omp end parallel do
       call c%init_pattern(row_ptr, col)
-   end subroutine galerkin_pattern
+      if (with_values) c%val = val
+   end subroutine pattern_and_values
 
-   !> buffer(used + 1) = value, doubling the buffer when full.
-   pure subroutine append(buffer, used, value)
+   !> Insertion sort of `key` (a row's handful of columns), applying the same moves to `other`.
+   pure subroutine sort_pairs(key, other)
+      integer(ip), intent(inout) :: key(:)
+      real(dp), intent(inout) :: other(:)
+
+      integer(ip) :: i, j, k
+      real(dp) :: o
+
+      do i = 2, size(key)
+         k = key(i)
+         o = other(i)
+         j = i - 1
+         do while (j >= 1)
+            if (key(j) <= k) exit
+            key(j + 1) = key(j)
+            other(j + 1) = other(j)
+            j = j - 1
+         end do
+         key(j + 1) = k
+         other(j + 1) = o
+      end do
+   end subroutine sort_pairs
+
+   !> buffer(used + 1) = value and values(used + 1) = 0, doubling both when full.
+   pure subroutine append(buffer, values, used, value)
       integer(ip), allocatable, intent(inout) :: buffer(:)
+      real(dp), allocatable, intent(inout) :: values(:)
       integer(ip), intent(inout) :: used
       integer(ip), intent(in) :: value
 
       integer(ip), allocatable :: larger(:)
+      real(dp), allocatable :: more(:)
 
       if (used == size(buffer)) then
-         allocate (larger(2*size(buffer)))
+         allocate (larger(2*size(buffer)), more(2*size(buffer)))
          larger(1:used) = buffer
+         more(1:used) = values
          call move_alloc(larger, buffer)
+         call move_alloc(more, values)
       end if
       used = used + 1
       buffer(used) = value
+      values(used) = 0.0_dp
    end subroutine append
 
    !> The values of P and R = Pᵀ truncated at fixed unknowns: zero where the fine or the coarse

@@ -24,7 +24,7 @@ module twomem_linalg_multigrid
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_io
    use twomem_linalg_csr, only: csr_t
-   use twomem_linalg_galerkin, only: galerkin_pattern, galerkin_rows, cut_rows, touched_rows, truncate_transfer
+   use twomem_linalg_galerkin, only: galerkin_pattern, galerkin_assemble, galerkin_rows, cut_rows, touched_rows, truncate_transfer
    use twomem_linalg_chebyshev, only: chebyshev_t, level_product
    use twomem_linalg_halo, only: halo_t
    use twomem_linalg_gathered_solve, only: gathered_solver_t
@@ -177,8 +177,9 @@ contains
    !> finest pattern, with no fixed unknown) the coarse patterns and values are copied from it:
    !> the hierarchy is then ready for a finest operator equal to start_from's, and the first
    !> refresh can be partial (the w-block starts as the S-block: K, nothing fixed, no shift).
-   !> Otherwise the patterns are analysed, and with `assemble` init ends with `refresh` for no
-   !> fixed unknown; without, the caller refreshes when it has the values. The caller keeps
+   !> Otherwise, with `assemble`, init builds the levels for no fixed unknown (what `refresh`
+   !> would, patterns and values together); without, it analyses the patterns and the caller
+   !> refreshes when it has the values. The caller keeps
    !> `finest` and `transfer` alive and in place while the multigrid is used. With `base` (kept
    !> alive too, on the pattern of `finest`), every refresh's finest operator is base plus a
    !> diagonal shift on its free unknowns (see `refresh`). Collective.
@@ -195,6 +196,7 @@ contains
 
       integer :: l
       integer(ip) :: n, i
+      logical :: fused
 
       call self%free()
       if (top < 0 .or. top > transfer%levels .or. .not. allocated(transfer%halos)) then
@@ -206,24 +208,29 @@ contains
       self%finest => finest
       self%transfer => transfer
       allocate (self%levels(0:top))
-      do l = top, 1, -1
-         if (present(start_from)) then
-            self%levels(l - 1)%a = start_from%levels(l - 1)%a
-         else if (l == top) then
-            call galerkin_pattern(transfer%r(l), finest, transfer%p(l), self%levels(l - 1)%a)
-         else
-            call galerkin_pattern(transfer%r(l), self%levels(l)%a, transfer%p(l), self%levels(l - 1)%a)
-         end if
-      end do
+      ! a hierarchy assembled here gets each level's pattern and values in one pass
+      fused = assemble .and. .not. present(start_from) .and. .not. present(base)
+      if (.not. fused) then
+         do l = top, 1, -1
+            if (present(start_from)) then
+               self%levels(l - 1)%a = start_from%levels(l - 1)%a
+            else if (l == top) then
+               call galerkin_pattern(transfer%r(l), finest, transfer%p(l), self%levels(l - 1)%a)
+            else
+               call galerkin_pattern(transfer%r(l), self%levels(l)%a, transfer%p(l), self%levels(l - 1)%a)
+            end if
+         end do
+      end if
       do l = 0, top
          n = finest%n
-         if (l < top) n = self%levels(l)%a%n
+         if (l < top) n = transfer%p(l + 1)%ncol
          associate (lev => self%levels(l))
             allocate (lev%fixed(n), lev%r1(n), lev%r2(n), lev%r3(n))
             ! the finest level's right-hand side and iterate are the caller's
             if (l < top) allocate (lev%b(n), lev%x(n), lev%part_diag(n), lev%cut(n))
             allocate (lev%updated(n))
             lev%fixed = .false.
+            if (l < top) lev%cut = .false.
          end associate
       end do
       if (present(base) .and. top > 0) then
@@ -235,10 +242,50 @@ contains
       call self%coarse%init(transfer%halos(0)%comm, transfer%coarse_keys, transfer%halos(0)%owned)
       if (present(start_from)) then
          call start_as(self, start_from, err)
+      else if (fused) then
+         call assemble_levels(self, err)
       else if (assemble) then
          call self%refresh(self%levels(top)%fixed, err)
       end if
    end subroutine init
+
+   !> The coarse levels for nothing fixed, what `refresh` computes, but each level's pattern and
+   !> values in one pass (`galerkin_assemble`) instead of a pattern pass and a product.
+   subroutine assemble_levels(self, err)
+      type(multigrid_t), intent(inout) :: self
+      type(error_t), allocatable, intent(out) :: err
+
+      integer(ip), allocatable :: rows(:), regain(:)
+      integer(ip) :: i
+      integer :: l
+
+      do l = self%top, 1, -1
+         associate (fine => self%levels(l), coarse => self%levels(l - 1), p => self%transfer%p(l), &
+                    r => self%transfer%r(l), halo => self%transfer%halos(l))
+            if (l == self%top) then
+               call galerkin_assemble(r, self%finest, p, coarse%a)
+               call fine%smoother%setup(self%finest, halo, self%options%degree, self%options%ratio)
+            else
+               call galerkin_assemble(r, fine%a, p, coarse%a)
+               call fine%smoother%setup(fine%a, halo, self%options%degree, self%options%ratio)
+            end if
+            rows = [(i, i=1, coarse%a%n)]
+            coarse%updated = .true.
+            call cut_rows(rows, coarse%fixed, self%transfer%halos(l - 1), coarse%part_diag, coarse%cut, coarse%a, &
+                          coarse%updated, regain)
+         end associate
+      end do
+      if (self%top == 0) then
+         call self%coarse%factor(self%finest, err)
+      else
+         call self%coarse%factor(self%levels(0)%a, err)
+      end if
+      if (allocated(err)) then
+         call make_error(err, exit_io, 'multigrid', 'coarsest level: '//err%message)
+         return
+      end if
+      self%valid = .true.
+   end subroutine assemble_levels
 
    !> The coarse values, smoothers and coarsest factorization of `start`, whose patterns init
    !> copied already. A start that cannot serve (not refreshed, or with fixed unknowns, or
