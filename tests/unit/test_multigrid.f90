@@ -2,8 +2,10 @@
 !> Galerkin product against dense Pᵀ A P (truncated at fixed unknowns) and, for the Laplacian,
 !> against the stiffness matrix assembled on the coarse mesh; the V-cycle's contraction on the
 !> Poisson problem at several mesh sizes; truncation (fixed unknowns never move); the
-!> elimination without coarsening against UMFPACK on the assembled Newton matrix; and GMRES
-!> iteration counts with the preconditioner for both C-functions as the mesh is refined.
+!> elimination without coarsening against UMFPACK on the assembled Newton matrix; the partial
+!> rebuild of the w-block hierarchy for a new Newton step against a whole rebuild and against
+!> a plain full product; the hierarchy assembled in one pass against pattern then values; and GMRES iteration counts with the preconditioner for both C-functions
+!> as the mesh is refined.
 module test_multigrid
    use twomem_base_kinds, only: dp, ip, i8
    use twomem_linalg_csr, only: csr_t
@@ -36,6 +38,8 @@ contains
                new_unittest('vcycle_contraction_is_mesh_independent', test_vcycle_contraction), &
                new_unittest('vcycle_never_moves_fixed_unknowns', test_vcycle_fixed), &
                new_unittest('elimination_without_coarsening_is_exact', test_elimination_exact), &
+               new_unittest('partial_rebuild_matches_full_rebuild', test_partial_rebuild), &
+               new_unittest('assembled_hierarchy_matches_refresh', test_assembled_hierarchy), &
                new_unittest('gmres_with_multigrid_iterations_bounded', test_gmres_iterations)]
    end subroutine collect_multigrid
 
@@ -352,6 +356,170 @@ contains
          deallocate (r, z, az)
       end do
    end subroutine test_elimination_exact
+
+   !> C-function rows for step `step` of a made-up Newton iteration on the square: Fischer–
+   !> Burmeister rows whose contact region (x < x_contact) grows from step to step, shifts that
+   !> change only in the upper part (y > 0.3), and exactly fixed rows (b = 0) at every 13th (step
+   !> 1) or 17th (later) unknown of the contact region.
+   subroutine made_up_step(h, p, levels, step, da, db)
+      type(mesh_hierarchy_t), intent(in) :: h
+      type(discrete_problem_t), intent(in) :: p
+      integer, intent(in) :: levels, step
+      real(dp), intent(out) :: da(:), db(:)
+
+      real(dp) :: x, y, x_contact
+      integer(ip) :: i
+
+      x_contact = -0.3_dp + 0.2_dp*step
+      do i = 1, p%n
+         x = h%meshes(levels)%vertices(1, p%interior(i))
+         y = h%meshes(levels)%vertices(2, p%interior(i))
+         da(i) = merge(-0.9_dp, -0.05_dp, x < x_contact) - 0.01_dp*mod(i, 3)
+         db(i) = merge(-0.02_dp, -0.8_dp, x < x_contact)
+         if (y > 0.3_dp) db(i) = db(i)*(1 + 0.1_dp*step)
+         if (x < x_contact .and. mod(i, merge(13, 17, step == 1)) == 0) db(i) = 0.0_dp
+      end do
+   end subroutine made_up_step
+
+   !> A Newton step changes the fixed rows and part of the shift: the w-block hierarchy updated
+   !> on the rows the change reaches (it starts as the S-block's) must hold the bits of one
+   !> rebuilt whole for that step, and agree to round-off with the plain product P_tᵀ A P_t of
+   !> the finest operator (no split of K and shift). Five steps: from the start to a
+   !> Fischer–Burmeister step, to another, then to a Newton-min step (no shift, rows come free),
+   !> another, and one that flips two rows.
+   subroutine test_partial_rebuild(err)
+      type(error_t), allocatable, intent(out) :: err
+      integer, parameter :: levels = 4
+      type(mesh_hierarchy_t) :: h
+      type(discrete_problem_t), target :: p
+      type(constant_data_t) :: data
+      type(multigrid_transfer_t), target :: transfer
+      type(elimination_preconditioner_t) :: updated
+      type(multigrid_t) :: whole, plain
+      type(multigrid_options_t) :: options
+      real(dp), allocatable :: da(:, :), db(:, :)
+      logical, allocatable :: fixed_before(:)
+      real(dp) :: scale, deviation
+      integer :: l, step
+      logical :: identical, both_ways, partial, refilled
+      character(len=80) :: msg
+      type(csr_t) :: expected
+      integer(ip) :: i
+
+      call square_hierarchy(levels, h, err)
+      if (allocated(err)) return
+      data%mu1 = 1.0_dp
+      data%mu2 = 4.0_dp
+      call p%init(h%meshes(levels), data, err)
+      if (allocated(err)) return
+      call transfer%init(interior_prolongations(h, levels), err)
+      if (allocated(err)) return
+      allocate (da(p%n, 5), db(p%n, 5))
+      call made_up_step(h, p, levels, 1, da(:, 1), db(:, 1))
+      call made_up_step(h, p, levels, 2, da(:, 2), db(:, 2))
+      ! Newton-min: contact in the second step's contact region except at its fixed rows, which
+      ! come free
+      da(:, 3) = merge(1.0_dp, 0.0_dp, db(:, 2) /= 0.0_dp .and. da(:, 2) < -0.5_dp)
+      db(:, 3) = 1.0_dp - da(:, 3)
+      ! and another, which fixes those rows again and frees every fifth of the region
+      da(:, 4) = merge(1.0_dp, 0.0_dp, da(:, 2) < -0.5_dp .and. mod([(l, l=1, p%n)], 5) /= 0)
+      db(:, 4) = 1.0_dp - da(:, 4)
+      ! and a last one that frees one row and fixes another (few marks: they are spread, not
+      ! gathered)
+      da(:, 5) = da(:, 4)
+      da(findloc(da(:, 4), 1.0_dp, dim=1), 5) = 0.0_dp
+      da(findloc(da(:, 4), 0.0_dp, dim=1), 5) = 1.0_dp
+      db(:, 5) = 1.0_dp - da(:, 5)
+      call updated%init(p, transfer, levels, options, err)
+      if (allocated(err)) return
+      do step = 1, 5
+         fixed_before = updated%fixed
+         call updated%set_linearization(da(:, step), db(:, step), err)
+         if (allocated(err)) return
+         both_ways = any(updated%fixed .and. .not. fixed_before) .and. any(fixed_before .and. .not. updated%fixed)
+         ! the finest operator, refilled on the changed rows, against K + diag(shift) made afresh
+         expected = p%stiffness
+         call dirichlet_rows(expected, updated%fixed)
+         do i = 1, p%n
+            if (.not. updated%fixed(i)) expected%val(expected%find(i, i)) = expected%val(expected%find(i, i)) + &
+                                                                          updated%shift(i)
+         end do
+         refilled = all(updated%w_matrix%val == expected%val)
+         partial = .not. all(updated%w_mg%levels(levels - 1)%updated)
+         call whole%init(updated%w_matrix, transfer, levels, options, .false., err, base=p%stiffness)
+         if (allocated(err)) return
+         call whole%refresh(updated%fixed, err, shift=updated%shift)
+         if (allocated(err)) return
+         call plain%init(updated%w_matrix, transfer, levels, options, .false., err)
+         if (allocated(err)) return
+         call plain%refresh(updated%fixed, err)
+         if (allocated(err)) return
+         identical = .true.
+         deviation = 0.0_dp
+         do l = 0, levels - 1
+            associate (a => updated%w_mg%levels(l)%a)
+               identical = identical .and. all(a%val == whole%levels(l)%a%val)
+               scale = maxval(abs(plain%levels(l)%a%val))
+               deviation = max(deviation, maxval(abs(a%val - plain%levels(l)%a%val))/scale)
+            end associate
+         end do
+         ! and the smoothers, set up on the updated rows
+         do l = 1, levels
+            associate (smoother => updated%w_mg%levels(l)%smoother)
+               identical = identical .and. all(smoother%inv_diag == whole%levels(l)%smoother%inv_diag) .and. &
+                           all(smoother%part_sum == whole%levels(l)%smoother%part_sum) .and. &
+                           smoother%upper == whole%levels(l)%smoother%upper
+            end associate
+         end do
+         write (msg, '("step ",i0,": largest relative deviation ",es9.2)') step, deviation
+         call check(err, both_ways .or. step == 1, trim(msg)//': rows became fixed and free')
+         call check(err, refilled, trim(msg)//': the w-block operator is K + diag(shift), truncated')
+         ! from the start and from Fischer–Burmeister to Newton-min every shift changes
+         call check(err, partial .or. step == 1 .or. step == 3, trim(msg)//': the update is partial')
+         call check(err, identical, trim(msg)//': the partial update has the bits of a whole rebuild')
+         call check(err, deviation <= 1.0e-14_dp, trim(msg)//': split product and plain product agree')
+         if (allocated(err)) return
+      end do
+   end subroutine test_partial_rebuild
+
+   !> A hierarchy assembled by init (patterns and values in one pass per level) holds the bits of
+   !> one whose patterns init analysed and whose values refresh computed.
+   subroutine test_assembled_hierarchy(err)
+      type(error_t), allocatable, intent(out) :: err
+      integer, parameter :: levels = 4
+      type(mesh_hierarchy_t) :: h
+      type(discrete_problem_t), target :: p
+      type(constant_data_t) :: data
+      type(multigrid_transfer_t), target :: transfer
+      type(multigrid_t) :: assembled, refreshed
+      type(multigrid_options_t) :: options
+      logical :: identical
+      integer :: l
+
+      call square_hierarchy(levels, h, err)
+      if (allocated(err)) return
+      call p%init(h%meshes(levels), data, err)
+      if (allocated(err)) return
+      call transfer%init(interior_prolongations(h, levels), err)
+      if (allocated(err)) return
+      call assembled%init(p%stiffness, transfer, levels, options, .true., err)
+      if (allocated(err)) return
+      call refreshed%init(p%stiffness, transfer, levels, options, .false., err)
+      if (allocated(err)) return
+      call refreshed%refresh(refreshed%levels(levels)%fixed, err)
+      if (allocated(err)) return
+      identical = .true.
+      do l = 0, levels - 1
+         associate (a => assembled%levels(l)%a, b => refreshed%levels(l)%a)
+            identical = identical .and. all(a%row_ptr == b%row_ptr) .and. all(a%col == b%col) .and. all(a%val == b%val)
+         end associate
+      end do
+      do l = 1, levels
+         identical = identical .and. all(assembled%levels(l)%smoother%inv_diag == refreshed%levels(l)%smoother%inv_diag) &
+                     .and. assembled%levels(l)%smoother%upper == refreshed%levels(l)%smoother%upper
+      end do
+      call check(err, identical, 'patterns, values and smoothers agree bit for bit')
+   end subroutine test_assembled_hierarchy
 
    subroutine test_gmres_iterations(err)
       type(error_t), allocatable, intent(out) :: err

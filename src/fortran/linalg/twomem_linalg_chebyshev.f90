@@ -25,6 +25,9 @@ module twomem_linalg_chebyshev
       real(dp) :: ratio = 4.0_dp
       real(dp) :: upper = 2.0_dp
       real(dp), allocatable :: inv_diag(:)
+      !> this rank's part of each row's diagonal and sum of absolute values, kept so that a
+      !> setup for changed rows reads only those
+      real(dp), allocatable :: part_diag(:), part_sum(:)
    contains
       procedure :: setup
       procedure :: smooth
@@ -45,30 +48,46 @@ contains
 
    !> Diagonal and spectral bound of `a` (rows with a non-positive diagonal are left unscaled:
    !> they do not occur in the SPD operators multigrid smooths, but must not divide by zero).
-   subroutine setup(self, a, halo, degree, ratio)
+   !> With `rows`, only those rows of `a` changed since the last setup on the same pattern.
+   !> Collective.
+   subroutine setup(self, a, halo, degree, ratio, rows)
       class(chebyshev_t), intent(inout) :: self
       type(csr_t), intent(in) :: a
       type(halo_t), intent(inout) :: halo
       integer, intent(in) :: degree
       real(dp), intent(in) :: ratio
+      integer(ip), intent(in), optional :: rows(:)
 
       real(dp), allocatable :: diag(:), row_sum(:)
-      integer(ip) :: i, k
+      integer(ip) :: i, j
       real(dp) :: bound
+      logical :: all_rows
 
       self%degree = degree
       self%ratio = ratio
-      allocate (diag(a%n), row_sum(a%n))
-      !$omp parallel do default(none) shared(a, diag, row_sum) private(i, k) schedule(static) if(a%n > 4096)
-      do i = 1, a%n
-         diag(i) = 0.0_dp
-         row_sum(i) = 0.0_dp
-         do k = a%row_ptr(i), a%row_ptr(i + 1) - 1
-            if (a%col(k) == i) diag(i) = a%val(k)
-            row_sum(i) = row_sum(i) + abs(a%val(k))
+      all_rows = .not. present(rows)
+      if (allocated(self%part_diag)) then
+         if (size(self%part_diag) /= a%n) deallocate (self%part_diag, self%part_sum)
+      end if
+      if (.not. allocated(self%part_diag)) then
+         allocate (self%part_diag(a%n), self%part_sum(a%n))
+         all_rows = .true.
+      end if
+      if (all_rows) then
+         !$omp parallel do default(none) shared(a, self) private(i) schedule(static) if(a%n > 4096)
+         do i = 1, a%n
+            call row_parts(a, i, self%part_diag(i), self%part_sum(i))
          end do
-      end do
-      !$omp end parallel do
+         !$omp end parallel do
+      else
+         !$omp parallel do default(none) shared(a, self, rows) private(j) schedule(static) if(size(rows) > 4096)
+         do j = 1, size(rows, kind=ip)
+            call row_parts(a, rows(j), self%part_diag(rows(j)), self%part_sum(rows(j)))
+         end do
+         !$omp end parallel do
+      end if
+      diag = self%part_diag
+      row_sum = self%part_sum
       call halo%add(diag)
       call halo%add(row_sum)
       if (allocated(self%inv_diag)) then
@@ -89,6 +108,22 @@ contains
       !$omp end parallel do
       self%upper = max(halo%comm%max(bound), 1.0_dp)
    end subroutine setup
+
+   !> Row i's diagonal entry and sum of absolute values.
+   pure subroutine row_parts(a, i, diag, row_sum)
+      type(csr_t), intent(in) :: a
+      integer(ip), intent(in) :: i
+      real(dp), intent(out) :: diag, row_sum
+
+      integer(ip) :: k
+
+      diag = 0.0_dp
+      row_sum = 0.0_dp
+      do k = a%row_ptr(i), a%row_ptr(i + 1) - 1
+         if (a%col(k) == i) diag = a%val(k)
+         row_sum = row_sum + abs(a%val(k))
+      end do
+   end subroutine row_parts
 
    !> `degree` Chebyshev steps on A x = b from x (from zero when `from_zero`, saving a product).
    !> r, d and y are work vectors of the size of b.

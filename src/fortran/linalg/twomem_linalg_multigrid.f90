@@ -13,11 +13,18 @@
 !> is, so no coarse level ever moves a fixed unknown and every coarse operator stays SPD on its
 !> free unknowns. The patterns are analysed once (`init`); new values or a new fixed set only
 !> redo the numeric products, the smoothers' diagonals and the coarse factorization (`refresh`).
+!> A refresh told which finest rows changed recomputes only the coarse rows those changes and
+!> the flipped fixed flags can reach, level by level (a Newton step moves the active set near
+!> the free boundary only), with the bits of a full rebuild. And a finest operator that is a
+!> fixed `base` plus a diagonal shift (the Newton w-block, whose shift changes everywhere at
+!> every Fischer–Burmeister step) keeps Pᵀ base P apart: only the rows a flipped fixed flag
+!> reaches are recomputed there, and the shift's part Pᵀ D P costs a small fraction of a product
+!> with the base.
 module twomem_linalg_multigrid
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_io
    use twomem_linalg_csr, only: csr_t
-   use twomem_linalg_galerkin, only: galerkin_pattern, galerkin_values, truncate_transfer
+   use twomem_linalg_galerkin, only: galerkin_pattern, galerkin_assemble, galerkin_rows, cut_rows, touched_rows, truncate_transfer
    use twomem_linalg_chebyshev, only: chebyshev_t, level_product
    use twomem_linalg_halo, only: halo_t
    use twomem_linalg_gathered_solve, only: gathered_solver_t
@@ -59,6 +66,12 @@ module twomem_linalg_multigrid
       !> allocated once some unknown is fixed)
       real(dp), allocatable :: pt(:), rt(:)
       logical, allocatable :: fixed(:)
+      !> rows whose values the current refresh changed
+      logical, allocatable :: updated(:)
+      !> coarse levels: this rank's part of each row's diagonal as computed and the rows made
+      !> identity rows (`cut_rows`); below a split finest level, the values of Pᵀ base P
+      real(dp), allocatable :: part_diag(:), base_part(:)
+      logical, allocatable :: cut(:)
       type(chebyshev_t) :: smoother
       !> right-hand side and iterate (coarse levels), three work vectors
       real(dp), allocatable :: b(:), x(:), r1(:), r2(:), r3(:)
@@ -70,6 +83,12 @@ module twomem_linalg_multigrid
       !> the finest operator and the transfers, kept alive by the caller
       type(csr_t), pointer :: finest => null()
       type(multigrid_transfer_t), pointer :: transfer => null()
+      !> the finest operator's fixed part, when it is base + diag(shift) (see `refresh`), and
+      !> that diagonal as a matrix
+      type(csr_t), pointer :: base => null()
+      type(csr_t) :: shift_matrix
+      !> the coarse levels hold the values of the last refresh (a refresh can then be partial)
+      logical :: valid = .false.
       type(mg_level_t), allocatable :: levels(:)
       type(multigrid_options_t) :: options
       type(gathered_solver_t) :: coarse
@@ -154,11 +173,17 @@ contains
    end subroutine find_injection
 
    !> The hierarchy for the finest operator `finest` on levels 0..top of `transfer` (top = 0: a
-   !> direct solve). The coarse patterns are copied from `pattern_of` when given (another
-   !> multigrid on the same pattern), else analysed. With `assemble`, ends with `refresh` for no
-   !> fixed unknown; otherwise the caller refreshes when it has the values. The caller keeps
-   !> `finest` and `transfer` alive and in place while the multigrid is used. Collective.
-   subroutine init(self, finest, transfer, top, options, assemble, err, pattern_of)
+   !> direct solve). With `start_from` (a refreshed multigrid on the same transfer, levels and
+   !> finest pattern, with no fixed unknown) the coarse patterns and values are copied from it:
+   !> the hierarchy is then ready for a finest operator equal to start_from's, and the first
+   !> refresh can be partial (the w-block starts as the S-block: K, nothing fixed, no shift).
+   !> Otherwise, with `assemble`, init builds the levels for no fixed unknown (what `refresh`
+   !> would, patterns and values together); without, it analyses the patterns and the caller
+   !> refreshes when it has the values. The caller keeps
+   !> `finest` and `transfer` alive and in place while the multigrid is used. With `base` (kept
+   !> alive too, on the pattern of `finest`), every refresh's finest operator is base plus a
+   !> diagonal shift on its free unknowns (see `refresh`). Collective.
+   subroutine init(self, finest, transfer, top, options, assemble, err, start_from, base)
       class(multigrid_t), intent(inout) :: self
       type(csr_t), target, intent(in) :: finest
       type(multigrid_transfer_t), target, intent(inout) :: transfer
@@ -166,10 +191,12 @@ contains
       type(multigrid_options_t), intent(in) :: options
       logical, intent(in) :: assemble
       type(error_t), allocatable, intent(out) :: err
-      type(multigrid_t), intent(in), optional :: pattern_of
+      type(multigrid_t), intent(in), optional :: start_from
+      type(csr_t), target, intent(in), optional :: base
 
       integer :: l
-      integer(ip) :: n
+      integer(ip) :: n, i
+      logical :: fused
 
       call self%free()
       if (top < 0 .or. top > transfer%levels .or. .not. allocated(transfer%halos)) then
@@ -181,79 +208,298 @@ contains
       self%finest => finest
       self%transfer => transfer
       allocate (self%levels(0:top))
-      do l = top, 1, -1
-         if (present(pattern_of)) then
-            self%levels(l - 1)%a = pattern_of%levels(l - 1)%a
-         else if (l == top) then
-            call galerkin_pattern(transfer%r(l), finest, transfer%p(l), self%levels(l - 1)%a)
-         else
-            call galerkin_pattern(transfer%r(l), self%levels(l)%a, transfer%p(l), self%levels(l - 1)%a)
-         end if
-      end do
+      ! a hierarchy assembled here gets each level's pattern and values in one pass
+      fused = assemble .and. .not. present(start_from) .and. .not. present(base)
+      if (.not. fused) then
+         do l = top, 1, -1
+            if (present(start_from)) then
+               self%levels(l - 1)%a = start_from%levels(l - 1)%a
+            else if (l == top) then
+               call galerkin_pattern(transfer%r(l), finest, transfer%p(l), self%levels(l - 1)%a)
+            else
+               call galerkin_pattern(transfer%r(l), self%levels(l)%a, transfer%p(l), self%levels(l - 1)%a)
+            end if
+         end do
+      end if
       do l = 0, top
          n = finest%n
-         if (l < top) n = self%levels(l)%a%n
+         if (l < top) n = transfer%p(l + 1)%ncol
          associate (lev => self%levels(l))
             allocate (lev%fixed(n), lev%r1(n), lev%r2(n), lev%r3(n))
             ! the finest level's right-hand side and iterate are the caller's
-            if (l < top) allocate (lev%b(n), lev%x(n))
+            if (l < top) allocate (lev%b(n), lev%x(n), lev%part_diag(n), lev%cut(n))
+            allocate (lev%updated(n))
             lev%fixed = .false.
+            if (l < top) lev%cut = .false.
          end associate
       end do
+      if (present(base) .and. top > 0) then
+         self%base => base
+         allocate (self%levels(top - 1)%base_part(self%levels(top - 1)%a%nnz()))
+         n = finest%n
+         call self%shift_matrix%init_pattern([(i, i=1, n + 1)], [(i, i=1, n)])
+      end if
       call self%coarse%init(transfer%halos(0)%comm, transfer%coarse_keys, transfer%halos(0)%owned)
-      if (assemble) call self%refresh(self%levels(top)%fixed, err)
+      if (present(start_from)) then
+         call start_as(self, start_from, err)
+      else if (fused) then
+         call assemble_levels(self, err)
+      else if (assemble) then
+         call self%refresh(self%levels(top)%fixed, err)
+      end if
    end subroutine init
 
-   !> Recompute the coarse levels from the finest operator's current values and its fixed
-   !> unknowns, whose rows in the finest operator must be identity rows with zero columns.
-   subroutine refresh(self, fixed, err)
-      class(multigrid_t), intent(inout) :: self
-      logical, intent(in) :: fixed(:)
+   !> The coarse levels for nothing fixed, what `refresh` computes, but each level's pattern and
+   !> values in one pass (`galerkin_assemble`) instead of a pattern pass and a product.
+   subroutine assemble_levels(self, err)
+      type(multigrid_t), intent(inout) :: self
       type(error_t), allocatable, intent(out) :: err
 
+      integer(ip), allocatable :: rows(:), regain(:)
+      integer(ip) :: i
       integer :: l
-      logical :: truncated
 
-      self%levels(self%top)%fixed = fixed
-      truncated = any(fixed)
       do l = self%top, 1, -1
-         if (l == self%top) then
-            call coarsen(self, l, truncated, self%finest)
-         else
-            call coarsen(self, l, truncated, self%levels(l)%a)
-         end if
+         associate (fine => self%levels(l), coarse => self%levels(l - 1), p => self%transfer%p(l), &
+                    r => self%transfer%r(l), halo => self%transfer%halos(l))
+            if (l == self%top) then
+               call galerkin_assemble(r, self%finest, p, coarse%a)
+               call fine%smoother%setup(self%finest, halo, self%options%degree, self%options%ratio)
+            else
+               call galerkin_assemble(r, fine%a, p, coarse%a)
+               call fine%smoother%setup(fine%a, halo, self%options%degree, self%options%ratio)
+            end if
+            rows = [(i, i=1, coarse%a%n)]
+            coarse%updated = .true.
+            call cut_rows(rows, coarse%fixed, self%transfer%halos(l - 1), coarse%part_diag, coarse%cut, coarse%a, &
+                          coarse%updated, regain)
+         end associate
       end do
       if (self%top == 0) then
          call self%coarse%factor(self%finest, err)
       else
          call self%coarse%factor(self%levels(0)%a, err)
       end if
+      if (allocated(err)) then
+         call make_error(err, exit_io, 'multigrid', 'coarsest level: '//err%message)
+         return
+      end if
+      self%valid = .true.
+   end subroutine assemble_levels
+
+   !> The coarse values, smoothers and coarsest factorization of `start`, whose patterns init
+   !> copied already. A start that cannot serve (not refreshed, or with fixed unknowns, or
+   !> without the uncut values of Pᵀ base P) leaves the first refresh to rebuild everything.
+   subroutine start_as(self, start, err)
+      type(multigrid_t), intent(inout) :: self
+      type(multigrid_t), intent(in) :: start
+      type(error_t), allocatable, intent(out) :: err
+
+      integer :: l, top
+      logical :: usable
+
+      top = self%top
+      usable = start%valid .and. start%top == top
+      if (usable) usable = .not. any(start%levels(top)%fixed)
+      if (usable .and. associated(self%base)) then
+         associate (below => start%levels(top - 1))
+            usable = allocated(below%base_part) .or. .not. any(below%cut)
+         end associate
+      end if
+      if (self%transfer%halos(top)%comm%any_true(.not. usable)) return
+      do l = 0, top
+         associate (lev => self%levels(l), src => start%levels(l))
+            if (l < top) then
+               lev%a%val = src%a%val
+               lev%part_diag = src%part_diag
+               lev%cut = src%cut
+            end if
+            if (l > 0) lev%smoother = src%smoother
+         end associate
+      end do
+      if (associated(self%base)) then
+         associate (below => start%levels(top - 1))
+            if (allocated(below%base_part)) then
+               self%levels(top - 1)%base_part = below%base_part
+            else
+               self%levels(top - 1)%base_part = below%a%val
+            end if
+         end associate
+      end if
+      if (top == 0) then
+         call self%coarse%factor(self%finest, err)
+      else
+         call self%coarse%factor(self%levels(0)%a, err)
+      end if
+      if (allocated(err)) then
+         call make_error(err, exit_io, 'multigrid', 'coarsest level: '//err%message)
+         return
+      end if
+      self%valid = .true.
+   end subroutine start_as
+
+   !> Recompute the coarse levels from the finest operator's current values and its fixed
+   !> unknowns, whose rows in the finest operator must be identity rows with zero columns.
+   !> `changed` marks the finest rows whose values changed since the last refresh other than by
+   !> a flipped fixed flag (the flipped rows and their columns are found here): then only the
+   !> coarse rows they reach are recomputed, without it every row is. With a `base` (init), `shift` is the diagonal the finest operator
+   !> adds to base on its free unknowns, on the entries this rank owns. Collective.
+   subroutine refresh(self, fixed, err, changed, shift)
+      class(multigrid_t), intent(inout) :: self
+      logical, intent(in) :: fixed(:)
+      type(error_t), allocatable, intent(out) :: err
+      logical, intent(in), optional :: changed(:)
+      real(dp), intent(in), optional :: shift(:)
+
+      integer :: l
+      logical :: truncated, partial, refactor
+      logical, allocatable :: flipped(:)
+
+      partial = self%valid .and. present(changed)
+      self%valid = .false.
+      associate (finest => self%levels(self%top))
+         if (partial) then
+            flipped = fixed .neqv. finest%fixed
+            finest%updated = changed .or. flipped
+            ! a flipped unknown's column is cut or restored: its neighbours' rows change too
+            call mark_neighbours(self%finest, flipped, finest%updated)
+         else
+            allocate (flipped(size(fixed)))
+            flipped = .true.
+            finest%updated = .true.
+         end if
+         finest%fixed = fixed
+      end associate
+      if (associated(self%base)) then
+         if (.not. present(shift)) then
+            call make_error(err, exit_io, 'multigrid', 'a split finest operator needs its shift')
+            return
+         end if
+         self%shift_matrix%val = merge(shift, 0.0_dp, self%transfer%halos(self%top)%owned .and. .not. fixed)
+      end if
+      truncated = any(fixed)
+      do l = self%top, 1, -1
+         if (l == self%top) then
+            call coarsen(self, l, truncated, flipped, self%finest)
+         else
+            call coarsen(self, l, truncated, flipped, self%levels(l)%a)
+         end if
+         flipped = flipped(self%transfer%injection(l)%i)
+      end do
+      ! the coarsest factorization is the one step whose cost does not shrink with the change
+      refactor = self%transfer%halos(0)%comm%any_true(any(self%levels(0)%updated))
+      if (refactor .or. .not. partial) then
+         if (self%top == 0) then
+            call self%coarse%factor(self%finest, err)
+         else
+            call self%coarse%factor(self%levels(0)%a, err)
+         end if
+      end if
       if (allocated(err)) call make_error(err, exit_io, 'multigrid', 'coarsest level: '//err%message)
+      self%valid = .not. allocated(err)
    end subroutine refresh
 
-   !> Level l−1 from level l (operator a): its fixed unknowns, the truncated transfer values,
-   !> the Galerkin product, and the smoother of level l.
-   subroutine coarsen(self, l, truncated, a)
+   !> Level l−1 from level l (operator a) on the rows the changes reach: its fixed unknowns, the
+   !> truncated transfer values (when a fixed flag flipped), the Galerkin product, and the
+   !> smoother of level l (on level l's updated rows). `flipped` marks level l's unknowns whose fixed flag flipped.
+   subroutine coarsen(self, l, truncated, flipped, a)
       type(multigrid_t), intent(inout) :: self
       integer, intent(in) :: l
       logical, intent(in) :: truncated
+      logical, intent(in) :: flipped(:)
       type(csr_t), intent(in) :: a
+
+      logical :: fresh
 
       associate (fine => self%levels(l), coarse => self%levels(l - 1), p => self%transfer%p(l), &
                  r => self%transfer%r(l))
          coarse%fixed = fine%fixed(self%transfer%injection(l)%i)
          if (truncated) then
-            if (.not. allocated(fine%pt)) allocate (fine%pt(p%nnz()), fine%rt(r%nnz()))
-            call truncate_transfer(p, r, fine%fixed, coarse%fixed, fine%pt, fine%rt)
-            call galerkin_values(r, fine%rt, a, p, fine%pt, coarse%fixed, self%transfer%halos(l - 1), coarse%a)
+            fresh = .not. allocated(fine%pt)
+            if (fresh) allocate (fine%pt(p%nnz()), fine%rt(r%nnz()))
+            if (fresh .or. any(flipped)) call truncate_transfer(p, r, fine%fixed, coarse%fixed, fine%pt, fine%rt)
+            call coarse_rows(self, l, a, fine%rt, fine%pt, flipped)
          else
             ! no fixed unknown (any more): the transfer's own values
             if (allocated(fine%pt)) deallocate (fine%pt, fine%rt)
-            call galerkin_values(r, r%val, a, p, p%val, coarse%fixed, self%transfer%halos(l - 1), coarse%a)
+            call coarse_rows(self, l, a, r%val, p%val, flipped)
          end if
-         call fine%smoother%setup(a, self%transfer%halos(l), self%options%degree, self%options%ratio)
+         call fine%smoother%setup(a, self%transfer%halos(l), self%options%degree, self%options%ratio, &
+                                  row_list(fine%updated))
       end associate
    end subroutine coarsen
+
+   !> The rows of level l−1's operator that the flipped fixed flags and level l's updated rows
+   !> reach, recomputed with the transfer values rv, pv; below a split finest operator as
+   !> Pᵀ base P (only where a flag flipped) plus Pᵀ diag(shift) P.
+   subroutine coarse_rows(self, l, a, rv, pv, flipped)
+      type(multigrid_t), intent(inout) :: self
+      integer, intent(in) :: l
+      type(csr_t), intent(in) :: a
+      real(dp), intent(in) :: rv(:), pv(:)
+      logical, intent(in) :: flipped(:)
+
+      integer(ip), allocatable :: rows(:), regain(:)
+      logical, allocatable :: no_change(:)
+      logical :: split
+
+      split = l == self%top .and. associated(self%base)
+      associate (fine => self%levels(l), coarse => self%levels(l - 1), p => self%transfer%p(l), &
+                 r => self%transfer%r(l), injection => self%transfer%injection(l)%i)
+         if (split) then
+            allocate (no_change(size(flipped)))
+            no_change = .false.
+            call touched_rows(r, self%base, p, injection, flipped, no_change, coarse%updated)
+            rows = row_list(coarse%updated)
+            call galerkin_rows(r, rv, self%base, p, pv, rows, coarse%a%row_ptr, coarse%a%col, coarse%base_part)
+         end if
+         call touched_rows(r, a, p, injection, flipped, fine%updated, coarse%updated)
+         rows = row_list(coarse%updated)
+         call product(rows)
+         call cut_rows(rows, coarse%fixed, self%transfer%halos(l - 1), coarse%part_diag, coarse%cut, coarse%a, &
+                       coarse%updated, regain)
+         ! only in a distributed run: rows another rank's change brought back from identity rows
+         if (size(regain) > 0) call product(regain)
+      end associate
+
+   contains
+
+      subroutine product(list)
+         integer(ip), intent(in) :: list(:)
+
+         associate (coarse => self%levels(l - 1), p => self%transfer%p(l), r => self%transfer%r(l))
+            if (split) then
+               call galerkin_rows(r, rv, self%shift_matrix, p, pv, list, coarse%a%row_ptr, coarse%a%col, coarse%a%val, &
+                                  start=coarse%base_part)
+            else
+               call galerkin_rows(r, rv, a, p, pv, list, coarse%a%row_ptr, coarse%a%col, coarse%a%val)
+            end if
+         end associate
+      end subroutine product
+   end subroutine coarse_rows
+
+   !> marks(j) = .true. for every neighbour j (in a's symmetric pattern) of an unknown in `seeds`.
+   subroutine mark_neighbours(a, seeds, marks)
+      type(csr_t), intent(in) :: a
+      logical, intent(in) :: seeds(:)
+      logical, intent(inout) :: marks(:)
+
+      integer(ip) :: i
+
+      do i = 1, a%n
+         if (seeds(i)) marks(a%col(a%row_ptr(i):a%row_ptr(i + 1) - 1)) = .true.
+      end do
+   end subroutine mark_neighbours
+
+   !> The indices of the true entries of `mask`.
+   function row_list(mask) result(rows)
+      logical, intent(in) :: mask(:)
+      integer(ip), allocatable :: rows(:)
+
+      integer(ip) :: i
+
+      rows = pack([(i, i=1, size(mask, kind=ip))], mask)
+   end function row_list
 
    !> x = one V-cycle applied to b, from a zero initial guess. b (full values at shared unknowns)
    !> must vanish at the fixed unknowns; x then does too. Collective.
@@ -375,6 +621,8 @@ contains
       self%top = -1
       self%finest => null()
       self%transfer => null()
+      self%base => null()
+      self%valid = .false.
       self%failed = .false.
    end subroutine free
 end module twomem_linalg_multigrid

@@ -17,7 +17,8 @@
 !> any mesh size, while its residual stays the full system's, which the estimators need. The S
 !> hierarchy is built once per mesh; the w operator changes with the Newton step through its
 !> diagonal and its fixed rows, and `set_linearization` rebuilds its coarse levels (truncated
-!> at the fixed rows). In a distributed run K is each rank's part: its products are summed
+!> at the fixed rows): only the rows its changed shifts and fixed flags reach, with K's part of
+!> the coarse operators kept apart from the shift's (`multigrid_t`'s split finest operator). In a distributed run K is each rank's part: its products are summed
 !> across ranks, and only the owner of a shared row adds the diagonal shift and identity rows.
 module twomem_newton_elimination
    use twomem_base_kinds, only: dp, ip
@@ -53,10 +54,16 @@ module twomem_newton_elimination
       !> the C-function rows of the current Newton matrix: a = ∂C/∂(u1 − u2), b = ∂C/∂λ
       real(dp), allocatable :: a(:), b(:)
       logical, allocatable :: fixed(:)
+      !> rows whose shift or fixed flag the current Newton step changed, rows whose fixed flag
+      !> flipped, and rows of the w-block operator to refill (the changed rows and the
+      !> neighbours of flipped ones, whose column is cut or restored)
+      logical, allocatable :: row_changed(:), flipped(:), refill(:)
       !> rows whose X3 comes from the membrane balance (ii): fixed rows and large shifts
       logical, allocatable :: by_balance(:)
-      !> the w-block's shift and fixed rows as last built: a Newton step that leaves them alone
-      !> (Newton-min once the active set is found) keeps the hierarchy
+      !> the w-block's shift and fixed rows as last built (none after init, when the hierarchy
+      !> is the S-block's): a Newton step that leaves them alone (Newton-min once the active set
+      !> is found) keeps the hierarchy, one that changes some updates the rows they reach; built
+      !> is false while the hierarchy holds no valid values (it is then rebuilt whole)
       real(dp), allocatable :: shift(:)
       logical :: built = .false.
       !> positions of the diagonals of K in its value array
@@ -96,7 +103,9 @@ contains
       call self%s_mg%init(p%stiffness, transfer, top, options, .true., err)
       if (allocated(err)) return
       self%w_matrix = p%stiffness
-      call self%w_mg%init(self%w_matrix, transfer, top, options, .false., err, pattern_of=self%s_mg)
+      ! the w-block starts as the S-block (K: nothing fixed, no shift), so that even the first
+      ! Newton step only recomputes the coarse rows near the contact zone
+      call self%w_mg%init(self%w_matrix, transfer, top, options, .false., err, start_from=self%s_mg, base=p%stiffness)
       if (allocated(err)) return
       allocate (self%diag(n), self%k_diag(n))
       do i = 1, n
@@ -104,11 +113,13 @@ contains
          self%k_diag(i) = p%stiffness%val(self%diag(i))
       end do
       call self%halo%add(self%k_diag)
-      allocate (self%a(n), self%b(n), self%fixed(n), self%by_balance(n), self%shift(n), self%rhs_s(n), self%rhs_w(n), &
+      allocate (self%a(n), self%b(n), self%fixed(n), self%row_changed(n), self%flipped(n), self%refill(n), &
+                self%by_balance(n), self%shift(n), &
+                self%rhs_s(n), self%rhs_w(n), &
                 self%s(n), self%w(n), self%w_fixed(n), self%kw(n))
       self%fixed = .false.
       self%shift = 0.0_dp
-      self%built = .false.
+      self%built = self%w_mg%valid
    end subroutine init
 
    !> Read the C-function rows of an assembled Newton matrix (block order X1, X2, X3) and
@@ -159,12 +170,14 @@ contains
             fixed = self%c_mu*self%mass(i)*da(i)/db(i) > fixed_ratio*self%k_diag(i)
          end if
          if (fixed) then
-            changed = changed .or. .not. self%fixed(i) .or. self%shift(i) /= 0.0_dp
+            self%row_changed(i) = .not. self%fixed(i) .or. self%shift(i) /= 0.0_dp
             self%shift(i) = 0.0_dp
          else
-            changed = changed .or. self%fixed(i) .or. self%shift(i) /= self%c_mu*self%mass(i)*da(i)/db(i)
+            self%row_changed(i) = self%fixed(i) .or. self%shift(i) /= self%c_mu*self%mass(i)*da(i)/db(i)
             self%shift(i) = self%c_mu*self%mass(i)*da(i)/db(i)
          end if
+         changed = changed .or. self%row_changed(i)
+         self%flipped(i) = fixed .neqv. self%fixed(i)
          self%fixed(i) = fixed
          self%by_balance(i) = fixed .or. self%shift(i) > self%k_diag(i)
          zero_row = zero_row .or. (fixed .and. da(i) == 0.0_dp)
@@ -175,25 +188,40 @@ contains
          return
       end if
       if (.not. self%halo%comm%any_true(changed)) return
-      call fill_w_operator(self%k, self%diag, self%fixed, self%shift, self%halo%owned, self%w_matrix)
-      call self%w_mg%refresh(self%fixed, err)
+      if (self%built) then
+         self%refill = self%row_changed
+         do i = 1, self%n
+            if (self%flipped(i)) self%refill(self%k%col(self%k%row_ptr(i):self%k%row_ptr(i + 1) - 1)) = .true.
+         end do
+      else
+         self%refill = .true.
+      end if
+      call fill_w_operator(self%k, self%diag, self%fixed, self%shift, self%halo%owned, self%refill, self%w_matrix)
+      ! a failed refresh leaves the hierarchy to be rebuilt whole
+      if (self%built) then
+         call self%w_mg%refresh(self%fixed, err, changed=self%row_changed, shift=self%shift)
+      else
+         call self%w_mg%refresh(self%fixed, err, shift=self%shift)
+      end if
       self%built = .not. allocated(err)
    end subroutine set_linearization
 
-   !> w_mat = K + diag(shift) with fixed rows replaced by identity rows and fixed columns cut out;
-   !> the shift and the identity's 1 go to the owner's part of a shared row only.
-   subroutine fill_w_operator(k_mat, diag, fixed, shift, owned, w_mat)
+   !> w_mat = K + diag(shift) with fixed rows replaced by identity rows and fixed columns cut out,
+   !> on the rows in `rows`; the shift and the identity's 1 go to the owner's part of a shared
+   !> row only.
+   subroutine fill_w_operator(k_mat, diag, fixed, shift, owned, rows, w_mat)
       type(csr_t), intent(in) :: k_mat
       integer(ip), intent(in) :: diag(:)
-      logical, intent(in) :: fixed(:), owned(:)
+      logical, intent(in) :: fixed(:), owned(:), rows(:)
       real(dp), intent(in) :: shift(:)
       type(csr_t), intent(inout) :: w_mat
 
       integer(ip) :: i, k
 
-      !$omp parallel do default(none) shared(k_mat, diag, fixed, shift, owned, w_mat) private(i, k) schedule(static) &
-      !$omp if(k_mat%n > 4096)
+      !$omp parallel do default(none) shared(k_mat, diag, fixed, shift, owned, rows, w_mat) private(i, k) &
+      !$omp schedule(static) if(k_mat%n > 4096)
       do i = 1, k_mat%n
+         if (.not. rows(i)) cycle
          do k = k_mat%row_ptr(i), k_mat%row_ptr(i + 1) - 1
             if (fixed(i) .or. fixed(k_mat%col(k))) then
                w_mat%val(k) = 0.0_dp
