@@ -8,10 +8,10 @@
 !> distributed run every level holds each rank's part of the operator and the interface of its
 !> unknowns (`halos`): products sum the parts across ranks, a residual is restricted from the
 !> entries each rank owns and summed on the coarse interface, and prolongation is local, since
-!> a rank's fine unknowns have their coarse parents on the same rank. Unknowns may be fixed (Dirichlet rows of the finest operator): their prolongation
-!> rows are truncated, and a coarse unknown is fixed when the fine unknown it is injected into
-!> is, so no coarse level ever moves a fixed unknown and every coarse operator stays SPD on its
-!> free unknowns. The patterns are analysed once (`init`); new values or a new fixed set only
+!> a rank's fine unknowns have their coarse parents on the same rank. Unknowns may be fixed
+!> (Dirichlet rows of the finest operator): their prolongation rows are truncated, and a coarse
+!> unknown is fixed when the fine unknown it is injected into is, so no coarse level ever moves
+!> a fixed unknown and every coarse operator stays SPD on its free unknowns. The patterns are analysed once (`init`); new values or a new fixed set only
 !> redo the numeric products, the smoothers' diagonals and the coarse factorization (`refresh`).
 !> A refresh told which finest rows changed recomputes only the coarse rows those changes and
 !> the flipped fixed flags can reach, level by level (a Newton step moves the active set near
@@ -342,8 +342,9 @@ contains
    !> unknowns, whose rows in the finest operator must be identity rows with zero columns.
    !> `changed` marks the finest rows whose values changed since the last refresh other than by
    !> a flipped fixed flag (the flipped rows and their columns are found here): then only the
-   !> coarse rows they reach are recomputed, without it every row is. With a `base` (init), `shift` is the diagonal the finest operator
-   !> adds to base on its free unknowns, on the entries this rank owns. Collective.
+   !> coarse rows they reach are recomputed, without it every row is. With a `base` (init),
+   !> `shift` is the diagonal the finest operator adds to base on its free unknowns, on the
+   !> entries this rank owns. Collective.
    subroutine refresh(self, fixed, err, changed, shift)
       class(multigrid_t), intent(inout) :: self
       logical, intent(in) :: fixed(:)
@@ -401,7 +402,8 @@ contains
 
    !> Level l−1 from level l (operator a) on the rows the changes reach: its fixed unknowns, the
    !> truncated transfer values (when a fixed flag flipped), the Galerkin product, and the
-   !> smoother of level l (on level l's updated rows). `flipped` marks level l's unknowns whose fixed flag flipped.
+   !> smoother of level l (on level l's updated rows). `flipped` marks level l's unknowns whose
+   !> fixed flag flipped.
    subroutine coarsen(self, l, truncated, flipped, a)
       type(multigrid_t), intent(inout) :: self
       integer, intent(in) :: l

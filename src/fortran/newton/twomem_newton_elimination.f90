@@ -18,8 +18,9 @@
 !> hierarchy is built once per mesh; the w operator changes with the Newton step through its
 !> diagonal and its fixed rows, and `set_linearization` rebuilds its coarse levels (truncated
 !> at the fixed rows): only the rows its changed shifts and fixed flags reach, with K's part of
-!> the coarse operators kept apart from the shift's (`multigrid_t`'s split finest operator). In a distributed run K is each rank's part: its products are summed
-!> across ranks, and only the owner of a shared row adds the diagonal shift and identity rows.
+!> the coarse operators kept apart from the shift's (`multigrid_t`'s split finest operator). In
+!> a distributed run K is each rank's part: its products are summed across ranks, and only the
+!> owner of a shared row adds the diagonal shift and identity rows.
 module twomem_newton_elimination
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_io
