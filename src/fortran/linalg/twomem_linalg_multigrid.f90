@@ -11,8 +11,9 @@
 !> a rank's fine unknowns have their coarse parents on the same rank. Unknowns may be fixed
 !> (Dirichlet rows of the finest operator): their prolongation rows are truncated, and a coarse
 !> unknown is fixed when the fine unknown it is injected into is, so no coarse level ever moves
-!> a fixed unknown and every coarse operator stays SPD on its free unknowns. The patterns are analysed once (`init`); new values or a new fixed set only
-!> redo the numeric products, the smoothers' diagonals and the coarse factorization (`refresh`).
+!> a fixed unknown and every coarse operator stays SPD on its free unknowns. The patterns are
+!> analysed once (`init`); new values or a new fixed set only redo the numeric products, the
+!> smoothers' diagonals and the coarse factorization (`refresh`).
 !> A refresh told which finest rows changed recomputes only the coarse rows those changes and
 !> the flipped fixed flags can reach, level by level (a Newton step moves the active set near
 !> the free boundary only), with the bits of a full rebuild. And a finest operator that is a
