@@ -59,8 +59,8 @@ def test_method_reaches_the_direct_newton_min_solution(case, cfun, linear, preco
 def test_multigrid_iterations_do_not_grow_with_the_mesh(cfun):
     """GMRES to 1e-10 with the multigrid preconditioner: the same handful of iterations per
     Newton step from 12k to 190k vertices, and nested iteration leaves few Newton steps for
-    the finest level (Fischer–Burmeister converges more slowly where strict complementarity
-    fails: 7 steps at 12k vertices, measured)."""
+    the finest level (measured: min 3, 2, 1; Fischer–Burmeister 4, 3, 2 with its active-set
+    step, 7 at 12k vertices without it)."""
     per_step = []
     for levels in range(1, 4):
         path = out_file(f"methods/mg_growth_{cfun}_{levels}.h5")
@@ -69,11 +69,28 @@ def test_multigrid_iterations_do_not_grow_with_the_mesh(cfun):
             "newton.linear=gmres", "gmres.forcing=fixed", "estimate.enabled=.false.", "output.history=.false.",
             f"output.file={path}")
         s = result(path)["summary"]
-        assert s["newton_iterations"] <= (6 if cfun == "min" else 8), s
+        assert s["newton_iterations"] <= (6 if cfun == "min" else 5), s
         per_step.append(s["gmres_iterations"] / max(1, s["newton_iterations"]))
     print(f"{cfun}: GMRES iterations per Newton step on levels 1..3: {per_step}")
     assert max(per_step) <= 12, per_step
     assert per_step[-1] <= per_step[0] + 3, per_step
+
+
+@pytest.mark.parametrize("levels,most", [(2, 6), (3, 4)])
+def test_fischer_burmeister_finishes_like_newton_min(levels, most):
+    """bench/scaling.py's `membranes` case with the paper's forcing. Fischer–Burmeister alone
+    took 7 finest-level Newton steps at both sizes (18k and 72k vertices): after the contact
+    set settles, its quadratic convergence has a constant ~1/|(u1 − u2, λ)| of the solution,
+    which is ~h² on the first free layer beside the contact zone, and the tail took 4–5 steps.
+    The active-set step after a step that keeps the contact set finishes as Newton-min does:
+    6 and 4 steps, measured with 1 and 2 threads, debug and release builds."""
+    path = out_file(f"methods/fb_finish_{levels}.h5")
+    run("mesh.coarse_h=0.1", "mesh.boundary_h=0.02", f"mesh.levels={levels}", "problem.exact=none",
+        "problem.mu1=2", "problem.mu2=0.5", "problem.f1=-2", "problem.f2=1", "problem.g=0.05", "newton.cfun=fb",
+        "newton.linear=gmres", "estimate.enabled=.false.", "output.history=.false.", "output.fields=.false.",
+        f"output.file={path}")
+    s = result(path)["summary"]
+    assert s["newton_iterations"] <= most, s
 
 
 def test_nested_iteration_bounds_newton_on_the_finest_level():
