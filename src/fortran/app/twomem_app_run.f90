@@ -310,6 +310,7 @@ contains
       case default
          options%line_search = options%cfun == c_function_fb
       end select
+      options%fb_active_set = trim(cfg%newton%fb_finish) == 'active_set'
       options%forcing = merge(forcing_fixed, forcing_paper, trim(cfg%gmres%forcing) == 'fixed')
       options%precond = precond_kind(trim(cfg%gmres%precond))
       options%gmres%restart = cfg%gmres%restart

@@ -60,6 +60,9 @@ module twomem_input_config
       character(len=config_len) :: initial = 'nested'
       !> 'auto' (on for fb, off for min), 'on', 'off'
       character(len=config_len) :: line_search = 'auto'
+      !> 'active_set': Fischer–Burmeister finishes with Newton-min steps once its contact set
+      !> settles; 'none': FB throughout (the paper's method)
+      character(len=config_len) :: fb_finish = 'active_set'
    end type newton_config_t
 
    type :: gmres_config_t
@@ -111,7 +114,7 @@ module twomem_input_config
    end type config_t
 
    ! The key table: one row per key, in the order of the documentation and of the echo.
-   integer, parameter :: n_groups = 6, n_keys = 36
+   integer, parameter :: n_groups = 6, n_keys = 37
    character(len=*), parameter :: group_names(n_groups) = [character(len=8) :: &
       'mesh', 'problem', 'newton', 'gmres', 'estimate', 'output']
    !> kind_load: a real number, or a formula (quoted in a file; a bare override that is not a
@@ -125,10 +128,10 @@ module twomem_input_config
       k_gamma_alg = 20, k_enabled = 21, &
       k_output_file = 22, k_fields = 23, k_estimators = 24, k_history = 25, k_xdmf = 26, &
       k_boundary_h = 27, k_initial = 28, k_line_search = 29, k_forcing = 30, k_every = 31, &
-      k_flux = 32, k_alg_levels = 33, k_criteria = 34, k_f1_file = 35, k_f2_file = 36
+      k_flux = 32, k_alg_levels = 33, k_criteria = 34, k_f1_file = 35, k_f2_file = 36, k_fb_finish = 37
    integer, parameter :: key_group(n_keys) = [1, 1, 1, 1, 2, 2, 2, 2, 2, 2, 3, 3, 3, 3, 3, &
                                               4, 4, 4, 4, 5, 5, 6, 6, 6, 6, 6, 1, 3, 3, 4, 5, 5, 5, 5, &
-                                              2, 2]
+                                              2, 2, 3]
    character(len=*), parameter :: key_names(n_keys) = [character(len=12) :: &
       'domain', 'file', 'coarse_h', 'levels', &
       'mu1', 'mu2', 'f1', 'f2', 'g', 'exact', &
@@ -136,14 +139,16 @@ module twomem_input_config
       'restart', 'max_it', 'rtol', 'precond', &
       'gamma_alg', 'enabled', &
       'file', 'fields', 'estimators', 'history', 'xdmf', 'boundary_h', &
-      'initial', 'line_search', 'forcing', 'every', 'flux', 'alg_levels', 'criteria', 'f1_file', 'f2_file']
+      'initial', 'line_search', 'forcing', 'every', 'flux', 'alg_levels', 'criteria', 'f1_file', 'f2_file', &
+      'fb_finish']
    integer, parameter :: key_kinds(n_keys) = [kind_word, kind_path, kind_real, kind_int, &
       kind_real, kind_real, kind_load, kind_load, kind_real, kind_word, &
       kind_word, kind_word, kind_int, kind_real, kind_real, &
       kind_int, kind_int, kind_real, kind_word, &
       kind_real, kind_logical, &
       kind_path, kind_logical, kind_logical, kind_logical, kind_logical, kind_real, &
-      kind_word, kind_word, kind_word, kind_int, kind_word, kind_int, kind_word, kind_path, kind_path]
+      kind_word, kind_word, kind_word, kind_int, kind_word, kind_int, kind_word, kind_path, kind_path, &
+      kind_word]
 
 contains
 
@@ -380,6 +385,7 @@ contains
       case (k_precond); cfg%gmres%precond = s
       case (k_initial); cfg%newton%initial = s
       case (k_line_search); cfg%newton%line_search = s
+      case (k_fb_finish); cfg%newton%fb_finish = s
       case (k_forcing); cfg%gmres%forcing = s
       case (k_flux); cfg%estimate%flux = s
       case (k_criteria); cfg%estimate%criteria = s
@@ -485,6 +491,7 @@ contains
          call check_real(err, origin, k_gamma_lin, n%gamma_lin, gt=0.0_dp, le=1.0_dp)
          call check_word(err, origin, k_initial, n%initial, [character(len=8) :: 'paper', 'nested'])
          call check_word(err, origin, k_line_search, n%line_search, [character(len=8) :: 'auto', 'on', 'off'])
+         call check_word(err, origin, k_fb_finish, n%fb_finish, [character(len=10) :: 'active_set', 'none'])
 
          call check_int(err, origin, k_restart, g%restart, 1, 1000)
          call check_int(err, origin, k_gmres_max_it, g%max_it, 1, huge(1))
@@ -693,6 +700,7 @@ contains
       case (k_precond); s = quote(trim(cfg%gmres%precond))
       case (k_initial); s = quote(trim(cfg%newton%initial))
       case (k_line_search); s = quote(trim(cfg%newton%line_search))
+      case (k_fb_finish); s = quote(trim(cfg%newton%fb_finish))
       case (k_forcing); s = quote(trim(cfg%gmres%forcing))
       case (k_every); s = int_text(cfg%estimate%every)
       case (k_flux); s = quote(trim(cfg%estimate%flux))

@@ -9,10 +9,10 @@
 !> limit, when exact Newton-min revisits an active set (`twomem_newton_cycling`) or when the
 !> active set stops changing with the residual above the tolerance (round-off floor).
 !>
-!> Fischer–Burmeister finishes with active-set steps (docs/method.md §2): once an FB step leaves
-!> the contact set {a ≤ b} unchanged, the next step linearizes min instead, which imposes u1 = u2
-!> on that set and λ = 0 off it and so lands on the discrete solution at once when the set is
-!> right. FB alone converges there only quadratically with a constant ~1/|(a, b)| of the
+!> Fischer–Burmeister finishes with active-set steps unless told not to (`fb_active_set`, input
+!> newton.fb_finish; docs/method.md §2): once an FB step leaves the contact set {a ≤ b}
+!> unchanged, the next step linearizes min instead, which imposes u1 = u2 on that set and λ = 0
+!> off it and so lands on the discrete solution at once when the set is right. FB alone converges there only quadratically with a constant ~1/|(a, b)| of the
 !> solution, and the first free layer beside the contact zone has a ~ h², b = 0: four or five
 !> steps of the tail measured at every mesh size. A nearly biactive vertex may be guessed on
 !> the wrong side (measured at 1.1e6 vertices: 13 vertices, the residual rose to 3e-3); the
@@ -58,6 +58,8 @@ module twomem_newton_solver
       integer :: max_it = 100
       real(dp) :: tol = 1.0e-10_dp
       logical :: line_search = .false.
+      !> Fischer–Burmeister: Newton-min (active-set) steps once the contact set settles
+      logical :: fb_active_set = .true.
       !> GMRES: forcing_paper (algebraic ≤ linearization residual) or forcing_fixed (gmres%rtol)
       integer :: forcing = forcing_paper
       !> precond_mg (block elimination with multigrid), precond_ilu0, precond_jacobi, precond_none
@@ -167,7 +169,7 @@ contains
             active_set_step = .not. settled .and. streak < 3
          else
             streak = 0
-            active_set_step = options%cfun == c_function_fb .and. settled
+            active_set_step = options%cfun == c_function_fb .and. options%fb_active_set .and. settled
          end if
          if (active_set_step) call cfun_eval(c_function_min, x, c, da, db)
          ! B = [F; J_C X − C(X)] with the Jacobian of the previous iterate
