@@ -204,7 +204,8 @@ contains
       type(load_moments_t) :: loads, flat_loads
       type(poly_data_t) :: flat_poly
       type(constant_data_t) :: flat
-      real(dp), allocatable :: lambda(:), grad_u(:, :, :), residual(:, :), r(:, :, :), lhs(:), rhs(:), flat_sigma(:, :, :)
+      real(dp), allocatable :: lambda(:), grad_u(:, :, :), residual(:, :), r(:, :, :), lhs(:), rhs(:)
+      real(dp), allocatable :: flat_sigma(:, :, :)
       real(dp) :: x(2), w, dev, scale, q(3, 3), fv(3), exact, tri(3, 3, 3), mu(2)
       integer(ip) :: t, v(3)
       integer :: domain, order, alpha, k, i, j, l

@@ -1,11 +1,11 @@
-!> Multigrid and the block-elimination preconditioner against independent computations: the
-!> Galerkin product against dense Pᵀ A P (truncated at fixed unknowns) and, for the Laplacian,
-!> against the stiffness matrix assembled on the coarse mesh; the V-cycle's contraction on the
-!> Poisson problem at several mesh sizes; truncation (fixed unknowns never move); the
-!> elimination without coarsening against UMFPACK on the assembled Newton matrix; the partial
-!> rebuild of the w-block hierarchy for a new Newton step against a whole rebuild and against
-!> a plain full product; the hierarchy assembled in one pass against pattern then values; and GMRES iteration counts with the preconditioner for both C-functions
-!> as the mesh is refined.
+!> Multigrid and the block-elimination preconditioner against independent computations: the Galerkin
+!> product against dense Pᵀ A P (truncated at fixed unknowns) and, for the Laplacian, against the
+!> stiffness matrix assembled on the coarse mesh; the V-cycle's contraction on the Poisson problem
+!> at several mesh sizes; truncation (fixed unknowns never move); the elimination without coarsening
+!> against UMFPACK on the assembled Newton matrix; the partial rebuild of the w-block hierarchy for
+!> a new Newton step against a whole rebuild and against a plain full product; the hierarchy
+!> assembled in one pass against pattern then values; and GMRES iteration counts with the
+!> preconditioner for both C-functions as the mesh is refined.
 module test_multigrid
    use twomem_base_kinds, only: dp, ip, i8
    use twomem_linalg_csr, only: csr_t

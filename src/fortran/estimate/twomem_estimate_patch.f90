@@ -336,7 +336,8 @@ contains
             data_q(1:nd) = rhs_div(:, k, r)
             if (i > 0) then
                if (flux_data) data_q(nd + 1:nd + 2) = (1/rho)*fgrad(:, k, r)
-               call mat_vec(n_rows, nd + n_data, shapes%cond_q(:, 1:nd + n_data, i, c), data_q(1:nd + n_data), t1(1:n_rows))
+               call mat_vec(n_rows, nd + n_data, shapes%cond_q(:, 1:nd + n_data, i, c), data_q(1:nd + n_data), &
+                            t1(1:n_rows))
             else
                call mat_vec(n_rows, nd, shapes%cy(:, :, c), data_q(1:nd), t1(1:n_rows))
             end if

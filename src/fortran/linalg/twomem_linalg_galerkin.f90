@@ -20,7 +20,8 @@ module twomem_linalg_galerkin
    implicit none
    private
 
-   public :: galerkin_pattern, galerkin_assemble, galerkin_values, truncate_transfer, galerkin_rows, cut_rows, touched_rows
+   public :: galerkin_pattern, galerkin_assemble, galerkin_values, truncate_transfer, galerkin_rows, cut_rows, &
+             touched_rows
 
 contains
 

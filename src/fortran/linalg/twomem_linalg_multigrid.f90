@@ -25,7 +25,8 @@ module twomem_linalg_multigrid
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_io
    use twomem_linalg_csr, only: csr_t
-   use twomem_linalg_galerkin, only: galerkin_pattern, galerkin_assemble, galerkin_rows, cut_rows, touched_rows, truncate_transfer
+   use twomem_linalg_galerkin, only: galerkin_pattern, galerkin_assemble, galerkin_rows, cut_rows, touched_rows, &
+                                     truncate_transfer
    use twomem_linalg_chebyshev, only: chebyshev_t, level_product
    use twomem_linalg_halo, only: halo_t
    use twomem_linalg_gathered_solve, only: gathered_solver_t

@@ -10,16 +10,16 @@
 !> active set stops changing with the residual above the tolerance (round-off floor).
 !>
 !> Fischer–Burmeister finishes with active-set steps unless told not to (`fb_active_set`, input
-!> newton.fb_finish; docs/method.md §2): once an FB step leaves the contact set {a ≤ b}
-!> unchanged, the next step linearizes min instead, which imposes u1 = u2 on that set and λ = 0
-!> off it and so lands on the discrete solution at once when the set is right. FB alone converges there only quadratically with a constant ~1/|(a, b)| of the
-!> solution, and the first free layer beside the contact zone has a ~ h², b = 0: four or five
-!> steps of the tail measured at every mesh size. A nearly biactive vertex may be guessed on
-!> the wrong side (measured at 1.1e6 vertices: 13 vertices, the residual rose to 3e-3); the
-!> next step, again an active-set step (a primal–dual active set update), corrects the guess.
-!> Active-set steps go on while they change the set, at most three in a row, then FB resumes.
-!> They are judged by the FB merit like any other step (line search) and the stopping test is
-!> FB's.
+!> newton.fb_finish; docs/method.md §2): once an FB step leaves the contact set {a ≤ b} unchanged,
+!> the next step linearizes min instead, which imposes u1 = u2 on that set and λ = 0 off it and so
+!> lands on the discrete solution at once when the set is right. FB alone converges there only
+!> quadratically with a constant ~1/|(a, b)| of the solution, and the first free layer beside the
+!> contact zone has a ~ h², b = 0: four or five steps of the tail measured at every mesh size. A
+!> nearly biactive vertex may be guessed on the wrong side (measured at 1.1e6 vertices: 13 vertices,
+!> the residual rose to 3e-3); the next step, again an active-set step (a primal–dual active set
+!> update), corrects the guess. Active-set steps go on while they change the set, at most three in a
+!> row, then FB resumes. They are judged by the FB merit like any other step (line search) and the
+!> stopping test is FB's.
 module twomem_newton_solver
    use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
    use twomem_base_kinds, only: dp, ip
