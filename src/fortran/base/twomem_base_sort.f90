@@ -1,12 +1,13 @@
 !> Sorting of integer keys, for the bookkeeping of distributed runs (interfaces listed in
 !> whole-mesh order, keys numbered on rank 0). Heap sort: O(n log n) in the worst case, no
-!> recursion, no extra memory.
+!> recursion, no extra memory. And an insertion sort of a sparse row's handful of columns with
+!> their values, where a heap sort's set-up would cost more than the sorting.
 module twomem_base_sort
-   use twomem_base_kinds, only: ip
+   use twomem_base_kinds, only: dp, ip
    implicit none
    private
 
-   public :: sort_ints, sorting_permutation
+   public :: sort_ints, sorting_permutation, sort_pairs
 
 contains
 
@@ -82,4 +83,27 @@ contains
       other(i) = other(j)
       other(j) = t
    end subroutine swap
+
+   !> Insertion sort of `key` (a row's handful of columns), applying the same moves to `other`.
+   pure subroutine sort_pairs(key, other)
+      integer(ip), intent(inout) :: key(:)
+      real(dp), intent(inout) :: other(:)
+
+      integer(ip) :: i, j, k
+      real(dp) :: o
+
+      do i = 2, size(key)
+         k = key(i)
+         o = other(i)
+         j = i - 1
+         do while (j >= 1)
+            if (key(j) <= k) exit
+            key(j + 1) = key(j)
+            other(j + 1) = other(j)
+            j = j - 1
+         end do
+         key(j + 1) = k
+         other(j + 1) = o
+      end do
+   end subroutine sort_pairs
 end module twomem_base_sort

@@ -9,6 +9,7 @@
 !> shares with other ranks hold its part only, which the caller sums across ranks.
 module twomem_fem_assembly
    use twomem_base_kinds, only: dp, ip
+   use twomem_base_sort, only: sort_pairs
    use twomem_mesh_triangulation, only: mesh_t, corner_of, position_of
    use twomem_linalg_csr, only: csr_t
    use twomem_fem_problem, only: problem_data_t
@@ -143,9 +144,9 @@ contains
       real(dp), intent(out) :: val(:)
       real(dp), intent(out) :: coupling
 
-      integer(ip) :: m, t, c, key
-      real(dp) :: e(2, 3), entry, v, scale
-      integer :: i, j, count, q, p
+      integer(ip) :: m, t, c
+      real(dp) :: e(2, 3), entry, scale
+      integer :: i, j, count, q
 
       count = 0
       coupling = 0.0_dp
@@ -176,20 +177,7 @@ contains
             end if
          end do
       end do
-      ! insertion sort by column (a handful of entries)
-      do q = 2, count
-         key = cols(q)
-         v = vals(q)
-         p = q - 1
-         do while (p >= 1)
-            if (cols(p) <= key) exit
-            cols(p + 1) = cols(p)
-            vals(p + 1) = vals(p)
-            p = p - 1
-         end do
-         cols(p + 1) = key
-         vals(p + 1) = v
-      end do
+      call sort_pairs(cols(1:count), vals(1:count))
       col = cols(1:count)
       val = vals(1:count)
    end subroutine gather_row

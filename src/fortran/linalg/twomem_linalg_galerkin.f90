@@ -15,6 +15,7 @@
 !> a full product; `cut_rows` then redoes the identity rows of the listed rows.
 module twomem_linalg_galerkin
    use twomem_base_kinds, only: dp, ip
+   use twomem_base_sort, only: sort_pairs
    use twomem_linalg_csr, only: csr_t
    use twomem_linalg_halo, only: halo_t
    implicit none
@@ -112,29 +113,6 @@ contains
       call c%init_pattern(row_ptr, col)
       if (with_values) c%val = val
    end subroutine pattern_and_values
-
-   !> Insertion sort of `key` (a row's handful of columns), applying the same moves to `other`.
-   pure subroutine sort_pairs(key, other)
-      integer(ip), intent(inout) :: key(:)
-      real(dp), intent(inout) :: other(:)
-
-      integer(ip) :: i, j, k
-      real(dp) :: o
-
-      do i = 2, size(key)
-         k = key(i)
-         o = other(i)
-         j = i - 1
-         do while (j >= 1)
-            if (key(j) <= k) exit
-            key(j + 1) = key(j)
-            other(j + 1) = other(j)
-            j = j - 1
-         end do
-         key(j + 1) = k
-         other(j + 1) = o
-      end do
-   end subroutine sort_pairs
 
    !> buffer(used + 1) = value and values(used + 1) = 0, doubling both when full.
    pure subroutine append(buffer, values, used, value)

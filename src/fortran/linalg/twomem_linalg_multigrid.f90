@@ -277,16 +277,8 @@ contains
                           coarse%updated, regain)
          end associate
       end do
-      if (self%top == 0) then
-         call self%coarse%factor(self%finest, err)
-      else
-         call self%coarse%factor(self%levels(0)%a, err)
-      end if
-      if (allocated(err)) then
-         call make_error(err, exit_io, 'multigrid', 'coarsest level: '//err%message)
-         return
-      end if
-      self%valid = .true.
+      call factor_coarsest(self, err)
+      self%valid = .not. allocated(err)
    end subroutine assemble_levels
 
    !> The coarse values, smoothers and coarsest factorization of `start`, whose patterns init
@@ -328,16 +320,8 @@ contains
             end if
          end associate
       end if
-      if (top == 0) then
-         call self%coarse%factor(self%finest, err)
-      else
-         call self%coarse%factor(self%levels(0)%a, err)
-      end if
-      if (allocated(err)) then
-         call make_error(err, exit_io, 'multigrid', 'coarsest level: '//err%message)
-         return
-      end if
-      self%valid = .true.
+      call factor_coarsest(self, err)
+      self%valid = .not. allocated(err)
    end subroutine start_as
 
    !> Recompute the coarse levels from the finest operator's current values and its fixed
@@ -391,16 +375,23 @@ contains
       end do
       ! the coarsest factorization is the one step whose cost does not shrink with the change
       refactor = self%transfer%halos(0)%comm%any_true(any(self%levels(0)%updated))
-      if (refactor .or. .not. partial) then
-         if (self%top == 0) then
-            call self%coarse%factor(self%finest, err)
-         else
-            call self%coarse%factor(self%levels(0)%a, err)
-         end if
-      end if
-      if (allocated(err)) call make_error(err, exit_io, 'multigrid', 'coarsest level: '//err%message)
+      if (refactor .or. .not. partial) call factor_coarsest(self, err)
       self%valid = .not. allocated(err)
    end subroutine refresh
+
+   !> The direct factorization of the coarsest level (the finest operator itself when there is
+   !> one level), its failure told as the multigrid's.
+   subroutine factor_coarsest(self, err)
+      type(multigrid_t), intent(inout) :: self
+      type(error_t), allocatable, intent(out) :: err
+
+      if (self%top == 0) then
+         call self%coarse%factor(self%finest, err)
+      else
+         call self%coarse%factor(self%levels(0)%a, err)
+      end if
+      if (allocated(err)) call make_error(err, exit_io, 'multigrid', 'coarsest level: '//err%message)
+   end subroutine factor_coarsest
 
    !> Level l−1 from level l (operator a) on the rows the changes reach: its fixed unknowns, the
    !> truncated transfer values (when a fixed flag flipped), the Galerkin product, and the
