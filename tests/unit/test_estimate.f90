@@ -27,7 +27,7 @@ module test_estimate
    implicit none
    private
 
-   public :: collect_estimate, solved_disk
+   public :: collect_estimate, solved_disk, random_vector
 
    real(dp), parameter :: pi = acos(-1.0_dp)
    !> λ enters the first membrane's equilibrium with +, the second's with −
