@@ -127,8 +127,13 @@ contains
       do k = 1, size(neighbours)
          ptr(k + 1) = ptr(k) + count(shares(:, neighbours(k)))
       end do
-      ! unknowns in whole-mesh order: both sides of an interface list it alike
-      order = sorting_permutation(mesh%global_vertex(interior))
+      ! unknowns in whole-mesh order: both sides of an interface list it alike (with no
+      ! neighbour there is nothing to list, and a serial run skips a heap sort of every unknown)
+      if (size(neighbours) > 0) then
+         order = sorting_permutation(mesh%global_vertex(interior))
+      else
+         allocate (order(0))
+      end if
       allocate (idx(ptr(size(neighbours) + 1) - 1))
       do k = 1, size(neighbours)
          fill = ptr(k)

@@ -42,12 +42,16 @@ contains
       if (present(ncol)) self%ncol = ncol
       self%row_ptr = row_ptr
       self%col = col(1:row_ptr(size(row_ptr)) - 1)
-      do i = 1, self%n
-         call sort_ints(self%col(self%row_ptr(i):self%row_ptr(i + 1) - 1))
-      end do
       if (allocated(self%val)) deallocate (self%val)
       allocate (self%val(size(self%col)))
-      self%val = 0.0_dp
+      ! rows are short and mostly given sorted: an insertion sort per row, in parallel (the
+      ! 3n-row Newton pattern at 10^6 vertices took a serial heap sort 0.3 s)
+      !$omp parallel do default(none) shared(self) private(i) schedule(static) if(self%n > 4096)
+      do i = 1, self%n
+         call sort_ints(self%col(self%row_ptr(i):self%row_ptr(i + 1) - 1))
+         self%val(self%row_ptr(i):self%row_ptr(i + 1) - 1) = 0.0_dp
+      end do
+      !$omp end parallel do
    end subroutine init_pattern
 
    pure integer(ip) function nnz(self)
