@@ -38,6 +38,9 @@ module twomem_newton_linear
       type(gmres_workspace_t) :: workspace
       !> the last GMRES solve
       type(gmres_monitor_t) :: monitor
+      !> the last solve was matrix-free GMRES: monitor%final_residual is ‖b − A x‖ with A applied
+      !> by the system's own `apply`, the same bits as the caller would compute
+      logical :: residual_known = .false.
       !> GMRES solves that ended neither converged nor stopped by the observer, and the last reason
       integer :: failures = 0
       character(len=:), allocatable :: failure_reason
@@ -144,6 +147,7 @@ contains
       type(newton_operator_t) :: matrix_free
       type(gmres_options_t) :: options
 
+      self%residual_known = .false.
       if (self%kind == solver_direct) then
          call self%direct%factor(sys%a, err)
          if (allocated(err)) return
@@ -158,6 +162,7 @@ contains
          if (allocated(err)) return
          matrix_free%sys => sys
          call gmres_solve(matrix_free, prec, sys%dot, b, x, options, self%monitor, err, observer, self%workspace)
+         self%residual_known = .true.
       class default
          call prec%setup(sys%a, err)
          if (allocated(err)) return

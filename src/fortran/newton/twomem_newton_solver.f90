@@ -105,7 +105,7 @@ contains
       logical, allocatable :: active(:), previous(:)
       integer(ip) :: n, i
       integer :: k, kind, streak
-      real(dp) :: t0, step
+      real(dp) :: t0, step, b_norm
       character(len=:), allocatable :: why
       logical :: adaptive, active_set_step, settled
 
@@ -181,10 +181,11 @@ contains
          end do
          !$omp end parallel do
          x_new = x
+         b_norm = max(sys%dot%norm(b), tiny(1.0_dp))
          if (kind == solver_gmres) then
             inner%newton_it = k
             inner%gmres_before = result%linear_iterations
-            inner%b_norm = max(sys%dot%norm(b), tiny(1.0_dp))
+            inner%b_norm = b_norm
             call solver%solve(sys, b, x_new, err, observer=inner)
             if (allocated(err)) return
             result%linear_iterations = result%linear_iterations + solver%monitor%iterations
@@ -196,10 +197,15 @@ contains
             call solver%solve(sys, b, x_new, err)
             if (allocated(err)) return
          end if
-         call sys%apply(x_new, ax)
-         ax = b - ax
          row = not_computed()
-         row%alg_residual = sys%dot%norm(ax)/max(sys%dot%norm(b), tiny(1.0_dp))
+         if (solver%residual_known) then
+            ! GMRES ended on this very residual (an operator application and a norm saved)
+            row%alg_residual = solver%monitor%final_residual/b_norm
+         else
+            call sys%apply(x_new, ax)
+            ax = b - ax
+            row%alg_residual = sys%dot%norm(ax)/b_norm
+         end if
          step = 1.0_dp
          if (options%line_search) step = search%step(residual, k, x, x_new)
          if (step < 1.0_dp) call watch%damped(k)
