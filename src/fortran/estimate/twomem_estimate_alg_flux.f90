@@ -379,7 +379,7 @@ contains
       real(dp) :: rhs_flux(space%n_flux, size(children), 2), rhs_div(space%n_div, size(children), 2)
       real(dp) :: patch_sigma(space%n_flux, size(children), 2)
       real(dp) :: grad_psi(2), coarse_part(space%n_div, 2), smooth(2), hat_gradients(2, 3), qc(space%n_div)
-      real(dp) :: psi_v(3), smooth_v(3, 2), area_factor, ratio, mono_q(space%n_div, n_p2)
+      real(dp) :: psi_v(3), smooth_v(3, 2), area_factor, ratio, moments(space%n_div, n_p2)
       integer :: cls, id, coarse_level
       integer(ip) :: order(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a))
 
@@ -467,34 +467,22 @@ contains
                   smooth_v(i, :) = [dot_product(qc, coarse_part(:, 1)), dot_product(qc, coarse_part(:, 2))]
                end if
             end do
+            ! the moments of r ψ_a: those of the basis times ψ_a (on T_J the child's λ_j, r being P1,
+            ! above its monomials m_j), combined for both membranes
             if (allocated(p2_fine%c)) then
-               ! ∫ m_j ψ_a q_k on the child, for both membranes
-               do m = 1, n_p2
-                  mono_q(:, m) = area_factor*(psi_v(1)*shapes%mono_psi_q(:, m, 1, cls) + &
-                                              psi_v(2)*shapes%mono_psi_q(:, m, 2, cls) + &
-                                              psi_v(3)*shapes%mono_psi_q(:, m, 3, cls))
-               end do
-               do alpha = 1, 2
-                  do m = 1, n_p2
-                     rhs_div(:, ne, alpha) = rhs_div(:, ne, alpha) + p2_fine%c(m, child, alpha)*mono_q(:, m)
-                  end do
-               end do
+               call psi_combination(space%n_div, n_p2, shapes%mono_psi_q(:, :, :, cls), area_factor*psi_v, moments)
+               call add_moments(space%n_div, n_p2, moments, p2_fine%c(:, child, :), rhs_div(:, ne, :))
+            else
+               call psi_combination(space%n_div, 3, shapes%bary_psi_q(:, :, :, cls), area_factor*psi_v, moments)
+               call add_moments(space%n_div, 3, moments, r(:, child, :), rhs_div(:, ne, :))
             end if
-            do alpha = 1, 2
-               do i = 1, 3
-                  if (.not. allocated(p2_fine%c)) then
-                     do k = 1, space%n_div
-                        rhs_div(k, ne, alpha) = rhs_div(k, ne, alpha) + area_factor*psi_v(i)* &
-                                                (shapes%bary_psi_q(k, 1, i, cls)*r(1, child, alpha) + &
-                                                 shapes%bary_psi_q(k, 2, i, cls)*r(2, child, alpha) + &
-                                                 shapes%bary_psi_q(k, 3, i, cls)*r(3, child, alpha))
-                     end do
-                  end if
-                  if (.not. first) rhs_div(:, ne, alpha) = rhs_div(:, ne, alpha) &
-                                                           - area_factor*smooth_v(i, alpha)*shapes%psi_q(:, i, cls)
+            if (first) then
+               do alpha = 1, 2
+                  rhs_div(:, ne, alpha) = rhs_div(:, ne, alpha) - area_factor*smooth(alpha)*shapes%q_int(:, cls)
                end do
-               if (first) rhs_div(:, ne, alpha) = rhs_div(:, ne, alpha) - area_factor*smooth(alpha)*shapes%q_int(:, cls)
-            end do
+            else
+               call add_moments(space%n_div, 3, shapes%psi_q(:, :, cls), -area_factor*smooth_v, rhs_div(:, ne, :))
+            end if
          end do
       end do
       if (id > 0) then
@@ -511,4 +499,30 @@ contains
          sigma(:, children(k), :) = sigma(:, children(k), :) + patch_sigma(:, k, :)
       end do
    end subroutine coarse_patch
+
+   !> combination = Σ_i w(i) table(:, :, i), for class tables (nd, nb, 3) of ψ_i (explicit
+   !> shapes: the callers' workspace is the largest, n_p2 wide, and it takes no descriptors).
+   pure subroutine psi_combination(nd, nb, table, w, combination)
+      integer, intent(in) :: nd, nb
+      real(dp), intent(in) :: table(nd, nb, 3), w(3)
+      real(dp), intent(out) :: combination(nd, nb)
+
+      combination = w(1)*table(:, :, 1) + w(2)*table(:, :, 2) + w(3)*table(:, :, 3)
+   end subroutine psi_combination
+
+   !> rhs(:, α) += Σ_j coef(j, α) moments(:, j) for both membranes: the moments of the fields
+   !> with coefficients coef in a basis whose moments are `moments`.
+   pure subroutine add_moments(nd, nb, moments, coef, rhs)
+      integer, intent(in) :: nd, nb
+      real(dp), intent(in) :: moments(nd, nb), coef(:, :)
+      real(dp), intent(inout) :: rhs(:, :)
+
+      integer :: alpha, j
+
+      do alpha = 1, 2
+         do j = 1, nb
+            rhs(:, alpha) = rhs(:, alpha) + coef(j, alpha)*moments(:, j)
+         end do
+      end do
+   end subroutine add_moments
 end module twomem_estimate_alg_flux
