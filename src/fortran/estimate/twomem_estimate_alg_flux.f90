@@ -7,10 +7,12 @@
 !> P_p(T_{j−1}) and Π_b := 0. These divergences add up level by level to (Π_j − Π_{j−1}) r_α and
 !> in total to r_α. With a single mesh (b = J) the patches are those of T_J itself, which gives
 !> ∇·σ = Π_p r_α. Integrals of r_α over coarser triangles go through its L² projection onto
-!> P2 of each triangle, which is exact against the quadratic ψ_a q of the patch data.
-!> The patch problems use the operators of the shape classes (twomem_estimate_shapes); a refined
-!> patch's multipliers are numbered so that those inside each coarse triangle form a block
-!> (twomem_estimate_patch). The level parts and the P2 fields are kept between evaluations.
+!> P2 of each triangle, which is exact against the quadratic ψ_a q of the patch data. The
+!> patch problems use the operators of the shape classes (twomem_estimate_shapes), and so do
+!> these projections and the patch data: every integral involved is one of scaled monomials
+!> and barycentric coordinates, its class's times the area ratio, so no quadrature runs here.
+!> A refined patch's multipliers are numbered so that those inside each coarse triangle form a
+!> block (twomem_estimate_patch). The level parts and the P2 fields are kept between evaluations.
 !> On a rank's piece of a distributed hierarchy: the restriction of R_α starts from the finest
 !> vertices the rank owns (each vertex counted once over the ranks), the parts are summed at
 !> the shared coarse unknowns, and the coarse problem is solved whole on rank 0
@@ -27,10 +29,9 @@ module twomem_estimate_alg_flux
    use twomem_fem_problem, only: problem_data_t
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_fem_assembly, only: p1_gradients
-   use twomem_linalg_dense, only: lu_factor, lu_solve
    use twomem_linalg_gathered_solve, only: gathered_solver_t
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, frame_of
-   use twomem_estimate_shapes, only: shape_classes_t, triangle_class
+   use twomem_estimate_shapes, only: shape_classes_t, triangle_class, n_p2
    use twomem_estimate_coloring, only: coloring_t
    use twomem_estimate_patch, only: solve_patch, solve_condensed_factored, inner_edge, edge_free, edge_neumann
    use twomem_estimate_patch_classes, only: patch_table_t, patch_order, edge_signs
@@ -81,9 +82,6 @@ module twomem_estimate_alg_flux
       procedure :: compute
       procedure :: first
    end type algebraic_flux_t
-
-   !> Scaled monomials of P2 on a triangle: 1, ξ1, ξ2, ξ1², ξ1ξ2, ξ2².
-   integer, parameter :: n_p2 = 6
 
 contains
 
@@ -162,7 +160,7 @@ contains
       call coarse_representer(self, hierarchy, residual, err)
       if (allocated(err)) return
       first = self%first()
-      call project_p2(hierarchy, first, r, self%p2)
+      call project_p2(shapes, hierarchy, first, r, self%p2)
       do j = first, self%finest
          associate (lev => self%levels(j - first + 1))
             if (j == self%base) then
@@ -246,63 +244,42 @@ contains
       end associate
    end subroutine coarse_representer
 
-   !> r_α's L² projection onto P2 of every triangle of T_first..T_{J−1}, coarsest last: the
-   !> moments of a coarse triangle are those of its four children's projections (exact, P2·P2
-   !> being degree 4 and the rule degree 5), on T_J those of r itself (P1).
-   subroutine project_p2(hierarchy, first, r, p2)
+   !> r_α's L² projection onto P2 of every triangle of T_first..T_{J−1}, coarsest last: that of
+   !> a coarse triangle is the sum of the projections of its four children's fields (P1 r on
+   !> T_J, their P2 projections above), the class operators p2_from_p1 and p2_from_p2.
+   subroutine project_p2(shapes, hierarchy, first, r, p2)
+      type(shape_classes_t), intent(in) :: shapes
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       integer, intent(in) :: first
       real(dp), intent(in) :: r(:, :, :)
       type(p2_field_t), intent(inout) :: p2(first:)
 
-      type(rt_space_t) :: space
-      type(rt_frame_t) :: frame, child_frame
-      real(dp) :: gram(n_p2, n_p2), b(n_p2, 2), m(n_p2), x(2), w, value(2)
-      integer :: l, k, c, alpha, piv(n_p2)
+      integer :: l, c, cls, alpha, j
       integer(ip) :: t, child
-      logical :: ok
+      real(dp) :: ratio
 
-      call space%init(1)
       do l = ubound(p2, 1) - 1, first, -1
-            !$omp parallel do default(none) shared(space, hierarchy, p2, r, l) &
-            !$omp private(t, frame, child_frame, gram, b, m, x, w, value, k, c, alpha, piv, child, ok) &
-            !$omp schedule(static)
-            do t = 1, hierarchy%meshes(l)%nt
-               frame = frame_of(hierarchy%meshes(l)%vertices, hierarchy%meshes(l)%triangles(:, t))
-               gram = 0.0_dp
-               b = 0.0_dp
-               do k = 1, space%rule%n
-                  x = matmul(frame%vertices, space%rule%bary(:, k))
-                  m = p2_monomials(frame, x)
-                  w = space%rule%weights(k)*frame%area
-                  do c = 1, n_p2
-                     gram(:, c) = gram(:, c) + w*m*m(c)
-                  end do
-               end do
-               do c = 1, 4
-                     child = 4*(t - 1) + c
-                     child_frame = frame_of(hierarchy%meshes(l + 1)%vertices, hierarchy%meshes(l + 1)%triangles(:, child))
-                     do k = 1, space%rule%n
-                        x = matmul(child_frame%vertices, space%rule%bary(:, k))
-                        w = space%rule%weights(k)*child_frame%area
-                        if (l + 1 == ubound(p2, 1)) then
-                           value = [dot_product(r(:, child, 1), space%rule%bary(:, k)), &
-                                    dot_product(r(:, child, 2), space%rule%bary(:, k))]
-                        else
-                           m = p2_monomials(child_frame, x)
-                           value = [dot_product(m, p2(l + 1)%c(:, child, 1)), dot_product(m, p2(l + 1)%c(:, child, 2))]
-                        end if
-                        m = p2_monomials(frame, x)
-                        do alpha = 1, 2
-                           b(:, alpha) = b(:, alpha) + w*value(alpha)*m
-                        end do
+         !$omp parallel do default(none) shared(shapes, hierarchy, p2, r, l) private(t, c, cls, ratio, child, alpha, j) &
+         !$omp schedule(static)
+         do t = 1, hierarchy%meshes(l)%nt
+            call triangle_class(l, t, cls, ratio)
+            p2(l)%c(:, t, :) = 0.0_dp
+            do c = 1, 4
+               child = 4*(t - 1) + c
+               do alpha = 1, 2
+                  if (l + 1 == ubound(p2, 1)) then
+                     do j = 1, 3
+                        p2(l)%c(:, t, alpha) = p2(l)%c(:, t, alpha) + r(j, child, alpha)*shapes%p2_from_p1(:, j, c, cls)
                      end do
+                  else
+                     do j = 1, n_p2
+                        p2(l)%c(:, t, alpha) = p2(l)%c(:, t, alpha) + p2(l + 1)%c(j, child, alpha)*shapes%p2_from_p2(:, j, c, cls)
+                     end do
+                  end if
                end do
-               call lu_factor(gram, piv, ok)
-               call lu_solve(gram, piv, b)
-               p2(l)%c(:, t, :) = b
             end do
-            !$omp end parallel do
+         end do
+         !$omp end parallel do
       end do
    end subroutine project_p2
 
@@ -317,17 +294,6 @@ contains
       q(1) = 1.0_dp
       if (n_div == 3) q(2:3) = (x - frame%centre)/frame%scale
    end function div_tests
-
-   pure function p2_monomials(frame, x) result(m)
-      type(rt_frame_t), intent(in) :: frame
-      real(dp), intent(in) :: x(2)
-      real(dp) :: m(n_p2)
-
-      real(dp) :: xi(2)
-
-      xi = (x - frame%centre)/frame%scale
-      m = [1.0_dp, xi(1), xi(2), xi(1)**2, xi(1)*xi(2), xi(2)**2]
-   end function p2_monomials
 
    !> The patch problems of one level: patches of the vertices of `coarse` (coloured by
    !> `colors`), triangles of `fine`, level `level` of the hierarchy (its red refinement, or the
@@ -403,18 +369,17 @@ contains
       integer(ip), intent(in) :: parents(:, :)
 
       integer, parameter :: max_inner_per_triangle = 9
-      integer :: n_coarse, ne, k, kc, c, m, i, q_point, alpha, local_a, n_inner, piv(space%n_div), n_blocks
+      integer :: n_coarse, ne, k, kc, c, m, i, alpha, local_a, n_inner, n_blocks
       integer(ip) :: t, child, e, v(3), children(n_children*(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a)))
       integer(ip) :: inner(max_inner_per_triangle*(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a)))
-      type(rt_frame_t) :: frame, coarse_frame
-      logical :: opposite, gram_ok
+      type(rt_frame_t) :: coarse_frame
+      logical :: opposite
       integer :: links(3, size(children)), classes(size(children))
       real(dp) :: ratios(size(children)), signs(3*space%n_trace, size(children))
       real(dp) :: rhs_flux(space%n_flux, size(children), 2), rhs_div(space%n_div, size(children), 2)
       real(dp) :: patch_sigma(space%n_flux, size(children), 2)
-      real(dp) :: grad_psi(2), x(2), w, psi, q(space%n_div), value(2), coarse_part(space%n_div, 2)
-      real(dp) :: gram(space%n_div, space%n_div), smooth(2), hat_gradients(2, 3), m6(n_p2), qc(space%n_div)
-      real(dp) :: psi_v(3), smooth_v(3, 2), area_factor
+      real(dp) :: grad_psi(2), coarse_part(space%n_div, 2), smooth(2), hat_gradients(2, 3), qc(space%n_div)
+      real(dp) :: psi_v(3), smooth_v(3, 2), area_factor, ratio, moments(space%n_div, n_p2)
       integer :: cls, id, coarse_level
       integer(ip) :: order(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a))
 
@@ -449,24 +414,15 @@ contains
          hat_gradients = p1_gradients(coarse, t)
          grad_psi = hat_gradients(:, local_a)
          if (.not. first) then
-            ! Π_coarse(r ψ_a) on t, in the divergence basis of t
-            gram = 0.0_dp
+            ! Π_coarse(r ψ_a) on t, in the divergence basis of t: r is P2 there, and the projection
+            ! of each monomial times ψ_a is its class's
+            call triangle_class(coarse_level, t, cls, ratio)
             coarse_part = 0.0_dp
-            do q_point = 1, space%rule%n
-               x = matmul(coarse_frame%vertices, space%rule%bary(:, q_point))
-               w = space%rule%weights(q_point)*coarse_frame%area
-               q = div_tests(space%n_div, coarse_frame, x)
-               m6 = p2_monomials(coarse_frame, x)
-               value = [dot_product(m6, p2_coarse%c(:, t, 1)), dot_product(m6, p2_coarse%c(:, t, 2))]
-               do i = 1, space%n_div
-                  gram(:, i) = gram(:, i) + w*q*q(i)
-               end do
-               do alpha = 1, 2
-                  coarse_part(:, alpha) = coarse_part(:, alpha) + w*value(alpha)*space%rule%bary(local_a, q_point)*q
+            do alpha = 1, 2
+               do i = 1, n_p2
+                  coarse_part(:, alpha) = coarse_part(:, alpha) + p2_coarse%c(i, t, alpha)*shapes%div_proj(:, i, local_a, cls)
                end do
             end do
-            call lu_factor(gram, piv, gram_ok)
-            call lu_solve(gram, piv, coarse_part)
          end if
          do c = 1, n_children
             ne = ne + 1
@@ -499,49 +455,34 @@ contains
             end do
             rhs_div(:, ne, :) = 0.0_dp
             if (first) smooth = [dot_product(grad_psi, grad_rho(:, t, 1)), dot_product(grad_psi, grad_rho(:, t, 2))]
-            if (.not. allocated(p2_fine%c)) then
-               ! the finest level: r, ψ_a and the smooth part are linear on the child, so the
-               ! class integrals ∫ λ_j λ_i q_k, ∫ λ_i q_k and ∫ q_k (scaled by the area) are exact
-               area_factor = 1/ratios(ne)**2
-               cls = classes(ne)
-               do i = 1, 3
-                  psi_v(i) = 1.0_dp/3 + dot_product(grad_psi, fine%vertices(:, v(i)) - coarse_frame%centre)
-                  if (.not. first) then
-                     qc = div_tests(space%n_div, coarse_frame, fine%vertices(:, v(i)))
-                     smooth_v(i, :) = [dot_product(qc, coarse_part(:, 1)), dot_product(qc, coarse_part(:, 2))]
-                  end if
-               end do
-               do alpha = 1, 2
-                  do i = 1, 3
-                     do k = 1, space%n_div
-                        rhs_div(k, ne, alpha) = rhs_div(k, ne, alpha) + area_factor*psi_v(i)* &
-                                                (shapes%bary_psi_q(k, 1, i, cls)*r(1, child, alpha) + &
-                                                 shapes%bary_psi_q(k, 2, i, cls)*r(2, child, alpha) + &
-                                                 shapes%bary_psi_q(k, 3, i, cls)*r(3, child, alpha))
-                     end do
-                     if (.not. first) rhs_div(:, ne, alpha) = rhs_div(:, ne, alpha) &
-                                                              - area_factor*smooth_v(i, alpha)*shapes%psi_q(:, i, cls)
-                  end do
-                  if (first) rhs_div(:, ne, alpha) = rhs_div(:, ne, alpha) - area_factor*smooth(alpha)*shapes%q_int(:, cls)
-               end do
-               cycle
-            end if
-            frame = frame_of(fine%vertices, v)
-            do q_point = 1, space%rule%n
-               x = matmul(frame%vertices, space%rule%bary(:, q_point))
-               w = space%rule%weights(q_point)*frame%area
-               psi = 1.0_dp/3 + dot_product(grad_psi, x - coarse_frame%centre)
-               q = div_tests(space%n_div, frame, x)
-               m6 = p2_monomials(frame, x)
-               value = [dot_product(m6, p2_fine%c(:, child, 1)), dot_product(m6, p2_fine%c(:, child, 2))]
+            ! r, ψ_a and the smooth part on the child: ψ_a and the smooth part linear, r linear on
+            ! T_J and P2 (in the child's monomials) above; the class integrals ∫ λ_j ψ_i q_k or
+            ! ∫ m_j ψ_i q_k, ∫ ψ_i q_k and ∫ q_k, scaled by the area, are exact
+            area_factor = 1/ratios(ne)**2
+            cls = classes(ne)
+            do i = 1, 3
+               psi_v(i) = 1.0_dp/3 + dot_product(grad_psi, fine%vertices(:, v(i)) - coarse_frame%centre)
                if (.not. first) then
-                  qc = div_tests(space%n_div, coarse_frame, x)
-                  smooth = [dot_product(qc, coarse_part(:, 1)), dot_product(qc, coarse_part(:, 2))]
+                  qc = div_tests(space%n_div, coarse_frame, fine%vertices(:, v(i)))
+                  smooth_v(i, :) = [dot_product(qc, coarse_part(:, 1)), dot_product(qc, coarse_part(:, 2))]
                end if
-               do alpha = 1, 2
-                  rhs_div(:, ne, alpha) = rhs_div(:, ne, alpha) + w*(value(alpha)*psi - smooth(alpha))*q
-               end do
             end do
+            ! the moments of r ψ_a: those of the basis times ψ_a (on T_J the child's λ_j, r being P1,
+            ! above its monomials m_j), combined for both membranes
+            if (allocated(p2_fine%c)) then
+               call psi_combination(space%n_div, n_p2, shapes%mono_psi_q(:, :, :, cls), area_factor*psi_v, moments)
+               call add_moments(space%n_div, n_p2, moments, p2_fine%c(:, child, :), rhs_div(:, ne, :))
+            else
+               call psi_combination(space%n_div, 3, shapes%bary_psi_q(:, :, :, cls), area_factor*psi_v, moments)
+               call add_moments(space%n_div, 3, moments, r(:, child, :), rhs_div(:, ne, :))
+            end if
+            if (first) then
+               do alpha = 1, 2
+                  rhs_div(:, ne, alpha) = rhs_div(:, ne, alpha) - area_factor*smooth(alpha)*shapes%q_int(:, cls)
+               end do
+            else
+               call add_moments(space%n_div, 3, shapes%psi_q(:, :, cls), -area_factor*smooth_v, rhs_div(:, ne, :))
+            end if
          end do
       end do
       if (id > 0) then
@@ -558,4 +499,30 @@ contains
          sigma(:, children(k), :) = sigma(:, children(k), :) + patch_sigma(:, k, :)
       end do
    end subroutine coarse_patch
+
+   !> combination = Σ_i w(i) table(:, :, i), for class tables (nd, nb, 3) of ψ_i (explicit
+   !> shapes: the callers' workspace is the largest, n_p2 wide, and it takes no descriptors).
+   pure subroutine psi_combination(nd, nb, table, w, combination)
+      integer, intent(in) :: nd, nb
+      real(dp), intent(in) :: table(nd, nb, 3), w(3)
+      real(dp), intent(out) :: combination(nd, nb)
+
+      combination = w(1)*table(:, :, 1) + w(2)*table(:, :, 2) + w(3)*table(:, :, 3)
+   end subroutine psi_combination
+
+   !> rhs(:, α) += Σ_j coef(j, α) moments(:, j) for both membranes: the moments of the fields
+   !> with coefficients coef in a basis whose moments are `moments`.
+   pure subroutine add_moments(nd, nb, moments, coef, rhs)
+      integer, intent(in) :: nd, nb
+      real(dp), intent(in) :: moments(nd, nb), coef(:, :)
+      real(dp), intent(inout) :: rhs(:, :)
+
+      integer :: alpha, j
+
+      do alpha = 1, 2
+         do j = 1, nb
+            rhs(:, alpha) = rhs(:, alpha) + coef(j, alpha)*moments(:, j)
+         end do
+      end do
+   end subroutine add_moments
 end module twomem_estimate_alg_flux

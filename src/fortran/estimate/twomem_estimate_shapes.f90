@@ -12,6 +12,14 @@
 !> level (about 270 numbers per triangle for RT1): the patch solvers scale and sign them on the
 !> fly, and both membranes share them. `init` checks the similarity on every triangle, so a
 !> hierarchy made otherwise is reported, not mis-estimated.
+!> The scaled coordinates ξ = (x − x_K)/h_K (x_K the barycentre, h_K the longest edge, which
+!> scales with 1/ρ) are the same function of the barycentric coordinates on every copy of a
+!> class: the reflection is the class's own. So an integral over a triangle of a product of
+!> monomials in ξ and barycentric coordinates is its class's times ρ⁻², and an L² projection
+!> between such spaces (a Gram matrix's inverse times moments, both ∝ ρ⁻²) is its class's
+!> unchanged; red refinement keeps the children's local order, so this holds from a triangle's
+!> four children to it as well. The algebraic flux's P2 fields of r_α on the coarser meshes and
+!> their patch data (twomem_estimate_alg_flux) come from these class operators, not quadrature.
 module twomem_estimate_shapes
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_io
@@ -22,7 +30,10 @@ module twomem_estimate_shapes
    implicit none
    private
 
-   public :: shape_classes_t, triangle_class, trace_signs
+   public :: shape_classes_t, triangle_class, trace_signs, p2_monomials
+
+   !> The dimension of P2, with the scaled monomials 1, ξ1, ξ2, ξ1², ξ1ξ2, ξ2² (p2_monomials).
+   integer, parameter, public :: n_p2 = 6
 
    type :: shape_classes_t
       !> per class c = 2(T_0 − 1) + 1 (as T_0) or + 2 (point-reflected), at the size of T_0 and with
@@ -33,6 +44,14 @@ module twomem_estimate_shapes
       !> patch integrals for the local vertex i of ψ_i: psi_phi(:, j, i) = ∫ ψ_i φ_j,
       !> psi_q(k, i) = ∫ ψ_i q_k, bary_psi_q(k, j, i) = ∫ λ_j ψ_i q_k, q_int(k) = ∫ q_k
       real(dp), allocatable :: psi_phi(:, :, :, :), psi_q(:, :, :), bary_psi_q(:, :, :, :), q_int(:, :)
+      !> the same with the P2 monomials m_j for ψ_j: mono_psi_q(k, j, i) = ∫ m_j ψ_i q_k (∝ ρ⁻²)
+      real(dp), allocatable :: mono_psi_q(:, :, :, :)
+      !> L² projections, the same on every copy (see the module header): div_proj(:, j, i) holds
+      !> the coefficients in the q_k of the projection of m_j ψ_i onto P_p; p2_from_p2(:, j, c)
+      !> and p2_from_p1(:, j, c) those in the class's m_i of the projection onto P2 of the field
+      !> that is m_j (resp. λ_j) of child c (refine_red's numbering, in the child's own frame and
+      !> local order) on that child and zero on the other three
+      real(dp), allocatable :: div_proj(:, :, :, :), p2_from_p2(:, :, :, :), p2_from_p1(:, :, :, :)
       !> the triangle condensed for a patch in which its edge i carries zero flux and the other
       !> two are inner edges (every triangle of an interior vertex's patch, with i the local
       !> index of the vertex; the children on the far edge of a refined patch): with N the trace
@@ -119,6 +138,8 @@ contains
                    self%czc(nc, nc, n_classes), self%cy(nc, nd, n_classes), self%mass(nf, nf, n_classes))
          allocate (self%psi_phi(2, nf, 3, n_classes), self%psi_q(nd, 3, n_classes), &
                    self%bary_psi_q(nd, 3, 3, n_classes), self%q_int(nd, n_classes))
+         allocate (self%mono_psi_q(nd, n_p2, 3, n_classes), self%div_proj(nd, n_p2, 3, n_classes), &
+                   self%p2_from_p2(n_p2, n_p2, 4, n_classes), self%p2_from_p1(n_p2, 3, 4, n_classes))
          allocate (self%cond_a(nc - space%n_trace, nc - space%n_trace, 3, n_classes), &
                    self%cond_q(nc - space%n_trace, nd + 2, 3, n_classes), &
                    self%cond_r(nf, nd + nc - space%n_trace + 2, 3, n_classes), self%y_zc(nf, nd + nc, n_classes))
@@ -162,7 +183,11 @@ contains
             self%y_zc(:, 1:nd, c) = self%y(:, :, c)
             self%y_zc(:, nd + 1:, c) = self%zc(:, :, c)
             call class_integrals(space, frame, self%psi_phi(:, :, :, c), self%psi_q(:, :, c), &
-                                 self%bary_psi_q(:, :, :, c), self%q_int(:, c))
+                                 self%bary_psi_q(:, :, :, c), self%q_int(:, c), self%mono_psi_q(:, :, :, c))
+            call div_projection(space, frame, self%mono_psi_q(:, :, :, c), self%div_proj(:, :, :, c), ok)
+            all_ok = all_ok .and. ok
+            call children_projection(space, v0, self%p2_from_p2(:, :, :, c), self%p2_from_p1(:, :, :, c), ok)
+            all_ok = all_ok .and. ok
             do i = 1, 3
                call condense(self, space, c, i, ok)
                all_ok = all_ok .and. ok
@@ -223,25 +248,28 @@ contains
       end associate
    end subroutine condense
 
-   !> The integrals of psi_phi etc. (see the type) on one triangle, by the degree-5 rule.
-   pure subroutine class_integrals(space, frame, psi_phi, psi_q, bary_psi_q, q_int)
+   !> The integrals of psi_phi etc. (see the type) on one triangle, by the degree-5 rule (exact:
+   !> m_j ψ_i q_k, the highest, is of degree 4).
+   pure subroutine class_integrals(space, frame, psi_phi, psi_q, bary_psi_q, q_int, mono_psi_q)
       type(rt_space_t), intent(in) :: space
       type(rt_frame_t), intent(in) :: frame
-      real(dp), intent(out) :: psi_phi(:, :, :), psi_q(:, :), bary_psi_q(:, :, :), q_int(:)
+      real(dp), intent(out) :: psi_phi(:, :, :), psi_q(:, :), bary_psi_q(:, :, :), q_int(:), mono_psi_q(:, :, :)
 
-      real(dp) :: x(2), w, phi(2, space%n_flux), q(space%n_div)
+      real(dp) :: x(2), w, phi(2, space%n_flux), q(space%n_div), m(n_p2)
       integer :: k, i, j
 
       psi_phi = 0.0_dp
       psi_q = 0.0_dp
       bary_psi_q = 0.0_dp
       q_int = 0.0_dp
+      mono_psi_q = 0.0_dp
       do k = 1, space%rule%n
          associate (bary => space%rule%bary(:, k))
             x = matmul(frame%vertices, bary)
             w = space%rule%weights(k)*frame%area
             phi = space%flux_values(frame, x)
             q = space%div_test_values(frame, x)
+            m = p2_monomials(frame, x)
             q_int = q_int + w*q
             do i = 1, 3
                psi_phi(:, :, i) = psi_phi(:, :, i) + w*bary(i)*phi
@@ -249,10 +277,111 @@ contains
                do j = 1, 3
                   bary_psi_q(:, j, i) = bary_psi_q(:, j, i) + w*bary(j)*bary(i)*q
                end do
+               do j = 1, n_p2
+                  mono_psi_q(:, j, i) = mono_psi_q(:, j, i) + w*m(j)*bary(i)*q
+               end do
             end do
          end associate
       end do
    end subroutine class_integrals
+
+   !> div_proj (see the type): the Gram matrix of the q_k on the triangle solved against its
+   !> moments mono_psi_q.
+   pure subroutine div_projection(space, frame, mono_psi_q, div_proj, ok)
+      type(rt_space_t), intent(in) :: space
+      type(rt_frame_t), intent(in) :: frame
+      real(dp), intent(in) :: mono_psi_q(:, :, :)
+      real(dp), intent(out) :: div_proj(:, :, :)
+      logical, intent(out) :: ok
+
+      real(dp) :: gram(space%n_div, space%n_div), q(space%n_div), b(space%n_div, 3*n_p2)
+      integer :: k, i, piv(space%n_div)
+
+      gram = 0.0_dp
+      do k = 1, space%rule%n
+         q = space%div_test_values(frame, matmul(frame%vertices, space%rule%bary(:, k)))
+         do i = 1, space%n_div
+            gram(:, i) = gram(:, i) + space%rule%weights(k)*frame%area*q*q(i)
+         end do
+      end do
+      b = reshape(mono_psi_q, shape(b))
+      call lu_factor(gram, piv, ok)
+      if (.not. ok) return
+      call lu_solve(gram, piv, b)
+      div_proj = reshape(b, shape(div_proj))
+   end subroutine div_projection
+
+   !> p2_from_p2 and p2_from_p1 (see the type) of the triangle with vertices v: the moments
+   !> against the triangle's monomials of each child's monomials and barycentric coordinates
+   !> (degree 4 at most: the rule is exact on each child), solved with the P2 Gram matrix.
+   pure subroutine children_projection(space, v, p2_from_p2, p2_from_p1, ok)
+      type(rt_space_t), intent(in) :: space
+      real(dp), intent(in) :: v(2, 3)
+      real(dp), intent(out) :: p2_from_p2(:, :, :), p2_from_p1(:, :, :)
+      logical, intent(out) :: ok
+
+      type(rt_frame_t) :: frame, child_frame
+      real(dp) :: gram(n_p2, n_p2), x(2), w, m(n_p2), m_child(n_p2), children(2, 3, 4), b(n_p2, 9*4)
+      integer :: k, c, j, piv(n_p2)
+
+      frame = make_frame(v)
+      children = red_children(v)
+      gram = 0.0_dp
+      p2_from_p2 = 0.0_dp
+      p2_from_p1 = 0.0_dp
+      do c = 1, 4
+         child_frame = make_frame(children(:, :, c))
+         do k = 1, space%rule%n
+            x = matmul(child_frame%vertices, space%rule%bary(:, k))
+            w = space%rule%weights(k)*child_frame%area
+            m = p2_monomials(frame, x)
+            m_child = p2_monomials(child_frame, x)
+            do j = 1, n_p2
+               gram(:, j) = gram(:, j) + w*m*m(j)
+               p2_from_p2(:, j, c) = p2_from_p2(:, j, c) + w*m*m_child(j)
+            end do
+            do j = 1, 3
+               p2_from_p1(:, j, c) = p2_from_p1(:, j, c) + w*m*space%rule%bary(j, k)
+            end do
+         end do
+      end do
+      b(:, 1:6*4) = reshape(p2_from_p2, [n_p2, 6*4])
+      b(:, 6*4 + 1:) = reshape(p2_from_p1, [n_p2, 3*4])
+      call lu_factor(gram, piv, ok)
+      if (.not. ok) return
+      call lu_solve(gram, piv, b)
+      p2_from_p2 = reshape(b(:, 1:6*4), shape(p2_from_p2))
+      p2_from_p1 = reshape(b(:, 6*4 + 1:), shape(p2_from_p1))
+   end subroutine children_projection
+
+   !> The four children of the triangle with vertices v as refine_red (twomem_mesh_hierarchy)
+   !> makes them, in its numbering and local order; m_i is the midpoint of the edge opposite i.
+   pure function red_children(v) result(children)
+      real(dp), intent(in) :: v(2, 3)
+      real(dp) :: children(2, 3, 4)
+
+      real(dp) :: m(2, 3)
+
+      m(:, 1) = 0.5_dp*(v(:, 2) + v(:, 3))
+      m(:, 2) = 0.5_dp*(v(:, 3) + v(:, 1))
+      m(:, 3) = 0.5_dp*(v(:, 1) + v(:, 2))
+      children(:, :, 1) = reshape([v(:, 1), m(:, 3), m(:, 2)], [2, 3])
+      children(:, :, 2) = reshape([m(:, 3), v(:, 2), m(:, 1)], [2, 3])
+      children(:, :, 3) = reshape([m(:, 2), m(:, 1), v(:, 3)], [2, 3])
+      children(:, :, 4) = m
+   end function red_children
+
+   !> The scaled P2 monomials of a triangle's frame at x.
+   pure function p2_monomials(frame, x) result(m)
+      type(rt_frame_t), intent(in) :: frame
+      real(dp), intent(in) :: x(2)
+      real(dp) :: m(n_p2)
+
+      real(dp) :: xi(2)
+
+      xi = (x - frame%centre)/frame%scale
+      m = [1.0_dp, xi(1), xi(2), xi(1)**2, xi(1)*xi(2), xi(2)**2]
+   end function p2_monomials
 
    !> Whether every triangle of level l is its class's copy: vertices at ±2^−l times the
    !> class's offsets from the barycentre, to round-off of the coordinates.
@@ -286,6 +415,7 @@ contains
 
       if (allocated(self%z)) deallocate (self%z, self%y, self%zc, self%czc, self%cy, self%mass)
       if (allocated(self%psi_phi)) deallocate (self%psi_phi, self%psi_q, self%bary_psi_q, self%q_int)
+      if (allocated(self%mono_psi_q)) deallocate (self%mono_psi_q, self%div_proj, self%p2_from_p2, self%p2_from_p1)
       if (allocated(self%cond_a)) deallocate (self%cond_a, self%cond_q, self%cond_r, self%y_zc)
    end subroutine free
 end module twomem_estimate_shapes
