@@ -18,7 +18,7 @@ module twomem_estimate_patch_classes
    use twomem_base_errors, only: error_t, make_error, exit_io
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_estimate_raviart_thomas, only: rt_space_t
-   use twomem_estimate_shapes, only: shape_classes_t, triangle_class, trace_signs
+   use twomem_estimate_shapes, only: shape_classes_t, triangle_class
    use twomem_estimate_patch, only: patch_factor_t, condensed_factor, inner_edge, edge_free, edge_neumann, max_theta
    implicit none
    private
@@ -117,7 +117,9 @@ contains
 
    !> Signatures of the patches of the interior vertices of `coarse` (level `level`): on its own
    !> triangles (`single`) or, for `refined`, on their children in `fine` (vertex_parents
-   !> `parents` of the refinement). New signatures are factorized at `finish`.
+   !> `parents` of the refinement). New signatures are factorized at `finish`. The keys of a
+   !> chunk of vertices are built in parallel, then looked up in vertex order, so that the
+   !> numbering of the signatures does not depend on the threads.
    subroutine add_mesh(self, space, coarse, fine, level, parents)
       class(patch_table_t), intent(inout) :: self
       type(rt_space_t), intent(in) :: space
@@ -125,103 +127,152 @@ contains
       integer, intent(in) :: level
       integer(ip), intent(in) :: parents(:, :)
 
-      integer(ip) :: a
-      integer :: n_coarse, n_children, ne, kc, c, m, k, i, n_inner, n_theta, max_valence, l, child_level
-      integer(ip), allocatable :: order(:), inner(:)
-      integer, allocatable :: classes(:), neumann(:), links(:, :), key(:), local(:)
-      real(dp), allocatable :: signs(:, :), o(:)
-      integer(ip) :: t, child, e
-      real(dp) :: ratio
-      logical :: opposite
+      integer(ip), parameter :: chunk = 4096
+      integer(ip) :: first, a, k
+      integer :: width
+      integer, allocatable :: keys(:, :), lengths(:)
+      integer(i8), allocatable :: hashes(:)
       logical, allocatable :: inside(:)
 
-      n_children = merge(4, 1, self%refined)
-      child_level = merge(level + 1, level, self%refined)
-      max_valence = int(maxval(coarse%patch_ptr(2:) - coarse%patch_ptr(:coarse%nv)))
-      allocate (order(max_valence), inner(9*max_valence), local(max_valence))
-      allocate (classes(n_children*max_valence), neumann(n_children*max_valence), links(3, n_children*max_valence))
-      allocate (signs(3*space%n_trace, n_children*max_valence), o(space%n_trace*9*max_valence))
+      ! the longest key: ne, the local indices of the coarse triangles, and per triangle its
+      ! class, zero-flux edge, three links and 3 n_trace signs
+      width = 1 + max_patch + max_patch*(5 + 3*space%n_trace)
+      allocate (keys(width, chunk), lengths(chunk), hashes(chunk))
       allocate (self%levels(level)%id(coarse%nv))
       self%levels(level)%id = 0
       ! on a rank's piece of a distributed mesh, the patches outside its subdomain are not whole
       inside = coarse%in_subdomain()
-      do a = 1, coarse%nv
-         if (coarse%boundary_vertex(a) .or. .not. inside(a)) cycle
-         n_coarse = int(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a))
-         if (n_children*n_coarse > max_patch) cycle
-         call patch_order(coarse, level, a, order(1:n_coarse))
-         n_inner = 0
-         if (self%refined) then
-            ! the inner edges of each coarse triangle (its middle child's) first, one block each
-            do kc = 1, n_coarse
-               do m = 1, 3
-                  n_inner = n_inner + 1
-                  inner(n_inner) = fine%triangle_edges(m, 4*order(kc))
-               end do
-            end do
-         end if
-         ne = 0
-         do kc = 1, n_coarse
-            t = order(kc)
-            local(kc) = findloc(coarse%triangles(:, t), a, dim=1)
-            do c = 1, n_children
-               ne = ne + 1
-               child = merge(4*(t - 1) + c, t, self%refined)
-               call triangle_class(child_level, child, classes(ne), ratio)
-               signs(:, ne) = trace_signs(space, fine%triangles(:, child))
-               do m = 1, 3
-                  e = fine%triangle_edges(m, child)
-                  ! on the coarse edge opposite a: neither end point descends from a
-                  if (self%refined) then
-                     opposite = all(parents(:, fine%edges(1, e)) /= a) .and. all(parents(:, fine%edges(2, e)) /= a)
-                  else
-                     opposite = fine%edges(1, e) /= a .and. fine%edges(2, e) /= a
-                  end if
-                  if (opposite) then
-                     links(m, ne) = edge_neumann
-                  else if (fine%boundary_edge(e)) then
-                     links(m, ne) = edge_free
-                  else
-                     call inner_edge(inner, n_inner, e, links(m, ne))
-                  end if
-               end do
-               neumann(ne) = findloc(links(:, ne), edge_neumann, dim=1)
-            end do
+      do first = 1, coarse%nv, chunk
+         !$omp parallel do default(none) shared(self, space, coarse, fine, level, parents, inside, keys, lengths, hashes) &
+         !$omp shared(first) private(k, a) schedule(dynamic, 64)
+         do k = 1, min(chunk, coarse%nv - first + 1)
+            a = first + k - 1
+            lengths(k) = 0
+            if (coarse%boundary_vertex(a) .or. .not. inside(a)) cycle
+            call patch_key(space, coarse, fine, level, parents, self%refined, a, keys(:, k), lengths(k))
+            if (lengths(k) > 0) hashes(k) = key_hash(keys(1:lengths(k), k))
          end do
-         ! relative signs: each multiplier oriented as in its first triangle
-         n_theta = space%n_trace*n_inner
-         if (n_theta > max_theta) cycle
-         o(1:n_theta) = 0.0_dp
-         do k = 1, ne
-            do m = 1, 3
-               if (links(m, k) <= 0) then
-                  ! not a multiplier of H (a zero-flux edge is condensed in its class's operators):
-                  ! its mesh orientation must not split signatures
-                  signs((m - 1)*space%n_trace + 1:m*space%n_trace, k) = 1.0_dp
-                  cycle
-               end if
-               do l = 1, space%n_trace
-                  i = (links(m, k) - 1)*space%n_trace + l
-                  if (o(i) == 0.0_dp) o(i) = signs((m - 1)*space%n_trace + l, k)
-                  signs((m - 1)*space%n_trace + l, k) = signs((m - 1)*space%n_trace + l, k)*o(i)
-               end do
-            end do
+         !$omp end parallel do
+         do k = 1, min(chunk, coarse%nv - first + 1)
+            if (lengths(k) == 0) cycle
+            self%levels(level)%id(first + k - 1) = lookup(self, keys(1:lengths(k), k), hashes(k), &
+                                                          merge(4, 1, self%refined))
          end do
-         key = [ne, local(1:n_coarse), classes(1:ne), neumann(1:ne), reshape(links(:, 1:ne), [3*ne]), &
-                nint(reshape(signs(:, 1:ne), [3*space%n_trace*ne]))]
-         self%levels(level)%id(a) = lookup(self, key, classes(1:ne), neumann(1:ne), links(:, 1:ne))
       end do
    end subroutine add_mesh
 
-   !> The signature of `key`, added if new.
-   integer function lookup(self, key, classes, neumann, links) result(id)
-      type(patch_table_t), intent(inout) :: self
-      integer, intent(in) :: key(:), classes(:), neumann(:), links(:, :)
+   !> The key of the patch of interior vertex a (see add_mesh) in key(1:length): ne, the local
+   !> indices of a in the coarse triangles, then per patch triangle its class, zero-flux edge,
+   !> edge links and relative trace signs. length = 0: the patch takes the general path (too
+   !> many triangles or multipliers for the fixed-size factors).
+   pure subroutine patch_key(space, coarse, fine, level, parents, refined, a, key, length)
+      type(rt_space_t), intent(in) :: space
+      type(mesh_t), intent(in) :: coarse, fine
+      integer, intent(in) :: level
+      integer(ip), intent(in) :: parents(:, :), a
+      logical, intent(in) :: refined
+      integer, intent(out) :: key(:), length
 
-      integer :: slot
+      integer :: n_coarse, n_children, ne, kc, c, m, k, i, n_inner, n_theta, l, child_level, nt
+      integer(ip) :: order(max_patch), inner(9*max_patch), t, child, e
+      integer :: classes(max_patch), neumann(max_patch), links(3, max_patch), local(max_patch)
+      real(dp) :: signs(6, max_patch), o(2*9*max_patch), ratio
+      logical :: opposite
+
+      length = 0
+      n_children = merge(4, 1, refined)
+      child_level = merge(level + 1, level, refined)
+      nt = space%n_trace
+      n_coarse = int(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a))
+      if (n_children*n_coarse > max_patch) return
+      call patch_order(coarse, level, a, order(1:n_coarse))
+      n_inner = 0
+      if (refined) then
+         ! the inner edges of each coarse triangle (its middle child's) first, one block each
+         do kc = 1, n_coarse
+            do m = 1, 3
+               n_inner = n_inner + 1
+               inner(n_inner) = fine%triangle_edges(m, 4*order(kc))
+            end do
+         end do
+      end if
+      ne = 0
+      do kc = 1, n_coarse
+         t = order(kc)
+         local(kc) = findloc(coarse%triangles(:, t), a, dim=1)
+         do c = 1, n_children
+            ne = ne + 1
+            child = merge(4*(t - 1) + c, t, refined)
+            call triangle_class(child_level, child, classes(ne), ratio)
+            call edge_signs(nt, fine%triangles(:, child), signs(:, ne))
+            do m = 1, 3
+               e = fine%triangle_edges(m, child)
+               ! on the coarse edge opposite a: neither end point descends from a
+               if (refined) then
+                  opposite = all(parents(:, fine%edges(1, e)) /= a) .and. all(parents(:, fine%edges(2, e)) /= a)
+               else
+                  opposite = fine%edges(1, e) /= a .and. fine%edges(2, e) /= a
+               end if
+               if (opposite) then
+                  links(m, ne) = edge_neumann
+               else if (fine%boundary_edge(e)) then
+                  links(m, ne) = edge_free
+               else
+                  call inner_edge(inner, n_inner, e, links(m, ne))
+               end if
+            end do
+            neumann(ne) = findloc(links(:, ne), edge_neumann, dim=1)
+         end do
+      end do
+      ! relative signs: each multiplier oriented as in its first triangle
+      n_theta = nt*n_inner
+      if (n_theta > max_theta) return
+      o(1:n_theta) = 0.0_dp
+      do k = 1, ne
+         do m = 1, 3
+            if (links(m, k) <= 0) then
+               ! not a multiplier of H (a zero-flux edge is condensed in its class's operators):
+               ! its mesh orientation must not split signatures
+               signs((m - 1)*nt + 1:m*nt, k) = 1.0_dp
+               cycle
+            end if
+            do l = 1, nt
+               i = (links(m, k) - 1)*nt + l
+               if (o(i) == 0.0_dp) o(i) = signs((m - 1)*nt + l, k)
+               signs((m - 1)*nt + l, k) = signs((m - 1)*nt + l, k)*o(i)
+            end do
+         end do
+      end do
+      length = 1 + n_coarse + ne*(5 + 3*nt)
+      key(1) = ne
+      key(2:1 + n_coarse) = local(1:n_coarse)
+      i = 1 + n_coarse
+      key(i + 1:i + ne) = classes(1:ne)
+      key(i + ne + 1:i + 2*ne) = neumann(1:ne)
+      i = i + 2*ne
+      do k = 1, ne
+         key(i + 1:i + 3) = links(:, k)
+         i = i + 3
+      end do
+      ! the signs are ±1: stored exactly as integers
+      do k = 1, ne
+         key(i + 1:i + 3*nt) = merge(1, -1, signs(1:3*nt, k) > 0.0_dp)
+         i = i + 3*nt
+      end do
+   end subroutine patch_key
+
+   !> The signature of `key` (hash h = key_hash(key)), added if new; the classes, zero-flux edges
+   !> and links of a new one are read from the key (n_children per coarse triangle).
+   integer function lookup(self, key, h, n_children) result(id)
+      type(patch_table_t), intent(inout) :: self
+      integer, intent(in) :: key(:)
+      integer(i8), intent(in) :: h
+      integer, intent(in) :: n_children
+
+      integer :: slot, ne, i
       type(patch_signature_t), allocatable :: grown(:)
 
-      slot = find(self%hash, self%sig, key)
+      slot = find(self%hash, self%sig, key, h)
       id = self%hash(slot)
       if (id > 0) return
       self%n = self%n + 1
@@ -231,32 +282,39 @@ contains
          grown(1:id - 1) = self%sig(1:id - 1)
          call move_alloc(grown, self%sig)
       end if
+      ne = key(1)
+      i = 1 + ne/n_children
       self%sig(id)%key = key
-      self%sig(id)%classes = classes
-      self%sig(id)%neumann = neumann
-      self%sig(id)%links = links
+      self%sig(id)%classes = key(i + 1:i + ne)
+      self%sig(id)%neumann = key(i + ne + 1:i + 2*ne)
+      self%sig(id)%links = reshape(key(i + 2*ne + 1:i + 5*ne), [3, ne])
       self%hash(slot) = id
       if (2*self%n > size(self%hash)) call rehash(self)
    end function lookup
 
-   !> The slot of key in hash: its signature's, or the empty one where it belongs.
-   pure integer function find(hash, sig, key) result(slot)
-      integer, intent(in) :: hash(:)
-      type(patch_signature_t), intent(in) :: sig(:)
+   !> 32-bit FNV-1a over the key's integers, kept in 32 bits of a 64-bit integer so that the
+   !> product never overflows (signed overflow is undefined, and the sanitizer build reports it).
+   pure integer(i8) function key_hash(key) result(h)
       integer, intent(in) :: key(:)
 
       integer(i8), parameter :: mask32 = 4294967295_i8
-      integer(i8) :: h
       integer :: i
 
-      ! 32-bit FNV-1a over the key's integers, modulo the power-of-two table size; kept in 32
-      ! bits of a 64-bit integer so that the product never overflows (signed overflow is
-      ! undefined, and the sanitizer build reports it)
       h = 2166136261_i8
       do i = 1, size(key)
          h = ieor(h, iand(int(key(i), i8), mask32))
          h = iand(h*16777619_i8, mask32)
       end do
+   end function key_hash
+
+   !> The slot of key (hash h) in hash: its signature's, or the empty one where it belongs.
+   pure integer function find(hash, sig, key, h) result(slot)
+      integer, intent(in) :: hash(:)
+      type(patch_signature_t), intent(in) :: sig(:)
+      integer, intent(in) :: key(:)
+      integer(i8), intent(in) :: h
+
+      ! the hash modulo the power-of-two table size
       slot = int(iand(h, int(size(hash) - 1, i8))) + 1
       do
          if (hash(slot) == 0) return
@@ -281,7 +339,7 @@ contains
       allocate (self%hash(n_slots))
       self%hash = 0
       do id = 1, self%n
-         self%hash(find(self%hash, self%sig, self%sig(id)%key)) = id
+         self%hash(find(self%hash, self%sig, self%sig(id)%key, key_hash(self%sig(id)%key))) = id
       end do
    end subroutine rehash
 
