@@ -41,6 +41,8 @@ module twomem_fem_error
    integer, parameter :: max_depth = 5
    !> relative agreement at which an element's integral is accepted
    real(dp), parameter :: accept_rtol = 1.0e-8_dp
+   !> points of the largest rule used here (degree 8: 16), for the gradients kept per element
+   integer, parameter :: max_points = 16
 
 contains
 
@@ -108,7 +110,7 @@ contains
       class(problem_data_t), intent(in) :: data
 
       type(quadrature_t) :: rule, check
-      real(dp) :: p(2, 3), m0(2, 2), moments(3, 2), x(2), u(3), gx(2, 2)
+      real(dp) :: p(2, 3), m0(2, 2), moments(3, 2), x(2), u(3), g(2, 2, max_points)
       integer(ip) :: t
       integer :: q, alpha
 
@@ -119,16 +121,18 @@ contains
       rule = triangle_rule(8)
       check = triangle_rule(5)
       !$omp parallel do default(none) shared(self, mesh, data, rule, check) &
-      !$omp private(t, p, m0, moments, x, u, gx, q, alpha) schedule(dynamic, 64)
+      !$omp private(t, p, m0, moments, x, u, g, q, alpha) schedule(dynamic, 64)
       do t = 1, mesh%nt
          p = mesh%vertices(:, mesh%triangles(:, t))
+         ! the exact gradients at the rule's points once, for the mean and the element's moments
          m0 = 0.0_dp
          do q = 1, rule%n
             x = matmul(p, rule%bary(:, q))
-            call data%exact(x, u, gx)
-            m0 = m0 + rule%weights(q)*gx
+            call data%exact(x, u, g(:, :, q))
+            m0 = m0 + rule%weights(q)*g(:, :, q)
          end do
-         moments = adaptive_moments(data, rule, check, m0, p, mesh%area(t), 0)
+         moments = refined_moments(data, rule, check, m0, p, mesh%area(t), 0, &
+                                   moments_of(rule, g(:, :, 1:rule%n), m0, mesh%area(t)))
          do alpha = 1, 2
             self%mean(:, alpha, t) = m0(:, alpha) + moments(2:3, alpha)/mesh%area(t)
             self%spread(alpha, t) = max(0.0_dp, moments(1, alpha) - sum(moments(2:3, alpha)**2)/mesh%area(t))
@@ -144,20 +148,34 @@ contains
       real(dp), intent(in) :: m0(2, 2), p(2, 3), area
       real(dp) :: s(3, 2)
 
-      real(dp) :: x(2), u(3), gx(2, 2), d(2)
+      real(dp) :: x(2), u(3), g(2, 2, max_points)
+      integer :: q
+
+      do q = 1, rule%n
+         x = matmul(p, rule%bary(:, q))
+         call data%exact(x, u, g(:, :, q))
+      end do
+      s = moments_of(rule, g(:, :, 1:rule%n), m0, area)
+   end function rule_moments
+
+   !> rule_moments from the exact gradients g(:, α, q) at the rule's points.
+   pure function moments_of(rule, g, m0, area) result(s)
+      type(quadrature_t), intent(in) :: rule
+      real(dp), intent(in) :: g(:, :, :), m0(2, 2), area
+      real(dp) :: s(3, 2)
+
+      real(dp) :: d(2)
       integer :: q, alpha
 
       s = 0.0_dp
       do q = 1, rule%n
-         x = matmul(p, rule%bary(:, q))
-         call data%exact(x, u, gx)
          do alpha = 1, 2
-            d = gx(:, alpha) - m0(:, alpha)
+            d = g(:, alpha, q) - m0(:, alpha)
             s(:, alpha) = s(:, alpha) + rule%weights(q)*[sum(d**2), d]
          end do
       end do
       s = area*s
-   end function rule_moments
+   end function moments_of
 
    !> rule_moments on T where it agrees with the check rule, else the sum over T's children.
    !> Agreement: the μ-weighted spreads to accept_rtol relative, the √μ-weighted first moments
@@ -169,10 +187,21 @@ contains
       integer, intent(in) :: depth
       real(dp) :: s(3, 2)
 
+      s = refined_moments(data, rule, check, m0, p, area, depth, rule_moments(data, rule, m0, p, area))
+   end function adaptive_moments
+
+   !> adaptive_moments once the rule's moments `own` on T are known.
+   recursive function refined_moments(data, rule, check, m0, p, area, depth, own) result(s)
+      class(problem_data_t), intent(in) :: data
+      type(quadrature_t), intent(in) :: rule, check
+      real(dp), intent(in) :: m0(2, 2), p(2, 3), area, own(3, 2)
+      integer, intent(in) :: depth
+      real(dp) :: s(3, 2)
+
       real(dp) :: c(3, 2), child(2, 3, 4), spread, spread_gap, first_gap
       integer :: k
 
-      s = rule_moments(data, rule, m0, p, area)
+      s = own
       if (depth >= max_depth) return
       c = rule_moments(data, check, m0, p, area) - s
       spread = data%mu1*s(1, 1) + data%mu2*s(1, 2)
@@ -185,7 +214,7 @@ contains
       do k = 1, 4
          s = s + adaptive_moments(data, rule, check, m0, child(:, :, k), area/4, depth + 1)
       end do
-   end function adaptive_moments
+   end function refined_moments
 
    !> ∫_T Σ_α μ_α |∇u_α − g_α|² by the rule on T.
    real(dp) function rule_integral(data, rule, gh, p, area) result(s)
