@@ -24,7 +24,7 @@ module twomem_estimate_shapes
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_io
    use twomem_mesh_triangulation, only: mesh_t
-   use twomem_mesh_hierarchy, only: mesh_hierarchy_t
+   use twomem_mesh_hierarchy, only: mesh_hierarchy_t, red_children
    use twomem_linalg_dense, only: lu_factor, lu_solve
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, make_frame
    implicit none
@@ -353,23 +353,6 @@ contains
       p2_from_p2 = reshape(b(:, 1:6*4), shape(p2_from_p2))
       p2_from_p1 = reshape(b(:, 6*4 + 1:), shape(p2_from_p1))
    end subroutine children_projection
-
-   !> The four children of the triangle with vertices v as refine_red (twomem_mesh_hierarchy)
-   !> makes them, in its numbering and local order; m_i is the midpoint of the edge opposite i.
-   pure function red_children(v) result(children)
-      real(dp), intent(in) :: v(2, 3)
-      real(dp) :: children(2, 3, 4)
-
-      real(dp) :: m(2, 3)
-
-      m(:, 1) = 0.5_dp*(v(:, 2) + v(:, 3))
-      m(:, 2) = 0.5_dp*(v(:, 3) + v(:, 1))
-      m(:, 3) = 0.5_dp*(v(:, 1) + v(:, 2))
-      children(:, :, 1) = reshape([v(:, 1), m(:, 3), m(:, 2)], [2, 3])
-      children(:, :, 2) = reshape([m(:, 3), v(:, 2), m(:, 1)], [2, 3])
-      children(:, :, 3) = reshape([m(:, 2), m(:, 1), v(:, 3)], [2, 3])
-      children(:, :, 4) = m
-   end function red_children
 
    !> The scaled P2 monomials of a triangle's frame at x.
    pure function p2_monomials(frame, x) result(m)

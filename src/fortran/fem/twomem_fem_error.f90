@@ -16,6 +16,7 @@
 module twomem_fem_error
    use twomem_base_kinds, only: dp, ip
    use twomem_mesh_triangulation, only: mesh_t
+   use twomem_mesh_hierarchy, only: red_children
    use twomem_fem_problem, only: problem_data_t
    use twomem_fem_quadrature, only: quadrature_t, triangle_rule
    use twomem_fem_assembly, only: p1_gradients
@@ -209,7 +210,7 @@ contains
       first_gap = sqrt(data%mu1)*norm2(c(2:3, 1)) + sqrt(data%mu2)*norm2(c(2:3, 2))
       if (spread_gap <= accept_rtol*spread + tiny(1.0_dp) .and. &
           first_gap <= accept_rtol*sqrt(area*spread) + tiny(1.0_dp)) return
-      call red_children(p, child)
+      child = red_children(p)
       s = 0.0_dp
       do k = 1, 4
          s = s + adaptive_moments(data, rule, check, m0, child(:, :, k), area/4, depth + 1)
@@ -248,25 +249,10 @@ contains
       s = rule_integral(data, rule, gh, p, area)
       if (depth >= max_depth) return
       if (abs(s - rule_integral(data, check, gh, p, area)) <= accept_rtol*abs(s) + tiny(1.0_dp)) return
-      call red_children(p, child)
+      child = red_children(p)
       s = 0.0_dp
       do k = 1, 4
          s = s + adaptive_integral(data, rule, check, gh, child(:, :, k), area/4, depth + 1)
       end do
    end function adaptive_integral
-
-   pure subroutine red_children(p, child)
-      real(dp), intent(in) :: p(2, 3)
-      real(dp), intent(out) :: child(2, 3, 4)
-
-      real(dp) :: m(2, 3)
-
-      m(:, 1) = 0.5_dp*(p(:, 2) + p(:, 3))
-      m(:, 2) = 0.5_dp*(p(:, 3) + p(:, 1))
-      m(:, 3) = 0.5_dp*(p(:, 1) + p(:, 2))
-      child(:, :, 1) = reshape([p(:, 1), m(:, 3), m(:, 2)], [2, 3])
-      child(:, :, 2) = reshape([m(:, 3), p(:, 2), m(:, 1)], [2, 3])
-      child(:, :, 3) = reshape([m(:, 2), m(:, 1), p(:, 3)], [2, 3])
-      child(:, :, 4) = m
-   end subroutine red_children
 end module twomem_fem_error

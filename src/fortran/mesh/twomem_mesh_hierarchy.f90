@@ -12,7 +12,7 @@ module twomem_mesh_hierarchy
    implicit none
    private
 
-   public :: mesh_hierarchy_t, refinement_map_t, refine_red
+   public :: mesh_hierarchy_t, refinement_map_t, refine_red, red_children
 
    !> How level l was made from level l-1.
    type :: refinement_map_t
@@ -333,4 +333,20 @@ contains
       !$omp end do
       !$omp end parallel
    end subroutine refined_patches
+   !> The corners of the four children of the triangle with corners v, numbered and ordered as
+   !> refine_red makes them; m_i is the midpoint of the edge opposite corner i.
+   pure function red_children(v) result(children)
+      real(dp), intent(in) :: v(2, 3)
+      real(dp) :: children(2, 3, 4)
+
+      real(dp) :: m(2, 3)
+
+      m(:, 1) = 0.5_dp*(v(:, 2) + v(:, 3))
+      m(:, 2) = 0.5_dp*(v(:, 3) + v(:, 1))
+      m(:, 3) = 0.5_dp*(v(:, 1) + v(:, 2))
+      children(:, :, 1) = reshape([v(:, 1), m(:, 3), m(:, 2)], [2, 3])
+      children(:, :, 2) = reshape([m(:, 3), v(:, 2), m(:, 1)], [2, 3])
+      children(:, :, 3) = reshape([m(:, 2), m(:, 1), v(:, 3)], [2, 3])
+      children(:, :, 4) = m
+   end function red_children
 end module twomem_mesh_hierarchy
