@@ -10,7 +10,7 @@
 module twomem_fem_assembly
    use twomem_base_kinds, only: dp, ip
    use twomem_base_sort, only: sort_pairs
-   use twomem_mesh_triangulation, only: mesh_t, corner_of, position_of
+   use twomem_mesh_triangulation, only: mesh_t, corner_of
    use twomem_linalg_csr, only: csr_t
    use twomem_fem_problem, only: problem_data_t
    use twomem_fem_quadrature, only: quadrature_t, triangle_rule
@@ -65,7 +65,7 @@ contains
       type(csr_t), intent(inout) :: k
       real(dp), allocatable, intent(out) :: coupling(:)
 
-      integer(ip), allocatable :: rows(:), row_ptr(:), col(:), cols(:)
+      integer(ip), allocatable :: rows(:), row_ptr(:), col(:), cols(:), slot(:)
       real(dp), allocatable :: val(:), vals(:)
       integer(ip) :: n, i, a, width
 
@@ -77,30 +77,33 @@ contains
       ! a row has at most one column per patch triangle plus the diagonal
       width = maxval(mesh%patch_ptr(2:) - mesh%patch_ptr(:mesh%nv)) + 2
       row_ptr(1) = 1
-      ! per-thread scratch for one row (automatic arrays would cost a heap allocation per row)
-      !$omp parallel default(none) shared(mesh, unknown, rows, row_ptr, n, width) private(i, cols, vals)
-      allocate (cols(width))
+      ! per-thread scratch: one row's columns and values, and where each unknown sits in the row
+      ! being built (slot(c) = 0 once the row is done), which replaces a search per entry
+      !$omp parallel default(none) shared(mesh, unknown, rows, row_ptr, n, width) private(i, cols, slot)
+      allocate (cols(width), slot(n))
+      slot = 0
       !$omp do schedule(static)
       do i = 1, n
-         call count_row(mesh, unknown, rows(i), cols, row_ptr(i + 1))
+         call count_row(mesh, unknown, rows(i), cols, slot, row_ptr(i + 1))
       end do
       !$omp end do
-      deallocate (cols)
+      deallocate (cols, slot)
       !$omp end parallel
       do i = 1, n
          row_ptr(i + 1) = row_ptr(i + 1) + row_ptr(i)
       end do
       allocate (col(row_ptr(n + 1) - 1), val(row_ptr(n + 1) - 1))
       !$omp parallel default(none) shared(mesh, unknown, rows, row_ptr, col, val, coupling, n, width) &
-      !$omp private(i, cols, vals)
-      allocate (cols(width), vals(width))
+      !$omp private(i, cols, vals, slot)
+      allocate (cols(width), vals(width), slot(n))
+      slot = 0
       !$omp do schedule(static)
       do i = 1, n
-         call gather_row(mesh, unknown, rows(i), cols, vals, col(row_ptr(i):row_ptr(i + 1) - 1), &
+         call gather_row(mesh, unknown, rows(i), cols, vals, slot, col(row_ptr(i):row_ptr(i + 1) - 1), &
                          val(row_ptr(i):row_ptr(i + 1) - 1), coupling(i))
       end do
       !$omp end do
-      deallocate (cols, vals)
+      deallocate (cols, vals, slot)
       !$omp end parallel
       k%n = n
       k%ncol = n
@@ -109,11 +112,12 @@ contains
       call move_alloc(val, k%val)
    end subroutine stiffness_rows
 
-   !> Number of distinct unknowns among vertex a's neighbours (itself included); `cols` is scratch.
-   subroutine count_row(mesh, unknown, a, cols, count)
+   !> Number of distinct unknowns among vertex a's neighbours (itself included); `cols` and
+   !> `slot` are scratch (slot zero on entry and on return).
+   pure subroutine count_row(mesh, unknown, a, cols, slot, count)
       type(mesh_t), intent(in) :: mesh
       integer(ip), intent(in) :: unknown(:), a
-      integer(ip), intent(inout) :: cols(:)
+      integer(ip), intent(inout) :: cols(:), slot(:)
       integer(ip), intent(out) :: count
 
       integer(ip) :: m, c
@@ -125,28 +129,30 @@ contains
          do j = 1, 3
             c = unknown(mesh%triangles(j, mesh%patch_triangles(m)))
             if (c == 0) cycle
-            if (position_of(cols(1:count), c) > 0) cycle
+            if (slot(c) > 0) cycle
             count = count + 1
             cols(count) = c
+            slot(c) = int(count, ip)
          end do
       end do
+      slot(cols(1:count)) = 0
    end subroutine count_row
 
    !> Row of vertex a: columns sorted, values summed over the patch in patch order. In triangle
    !> t with a at corner i, K_ij = |t| ∇ψ_i·∇ψ_j = (e_i·e_j)/(4|t|), e_j the edge opposite corner j.
-   !> cols and vals are scratch for the row being built.
-   pure subroutine gather_row(mesh, unknown, a, cols, vals, col, val, coupling)
+   !> cols, vals and slot are scratch for the row being built (slot as in count_row).
+   pure subroutine gather_row(mesh, unknown, a, cols, vals, slot, col, val, coupling)
       type(mesh_t), intent(in) :: mesh
       integer(ip), intent(in) :: unknown(:), a
-      integer(ip), intent(inout) :: cols(:)
+      integer(ip), intent(inout) :: cols(:), slot(:)
       real(dp), intent(inout) :: vals(:)
       integer(ip), intent(out) :: col(:)
       real(dp), intent(out) :: val(:)
       real(dp), intent(out) :: coupling
 
-      integer(ip) :: m, t, c
+      integer(ip) :: m, t, c, q
       real(dp) :: e(2, 3), entry, scale
-      integer :: i, j, count, q
+      integer :: i, j, count
 
       count = 0
       coupling = 0.0_dp
@@ -167,16 +173,18 @@ contains
                coupling = coupling + entry
                cycle
             end if
-            q = position_of(cols(1:count), c)
+            q = slot(c)
             if (q == 0) then
                count = count + 1
                cols(count) = c
                vals(count) = entry
+               slot(c) = int(count, ip)
             else
                vals(q) = vals(q) + entry
             end if
          end do
       end do
+      slot(cols(1:count)) = 0
       call sort_pairs(cols(1:count), vals(1:count))
       col = cols(1:count)
       val = vals(1:count)
