@@ -379,7 +379,7 @@ contains
       real(dp) :: rhs_flux(space%n_flux, size(children), 2), rhs_div(space%n_div, size(children), 2)
       real(dp) :: patch_sigma(space%n_flux, size(children), 2)
       real(dp) :: grad_psi(2), coarse_part(space%n_div, 2), smooth(2), hat_gradients(2, 3), qc(space%n_div)
-      real(dp) :: psi_v(3), smooth_v(3, 2), area_factor, ratio, moments(space%n_div, n_p2)
+      real(dp) :: psi_v(3), smooth_v(3, 2), area_factor, ratio, ratio_level, moments(space%n_div, n_p2)
       integer :: cls, id, coarse_level
       integer(ip) :: order(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a))
 
@@ -388,6 +388,7 @@ contains
       n_inner = 0
       n_blocks = 0
       coarse_level = merge(level - 1, level, n_children == 4)
+      ratio_level = 2.0_dp**level
       id = 0
       if (allocated(table%levels)) id = table%levels(coarse_level)%id(a)
       if (id > 0) then
@@ -429,12 +430,13 @@ contains
             child = merge(4*(t - 1) + c, t, n_children == 4)
             children(ne) = child
             v = fine%triangles(:, child)
-            call edge_signs(space%n_trace, v, signs(:, ne))
             if (id > 0) then
+               ! the signature holds the classes and the relative trace signs
                classes(ne) = table%sig(id)%classes(ne)
-               ratios(ne) = 2.0_dp**level
+               ratios(ne) = ratio_level
             else
                call triangle_class(level, child, classes(ne), ratios(ne))
+               call edge_signs(space%n_trace, v, signs(:, ne))
             end if
             do m = 1, 3
                if (id > 0) exit
@@ -487,8 +489,8 @@ contains
       end do
       if (id > 0) then
          associate (sig => table%sig(id))
-            call solve_condensed_factored(space, shapes, sig%classes, ratios, signs, sig%neumann, sig%links, &
-                                          rhs_flux(1:2, :, :), rhs_div, .false., sig%factor, patch_sigma)
+            call solve_condensed_factored(space, shapes, sig%classes, ratio_level, sig%neumann, rhs_flux(1:2, :, :), &
+                                          rhs_div, .false., sig%factor, patch_sigma)
          end associate
          ok = .true.
       else
