@@ -226,16 +226,14 @@ contains
       real(dp), intent(inout) :: sigma(:, :, :)
 
       ! fixed-size work arrays (sizes checked when the table was built): no allocation per patch
-      integer :: k, i, alpha, c, ne, nd, nf
+      integer :: k, i, alpha, c, ne, nd
       integer(ip) :: t, order(max_patch)
       real(dp) :: ratio, area_factor
-      real(dp) :: rhs_div(3, max_patch, 2), fgrad(2, max_patch, 2)
-      real(dp) :: patch_sigma(8, max_patch, 2), grad_psi(2), hat_gradients(2, 3)
+      real(dp) :: rhs_div(3, max_patch, 2), fgrad(2, max_patch, 2), grad_psi(2), hat_gradients(2, 3)
       real(dp), parameter :: lambda_sign(2) = [1.0_dp, -1.0_dp]
 
       ne = size(sig%classes)
       nd = space%n_div
-      nf = space%n_flux
       call patch_order(mesh, level, a, order(1:ne))
       ratio = 2.0_dp**level
       area_factor = 1/ratio**2
@@ -256,9 +254,6 @@ contains
          end do
       end do
       call solve_condensed_factored(space, shapes, sig%classes, ratio, sig%neumann, fgrad(:, 1:ne, :), &
-                                    rhs_div(1:nd, 1:ne, :), .true., sig%factor, patch_sigma(1:nf, 1:ne, :))
-      do k = 1, ne
-         sigma(:, order(k), :) = sigma(:, order(k), :) + patch_sigma(1:nf, k, :)
-      end do
+                                    rhs_div(1:nd, 1:ne, :), .true., sig%factor, order(1:ne), sigma)
    end subroutine interior_patch
 end module twomem_estimate_disc_flux

@@ -315,19 +315,22 @@ contains
    !> patch's own trace signs S and the orientation O of each multiplier (the sign of its first
    !> row), the patch's system is O H O; the products S O are the signature's relative signs
    !> (factor%sg), so neither the patch's signs nor O is needed: b = Σ_K (S O)_K t_K, and
-   !> θ_K = (S O)_K θ back (±1 factors, exact).
+   !> θ_K = (S O)_K θ back (±1 factors, exact). The patch's σ on triangle k is added to
+   !> sigma(:, triangles(k), :) (the caller's whole field: no copy of the patch's part).
    pure subroutine solve_condensed_factored(space, shapes, classes, ratio, neumann, fgrad, rhs_div, flux_data, factor, &
-                                            sigma)
+                                            triangles, sigma)
       type(rt_space_t), intent(in) :: space
       type(shape_classes_t), intent(in) :: shapes
       integer, intent(in) :: classes(:), neumann(:)
       real(dp), intent(in) :: ratio, fgrad(:, :, :), rhs_div(:, :, :)
       logical, intent(in) :: flux_data
       type(patch_factor_t), intent(in) :: factor
-      real(dp), intent(out) :: sigma(:, :, :)
+      integer(ip), intent(in) :: triangles(:)
+      real(dp), intent(inout) :: sigma(:, :, :)
 
       integer, parameter :: max_rows = 6, max_flux = 8, max_div = 3
       integer :: nf, nd, nc, k, c, i, a, j, q, n_rows, n_theta, n_data
+      integer(ip) :: t
       real(dp) :: b(2, max_theta)
       !> a triangle's data for the condensed operators, both membranes side by side:
       !> [g; ρ⁻¹ fgrad] and [ρ g; θ; fgrad]
@@ -386,8 +389,10 @@ contains
          else
             call mat_vec(nf, nd + nc, shapes%y_zc(:, :, c), data_r, f)
          end if
+         t = triangles(k)
          do q = 1, nf
-            sigma(q, k, 1:2) = f(:, q)
+            sigma(q, t, 1) = sigma(q, t, 1) + f(1, q)
+            sigma(q, t, 2) = sigma(q, t, 2) + f(2, q)
          end do
       end do
    end subroutine solve_condensed_factored
