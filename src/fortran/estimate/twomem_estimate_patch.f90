@@ -13,7 +13,9 @@
 !> edges at the patch vertex), and the blocks are eliminated first; what remains is a
 !> 24-unknown system for a patch of six coarse triangles, about a tenth of the dense work.
 !> When no edge touches ∂Ω the multipliers are defined up to a constant (the Neumann
-!> compatibility of the data makes any choice work): the first one is pinned to zero.
+!> compatibility of the data makes any choice work): the first one is pinned to zero. Both
+!> membranes share every operator and factor, so a factorized patch is solved for the two at
+!> once, their values side by side, each stored number read once for both (mat_vec).
 module twomem_estimate_patch
    use twomem_base_kinds, only: dp, ip
    use twomem_linalg_dense, only: lu_factor, lu_solve
