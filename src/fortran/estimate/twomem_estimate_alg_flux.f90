@@ -379,7 +379,7 @@ contains
       real(dp) :: rhs_flux(space%n_flux, size(children), 2), rhs_div(space%n_div, size(children), 2)
       real(dp) :: patch_sigma(space%n_flux, size(children), 2)
       real(dp) :: grad_psi(2), coarse_part(space%n_div, 2), smooth(2), hat_gradients(2, 3), qc(space%n_div)
-      real(dp) :: psi_v(3), smooth_v(3, 2), area_factor, ratio, moments(space%n_div, n_p2)
+      real(dp) :: psi_v(3), smooth_v(3, 2), area_factor, ratio, ratio_level
       integer :: cls, id, coarse_level
       integer(ip) :: order(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a))
 
@@ -388,6 +388,7 @@ contains
       n_inner = 0
       n_blocks = 0
       coarse_level = merge(level - 1, level, n_children == 4)
+      ratio_level = 2.0_dp**level
       id = 0
       if (allocated(table%levels)) id = table%levels(coarse_level)%id(a)
       if (id > 0) then
@@ -429,12 +430,13 @@ contains
             child = merge(4*(t - 1) + c, t, n_children == 4)
             children(ne) = child
             v = fine%triangles(:, child)
-            call edge_signs(space%n_trace, v, signs(:, ne))
             if (id > 0) then
+               ! the signature holds the classes and the relative trace signs
                classes(ne) = table%sig(id)%classes(ne)
-               ratios(ne) = 2.0_dp**level
+               ratios(ne) = ratio_level
             else
                call triangle_class(level, child, classes(ne), ratios(ne))
+               call edge_signs(space%n_trace, v, signs(:, ne))
             end if
             do m = 1, 3
                if (id > 0) exit
@@ -464,17 +466,18 @@ contains
                psi_v(i) = 1.0_dp/3 + dot_product(grad_psi, fine%vertices(:, v(i)) - coarse_frame%centre)
                if (.not. first) then
                   qc = div_tests(space%n_div, coarse_frame, fine%vertices(:, v(i)))
-                  smooth_v(i, :) = [dot_product(qc, coarse_part(:, 1)), dot_product(qc, coarse_part(:, 2))]
+                  smooth_v(i, 1) = dot_product(qc, coarse_part(:, 1))
+                  smooth_v(i, 2) = dot_product(qc, coarse_part(:, 2))
                end if
             end do
             ! the moments of r ψ_a: those of the basis times ψ_a (on T_J the child's λ_j, r being P1,
             ! above its monomials m_j), combined for both membranes
             if (allocated(p2_fine%c)) then
-               call psi_combination(space%n_div, n_p2, shapes%mono_psi_q(:, :, :, cls), area_factor*psi_v, moments)
-               call add_moments(space%n_div, n_p2, moments, p2_fine%c(:, child, :), rhs_div(:, ne, :))
+               call add_psi_moments(space%n_div, n_p2, shapes%mono_psi_q(:, :, :, cls), area_factor*psi_v, &
+                                    p2_fine%c(:, child, :), rhs_div(:, ne, :))
             else
-               call psi_combination(space%n_div, 3, shapes%bary_psi_q(:, :, :, cls), area_factor*psi_v, moments)
-               call add_moments(space%n_div, 3, moments, r(:, child, :), rhs_div(:, ne, :))
+               call add_psi_moments(space%n_div, 3, shapes%bary_psi_q(:, :, :, cls), area_factor*psi_v, r(:, child, :), &
+                                    rhs_div(:, ne, :))
             end if
             if (first) then
                do alpha = 1, 2
@@ -487,41 +490,56 @@ contains
       end do
       if (id > 0) then
          associate (sig => table%sig(id))
-            call solve_condensed_factored(space, shapes, sig%classes, ratios, signs, sig%neumann, sig%links, &
-                                          rhs_flux(1:2, :, :), rhs_div, .false., sig%factor, patch_sigma)
+            call solve_condensed_factored(space, shapes, sig%classes, ratio_level, sig%neumann, rhs_flux(1:2, :, :), &
+                                          rhs_div, .false., sig%factor, children, sigma)
          end associate
          ok = .true.
       else
          call solve_patch(space, shapes, classes, ratios, signs, links, rhs_flux, rhs_div, .false., n_blocks, &
                           patch_sigma, ok)
+         do k = 1, ne
+            sigma(:, children(k), :) = sigma(:, children(k), :) + patch_sigma(:, k, :)
+         end do
       end if
-      do k = 1, ne
-         sigma(:, children(k), :) = sigma(:, children(k), :) + patch_sigma(:, k, :)
-      end do
    end subroutine coarse_patch
 
-   !> combination = Σ_i w(i) table(:, :, i), for class tables (nd, nb, 3) of ψ_i (explicit
-   !> shapes: the callers' workspace is the largest, n_p2 wide, and it takes no descriptors).
-   pure subroutine psi_combination(nd, nb, table, w, combination)
+   !> add_moments with the moments Σ_i w(i) table(:, j, i) of a class table (nd, nb, 3) of ψ_i,
+   !> each formed once for both membranes as it is needed (no table of them in between).
+   pure subroutine add_psi_moments(nd, nb, table, w, coef, rhs)
       integer, intent(in) :: nd, nb
-      real(dp), intent(in) :: table(nd, nb, 3), w(3)
-      real(dp), intent(out) :: combination(nd, nb)
+      real(dp), intent(in) :: table(nd, nb, 3), w(3), coef(:, :)
+      real(dp), intent(inout) :: rhs(:, :)
 
-      combination = w(1)*table(:, :, 1) + w(2)*table(:, :, 2) + w(3)*table(:, :, 3)
-   end subroutine psi_combination
+      integer :: j, q
+      real(dp) :: c1, c2, m
 
-   !> rhs(:, α) += Σ_j coef(j, α) moments(:, j) for both membranes: the moments of the fields
-   !> with coefficients coef in a basis whose moments are `moments`.
+      do j = 1, nb
+         c1 = coef(j, 1)
+         c2 = coef(j, 2)
+         do q = 1, nd
+            m = w(1)*table(q, j, 1) + w(2)*table(q, j, 2) + w(3)*table(q, j, 3)
+            rhs(q, 1) = rhs(q, 1) + c1*m
+            rhs(q, 2) = rhs(q, 2) + c2*m
+         end do
+      end do
+   end subroutine add_psi_moments
+
+   !> rhs(:, α) += Σ_j coef(j, α) moments(:, j) for both membranes (one pass over the moments):
+   !> the moments of the fields with coefficients coef in a basis whose moments are `moments`.
    pure subroutine add_moments(nd, nb, moments, coef, rhs)
       integer, intent(in) :: nd, nb
       real(dp), intent(in) :: moments(nd, nb), coef(:, :)
       real(dp), intent(inout) :: rhs(:, :)
 
-      integer :: alpha, j
+      integer :: j, q
+      real(dp) :: c1, c2
 
-      do alpha = 1, 2
-         do j = 1, nb
-            rhs(:, alpha) = rhs(:, alpha) + coef(j, alpha)*moments(:, j)
+      do j = 1, nb
+         c1 = coef(j, 1)
+         c2 = coef(j, 2)
+         do q = 1, nd
+            rhs(q, 1) = rhs(q, 1) + c1*moments(q, j)
+            rhs(q, 2) = rhs(q, 2) + c2*moments(q, j)
          end do
       end do
    end subroutine add_moments

@@ -15,7 +15,7 @@ module twomem_estimate_disc_flux
    use twomem_estimate_shapes, only: shape_classes_t, triangle_class, trace_signs
    use twomem_estimate_coloring, only: coloring_t
    use twomem_estimate_patch, only: solve_patch, solve_condensed_factored, inner_edge, edge_free, edge_neumann
-   use twomem_estimate_patch_classes, only: patch_table_t, patch_signature_t, patch_order, edge_signs, max_patch
+   use twomem_estimate_patch_classes, only: patch_table_t, patch_signature_t, patch_order, max_patch
    implicit none
    private
 
@@ -226,24 +226,21 @@ contains
       real(dp), intent(inout) :: sigma(:, :, :)
 
       ! fixed-size work arrays (sizes checked when the table was built): no allocation per patch
-      integer :: k, i, alpha, c, ne, nd, nf
+      integer :: k, i, alpha, c, ne, nd
       integer(ip) :: t, order(max_patch)
-      real(dp) :: ratios(max_patch), signs(6, max_patch), area_factor
-      real(dp) :: rhs_div(3, max_patch, 2), fgrad(2, max_patch, 2)
-      real(dp) :: patch_sigma(8, max_patch, 2), grad_psi(2), hat_gradients(2, 3)
+      real(dp) :: ratio, area_factor
+      real(dp) :: rhs_div(3, max_patch, 2), fgrad(2, max_patch, 2), grad_psi(2), hat_gradients(2, 3)
       real(dp), parameter :: lambda_sign(2) = [1.0_dp, -1.0_dp]
 
       ne = size(sig%classes)
       nd = space%n_div
-      nf = space%n_flux
       call patch_order(mesh, level, a, order(1:ne))
-      ratios(1:ne) = 2.0_dp**level
-      area_factor = 1/ratios(1)**2
+      ratio = 2.0_dp**level
+      area_factor = 1/ratio**2
       do k = 1, ne
          t = order(k)
          c = sig%classes(k)
          i = sig%neumann(k)
-         call edge_signs(space%n_trace, mesh%triangles(:, t), signs(:, k))
          hat_gradients = p1_gradients(mesh, t)
          grad_psi = hat_gradients(:, i)
          do alpha = 1, 2
@@ -256,11 +253,7 @@ contains
                                       - mu(alpha)*dot_product(grad_u(:, t, alpha), grad_psi)*shapes%q_int(:, c))
          end do
       end do
-      call solve_condensed_factored(space, shapes, sig%classes, ratios(1:ne), signs(1:3*space%n_trace, 1:ne), &
-                                    sig%neumann, sig%links, fgrad(:, 1:ne, :), rhs_div(1:nd, 1:ne, :), .true., &
-                                    sig%factor, patch_sigma(1:nf, 1:ne, :))
-      do k = 1, ne
-         sigma(:, order(k), :) = sigma(:, order(k), :) + patch_sigma(1:nf, k, :)
-      end do
+      call solve_condensed_factored(space, shapes, sig%classes, ratio, sig%neumann, fgrad(:, 1:ne, :), &
+                                    rhs_div(1:nd, 1:ne, :), .true., sig%factor, order(1:ne), sigma)
    end subroutine interior_patch
 end module twomem_estimate_disc_flux

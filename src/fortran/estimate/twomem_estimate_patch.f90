@@ -13,7 +13,9 @@
 !> edges at the patch vertex), and the blocks are eliminated first; what remains is a
 !> 24-unknown system for a patch of six coarse triangles, about a tenth of the dense work.
 !> When no edge touches ∂Ω the multipliers are defined up to a constant (the Neumann
-!> compatibility of the data makes any choice work): the first one is pinned to zero.
+!> compatibility of the data makes any choice work): the first one is pinned to zero. Both
+!> membranes share every operator and factor, so a factorized patch is solved for the two at
+!> once, their values side by side, each stored number read once for both (mat_vec).
 module twomem_estimate_patch
    use twomem_base_kinds, only: dp, ip
    use twomem_linalg_dense, only: lu_factor, lu_solve
@@ -33,16 +35,22 @@ module twomem_estimate_patch
    !> the same classes, edges and relative trace signs (twomem_estimate_patch_classes): H does
    !> not depend on the ratio of the triangles nor on the data, only the right-hand side does.
    !> d: the inverses of the n_blocks leading diagonal blocks (size g), x = D⁻¹ H_bt on the
-   !> tail columns cols(1:n_cols) each block touches, s: the inverse of the tail's Schur
-   !> complement (of the whole H when n_blocks = 0). Inverses, not Cholesky factors: the factor
-   !> serves thousands of patches, and a product with an inverse has no chain of dependent
-   !> operations, unlike the two triangular substitutions (which took a tenth of an evaluation).
+   !> tail columns cols(1:n_cols) each block touches and xt its transpose (zero beyond n_cols),
+   !> s: the inverse of the tail's Schur complement (of the whole H when n_blocks = 0).
+   !> Inverses, not Cholesky factors: the factor serves thousands of patches, and a product with
+   !> an inverse has no chain of dependent operations, unlike the two triangular substitutions
+   !> (which took a tenth of an evaluation). Both products of block_apply with x run down
+   !> columns (x for the back substitution, xt for the tail update), the loops the compiler
+   !> vectorizes.
    type :: patch_factor_t
       integer :: n_theta = 0, n_blocks = 0, g = 0
-      real(dp), allocatable :: d(:, :, :), x(:, :, :), s(:, :)
+      real(dp), allocatable :: d(:, :, :), x(:, :, :), xt(:, :, :), s(:, :)
       integer, allocatable :: cols(:, :), n_cols(:)
-      !> per patch triangle: its inner trace rows and their multipliers (inner_rows)
+      !> per patch triangle: its inner trace rows and their multipliers (inner_rows), and the
+      !> relative trace sign of each (the signature's, which every patch of it has: see
+      !> solve_condensed_factored)
       integer, allocatable :: n_rows(:), rows(:, :), glob(:, :)
+      real(dp), allocatable :: sg(:, :)
    end type patch_factor_t
 
    !> edge kinds in `links`: a positive value numbers an inner edge of the patch
@@ -286,37 +294,49 @@ contains
       h(:, 1) = 0.0_dp
       h(1, 1) = 1.0_dp
       call block_factor(h, n_blocks, 3*nt, factor, ok)
-      allocate (factor%n_rows(size(classes)), factor%rows(3*nt, size(classes)), factor%glob(3*nt, size(classes)))
+      allocate (factor%n_rows(size(classes)), factor%rows(3*nt, size(classes)), factor%glob(3*nt, size(classes)), &
+                factor%sg(3*nt, size(classes)))
       factor%rows = 0
       factor%glob = 0
+      factor%sg = 0.0_dp
       do k = 1, size(classes)
          call inner_rows(nt, neumann(k), links(:, k), factor%n_rows(k), factor%rows(:, k), factor%glob(:, k))
+         n_rows = factor%n_rows(k)
+         factor%sg(1:n_rows, k) = signs(factor%rows(1:n_rows, k), k)
       end do
    end subroutine condensed_factor
 
    !> solve_patch for an interior vertex's patch whose H was factorized beforehand
    !> (condensed_factor, for a patch with the same classes, neumann, links and relative signs):
-   !> only the right-hand sides and the triangles' fluxes are computed per patch. The flux datum
-   !> of triangle k is (σ_0, φ_j)_K = ρ⁻² Φ_i fgrad(:, k, r) with Φ_i = psi_phi(:, :, neumann(k))
-   !> of the class, i.e. σ_0 = fgrad ψ_i for the vertex opposite the zero-flux edge (flux_data
-   !> must be .false. when a triangle has no zero-flux edge). The signs are the patch's own; the orientation
-   !> o of each multiplier (the sign of its first row) turns them into the relative ones,
-   !> H_patch = O H O.
-   pure subroutine solve_condensed_factored(space, shapes, classes, ratios, signs, neumann, links, fgrad, rhs_div, &
-                                            flux_data, factor, sigma)
+   !> only the right-hand sides and the triangles' fluxes are computed per patch, for both
+   !> membranes at once (each class operator and each number of the factor is read once for
+   !> the two, whose values sit side by side: mat_vec). All triangles are at ratio `ratio` (one
+   !> level). The flux datum of triangle k is (σ_0, φ_j)_K = ρ⁻² Φ_i fgrad(:, k, r) with Φ_i =
+   !> psi_phi(:, :, neumann(k)) of the class, i.e. σ_0 = fgrad ψ_i for the vertex opposite the
+   !> zero-flux edge (flux_data must be .false. when a triangle has no zero-flux edge). With the
+   !> patch's own trace signs S and the orientation O of each multiplier (the sign of its first
+   !> row), the patch's system is O H O; the products S O are the signature's relative signs
+   !> (factor%sg), so neither the patch's signs nor O is needed: b = Σ_K (S O)_K t_K, and
+   !> θ_K = (S O)_K θ back (±1 factors, exact). The patch's σ on triangle k is added to
+   !> sigma(:, triangles(k), :) (the caller's whole field: no copy of the patch's part).
+   pure subroutine solve_condensed_factored(space, shapes, classes, ratio, neumann, fgrad, rhs_div, flux_data, factor, &
+                                            triangles, sigma)
       type(rt_space_t), intent(in) :: space
       type(shape_classes_t), intent(in) :: shapes
-      integer, intent(in) :: classes(:), neumann(:), links(:, :)
-      real(dp), intent(in) :: ratios(:), signs(:, :), fgrad(:, :, :), rhs_div(:, :, :)
+      integer, intent(in) :: classes(:), neumann(:)
+      real(dp), intent(in) :: ratio, fgrad(:, :, :), rhs_div(:, :, :)
       logical, intent(in) :: flux_data
       type(patch_factor_t), intent(in) :: factor
-      real(dp), intent(out) :: sigma(:, :, :)
+      integer(ip), intent(in) :: triangles(:)
+      real(dp), intent(inout) :: sigma(:, :, :)
 
       integer, parameter :: max_rows = 6, max_flux = 8, max_div = 3
-      integer :: nf, nd, nc, k, c, i, a, r, n_rows, n_theta, nr, n_data
-      real(dp) :: b(max_theta, 2), o(max_theta)
-      !> a triangle's data for the condensed operators: [g; ρ⁻¹ fgrad] and [ρ g; θ; fgrad]
-      real(dp) :: rho, sg, t1(max_rows), data_q(max_div + 2), data_r(max_div + max_rows + 2), f(max_flux)
+      integer :: nf, nd, nc, k, c, i, a, j, q, n_rows, n_theta, n_data
+      integer(ip) :: t
+      real(dp) :: b(2, max_theta)
+      !> a triangle's data for the condensed operators, both membranes side by side:
+      !> [g; ρ⁻¹ fgrad] and [ρ g; θ; fgrad]
+      real(dp) :: rho, s, t1(2, max_rows), data_q(2, max_div + 2), data_r(2, max_div + max_rows + 2), f(2, max_flux)
 
       nf = space%n_flux
       nd = space%n_div
@@ -324,56 +344,57 @@ contains
       ! without a flux datum the operators' fgrad columns are left out
       n_data = merge(2, 0, flux_data)
       n_theta = factor%n_theta
-      nr = size(rhs_div, 3)
-      b(1:n_theta, 1:nr) = 0.0_dp
-      o(1:n_theta) = 0.0_dp
+      rho = ratio
+      b(:, 1:n_theta) = 0.0_dp
       do k = 1, size(classes)
          c = classes(k)
-         rho = ratios(k)
          n_rows = factor%n_rows(k)
          i = neumann(k)
-         do r = 1, nr
-            data_q(1:nd) = rhs_div(:, k, r)
-            if (i > 0) then
-               if (flux_data) data_q(nd + 1:nd + 2) = (1/rho)*fgrad(:, k, r)
-               call mat_vec(n_rows, nd + n_data, shapes%cond_q(:, 1:nd + n_data, i, c), data_q(1:nd + n_data), &
-                            t1(1:n_rows))
-            else
-               call mat_vec(n_rows, nd, shapes%cy(:, :, c), data_q(1:nd), t1(1:n_rows))
+         do q = 1, nd
+            data_q(:, q) = rhs_div(q, k, 1:2)
+         end do
+         if (i > 0) then
+            if (flux_data) then
+               do q = 1, 2
+                  data_q(:, nd + q) = (1/rho)*fgrad(q, k, 1:2)
+               end do
             end if
-            do a = 1, n_rows
-               sg = signs(factor%rows(a, k), k)
-               b(factor%glob(a, k), r) = b(factor%glob(a, k), r) + sg*t1(a)
-               if (o(factor%glob(a, k)) == 0.0_dp) o(factor%glob(a, k)) = sg
-            end do
+            call mat_vec(n_rows, nd + n_data, shapes%cond_q(:, 1:nd + n_data, i, c), data_q, t1)
+         else
+            call mat_vec(n_rows, nd, shapes%cy(:, :, c), data_q, t1)
+         end if
+         do a = 1, n_rows
+            j = factor%glob(a, k)
+            b(:, j) = b(:, j) + factor%sg(a, k)*t1(:, a)
          end do
       end do
-      do r = 1, nr
-         b(1:n_theta, r) = o(1:n_theta)*b(1:n_theta, r)
-      end do
-      b(1, 1:nr) = 0.0_dp
-      call block_apply(factor, b(1:n_theta, 1:nr))
-      do r = 1, nr
-         b(1:n_theta, r) = o(1:n_theta)*b(1:n_theta, r)
-      end do
+      b(:, 1) = 0.0_dp
+      call block_apply(factor, b)
       do k = 1, size(classes)
          c = classes(k)
-         rho = ratios(k)
          n_rows = factor%n_rows(k)
          i = neumann(k)
-         do r = 1, nr
-            data_r(1:nd) = rho*rhs_div(:, k, r)
-            do a = 1, n_rows
-               data_r(nd + a) = -rho*signs(factor%rows(a, k), k)*b(factor%glob(a, k), r)
-            end do
-            if (i > 0) then
-               if (flux_data) data_r(nd + n_rows + 1:nd + n_rows + 2) = fgrad(:, k, r)
-               call mat_vec(nf, nd + n_rows + n_data, shapes%cond_r(:, 1:nd + n_rows + n_data, i, c), &
-                            data_r(1:nd + n_rows + n_data), f(1:nf))
-            else
-               call mat_vec(nf, nd + nc, shapes%y_zc(:, :, c), data_r(1:nd + nc), f(1:nf))
+         do q = 1, nd
+            data_r(:, q) = rho*rhs_div(q, k, 1:2)
+         end do
+         do a = 1, n_rows
+            s = -rho*factor%sg(a, k)
+            data_r(:, nd + a) = s*b(:, factor%glob(a, k))
+         end do
+         if (i > 0) then
+            if (flux_data) then
+               do q = 1, 2
+                  data_r(:, nd + n_rows + q) = fgrad(q, k, 1:2)
+               end do
             end if
-            sigma(:, k, r) = f(1:nf)
+            call mat_vec(nf, nd + n_rows + n_data, shapes%cond_r(:, 1:nd + n_rows + n_data, i, c), data_r, f)
+         else
+            call mat_vec(nf, nd + nc, shapes%y_zc(:, :, c), data_r, f)
+         end if
+         t = triangles(k)
+         do q = 1, nf
+            sigma(q, t, 1) = sigma(q, t, 1) + f(1, q)
+            sigma(q, t, 2) = sigma(q, t, 2) + f(2, q)
          end do
       end do
    end subroutine solve_condensed_factored
@@ -400,7 +421,9 @@ contains
          f%n_cols(ib) = count([(any(h(r0 + 1:r0 + g, nb + j) /= 0.0_dp), j=1, ns)])
          max_cpl = max(max_cpl, f%n_cols(ib))
       end do
-      allocate (f%d(g, g, n_blocks), f%x(g, max_cpl, n_blocks), f%cols(max_cpl, n_blocks), f%s(ns, ns))
+      allocate (f%d(g, g, n_blocks), f%x(g, max_cpl, n_blocks), f%xt(max_cpl, g, n_blocks), f%cols(max_cpl, n_blocks), &
+                f%s(ns, ns))
+      f%xt = 0.0_dp
       f%s = h(nb + 1:, nb + 1:)
       ok = .true.
       do ib = 1, n_blocks
@@ -417,6 +440,7 @@ contains
             end if
          end do
          call chol_solve(g, f%d(:, :, ib), n_cpl, f%x(:, :, ib))
+         f%xt(1:n_cpl, :, ib) = transpose(f%x(:, 1:n_cpl, ib))
          call chol_invert(g, f%d(:, :, ib))
          ! S = H_tt − H_tb D⁻¹ H_bt on the touched tail entries
          do j = 1, n_cpl
@@ -435,65 +459,95 @@ contains
       end if
    end subroutine block_factor
 
-   !> b = H⁻¹ b with the factor of block_factor.
+   !> b(:, 1:n_theta) = H⁻¹ b for both membranes (b(α, i): membrane α, unknown i) with the
+   !> factor of block_factor: each stored number is read once for the two right-hand sides.
    pure subroutine block_apply(f, b)
       type(patch_factor_t), intent(in) :: f
-      real(dp), intent(inout) :: b(:, :)
+      real(dp), intent(inout) :: b(2, max_theta)
 
-      integer :: nb, ns, nr, ib, r0, i, r, g
+      integer :: nb, ns, ib, r0, i, g, nc, m
+      real(dp) :: t(2, max_theta), u(2, max_theta)
 
       g = f%g
       nb = f%n_blocks*g
       ns = f%n_theta - nb
-      nr = size(b, 2)
-      ! b_t − H_tb D⁻¹ b_b = b_t − xᵀ b_b, and D⁻¹ b_b kept in place of b_b
+      m = 0
+      if (f%n_blocks > 0) m = size(f%xt, 1)
+      ! b_t − H_tb D⁻¹ b_b = b_t − xᵀ b_b (xt's rows past n_cols are zero), and D⁻¹ b_b kept in
+      ! place of b_b
       do ib = 1, f%n_blocks
          r0 = (ib - 1)*g
-         do r = 1, nr
-            do i = 1, f%n_cols(ib)
-               b(nb + f%cols(i, ib), r) = b(nb + f%cols(i, ib), r) - dot_product(f%x(:, i, ib), b(r0 + 1:r0 + g, r))
-            end do
+         call mat_vec(m, g, f%xt(:, :, ib), b(:, r0 + 1:r0 + g), t)
+         do i = 1, f%n_cols(ib)
+            b(:, nb + f%cols(i, ib)) = b(:, nb + f%cols(i, ib)) - t(:, i)
          end do
-         call inverse_apply(g, f%d(:, :, ib), b(r0 + 1:r0 + g, :))
+         call inverse_apply(g, f%d(:, :, ib), b(:, r0 + 1:r0 + g))
       end do
-      if (ns > 0) call inverse_apply(ns, f%s, b(nb + 1:, :))
+      if (ns > 0) call inverse_apply(ns, f%s, b(:, nb + 1:nb + ns))
+      ! θ_b = D⁻¹ b_b − x θ_t on the tail unknowns each block touches
       do ib = 1, f%n_blocks
          r0 = (ib - 1)*g
-         do r = 1, nr
-            do i = 1, f%n_cols(ib)
-               b(r0 + 1:r0 + g, r) = b(r0 + 1:r0 + g, r) - f%x(:, i, ib)*b(nb + f%cols(i, ib), r)
-            end do
+         nc = f%n_cols(ib)
+         if (nc == 0) cycle
+         do i = 1, nc
+            t(:, i) = b(:, nb + f%cols(i, ib))
          end do
+         call mat_vec(g, nc, f%x(:, 1:nc, ib), t, u)
+         b(:, r0 + 1:r0 + g) = b(:, r0 + 1:r0 + g) - u(:, 1:g)
       end do
    end subroutine block_apply
 
-   !> y = A x for a contiguous m×n matrix. The flux (m = 8) and condensed trace (m = 4) sizes of
-   !> RT1 take loops of constant length, which the compiler unrolls: these products run a few
-   !> hundred times per patch.
+   !> y(:, 1:m) = A x(:, 1:n) for a contiguous m×n matrix A and both membranes side by side
+   !> (x(α, j): membrane α): one pass over A, each entry times the pair x(:, j), which the
+   !> compiler makes one vector operation. The rows go by eight, four, two, then one, with their
+   !> sums in local arrays of fixed size, which stay in registers across the columns (RT1's
+   !> products are 8 and 4 rows tall). These products run a few hundred times per patch.
    pure subroutine mat_vec(m, n, a, x, y)
       integer, intent(in) :: m, n
-      real(dp), intent(in) :: a(m, n), x(n)
-      real(dp), intent(out) :: y(m)
+      real(dp), intent(in) :: a(m, n), x(2, n)
+      real(dp), intent(out) :: y(2, m)
 
-      integer :: j
+      integer :: i0, i, j
+      real(dp) :: acc(2, 8)
 
-      select case (m)
-      case (8)
-         y(1:8) = a(1:8, 1)*x(1)
-         do j = 2, n
-            y(1:8) = y(1:8) + a(1:8, j)*x(j)
+      i0 = 0
+      do while (m - i0 >= 8)
+         acc = 0.0_dp
+         do j = 1, n
+            do i = 1, 8
+               acc(:, i) = acc(:, i) + a(i0 + i, j)*x(:, j)
+            end do
          end do
-      case (4)
-         y(1:4) = a(1:4, 1)*x(1)
-         do j = 2, n
-            y(1:4) = y(1:4) + a(1:4, j)*x(j)
+         y(:, i0 + 1:i0 + 8) = acc
+         i0 = i0 + 8
+      end do
+      if (m - i0 >= 4) then
+         acc(:, 1:4) = 0.0_dp
+         do j = 1, n
+            do i = 1, 4
+               acc(:, i) = acc(:, i) + a(i0 + i, j)*x(:, j)
+            end do
          end do
-      case default
-         y = a(:, 1)*x(1)
-         do j = 2, n
-            y = y + a(:, j)*x(j)
+         y(:, i0 + 1:i0 + 4) = acc(:, 1:4)
+         i0 = i0 + 4
+      end if
+      if (m - i0 >= 2) then
+         acc(:, 1:2) = 0.0_dp
+         do j = 1, n
+            do i = 1, 2
+               acc(:, i) = acc(:, i) + a(i0 + i, j)*x(:, j)
+            end do
          end do
-      end select
+         y(:, i0 + 1:i0 + 2) = acc(:, 1:2)
+         i0 = i0 + 2
+      end if
+      if (m > i0) then
+         acc(:, 1) = 0.0_dp
+         do j = 1, n
+            acc(:, 1) = acc(:, 1) + a(m, j)*x(:, j)
+         end do
+         y(:, m) = acc(:, 1)
+      end if
    end subroutine mat_vec
 
    !> In place, lower triangle of a contiguous n×n matrix: a = L Lᵀ; ok is .false. if a is not
@@ -567,22 +621,16 @@ contains
       a = e
    end subroutine chol_invert
 
-   !> b = A b for the columns of b (at most two, both membranes) with a contiguous n×n matrix A.
+   !> b = A b for both membranes side by side (b(α, j): membrane α) with a contiguous n×n A.
    pure subroutine inverse_apply(n, a, b)
       integer, intent(in) :: n
       real(dp), intent(in) :: a(n, n)
-      real(dp), intent(inout) :: b(:, :)
+      real(dp), intent(inout) :: b(2, n)
 
-      real(dp) :: y(n)
-      integer :: r, j
+      real(dp) :: y(2, max_theta)
 
-      do r = 1, size(b, 2)
-         y = a(:, 1)*b(1, r)
-         do j = 2, n
-            y = y + a(:, j)*b(j, r)
-         end do
-         b(1:n, r) = y
-      end do
+      call mat_vec(n, n, a, b, y)
+      b = y(:, 1:n)
    end subroutine inverse_apply
 
    !> The inner trace rows of a patch triangle whose edge `neumann` (0: none) carries zero flux:
