@@ -127,16 +127,19 @@ contains
       integer, intent(in) :: level
       integer(ip), intent(in) :: parents(:, :)
 
-      integer(ip), parameter :: chunk = 4096
+      integer(ip), parameter :: chunk = 2048
       integer(ip) :: first, a, k
-      integer :: width
+      integer :: width, n_coarse, n_children
       integer, allocatable :: keys(:, :), lengths(:)
       integer(i8), allocatable :: hashes(:)
       logical, allocatable :: inside(:)
 
-      ! the longest key: ne, the local indices of the coarse triangles, and per triangle its
-      ! class, zero-flux edge, three links and 3 n_trace signs
-      width = 1 + max_patch + max_patch*(5 + 3*space%n_trace)
+      ! the longest key of this mesh (the buffer is set-up's peak on small meshes): ne, the local
+      ! indices of the coarse triangles, and per triangle its class, zero-flux edge, three links
+      ! and 3 n_trace signs (larger patches take the general path)
+      n_children = merge(4, 1, self%refined)
+      n_coarse = min(int(maxval(coarse%patch_ptr(2:) - coarse%patch_ptr(:coarse%nv))), max_patch/n_children)
+      width = 1 + n_coarse + n_children*n_coarse*(5 + 3*space%n_trace)
       allocate (keys(width, chunk), lengths(chunk), hashes(chunk))
       allocate (self%levels(level)%id(coarse%nv))
       self%levels(level)%id = 0
@@ -155,8 +158,7 @@ contains
          !$omp end parallel do
          do k = 1, min(chunk, coarse%nv - first + 1)
             if (lengths(k) == 0) cycle
-            self%levels(level)%id(first + k - 1) = lookup(self, keys(1:lengths(k), k), hashes(k), &
-                                                          merge(4, 1, self%refined))
+            self%levels(level)%id(first + k - 1) = lookup(self, keys(1:lengths(k), k), hashes(k), n_children)
          end do
       end do
    end subroutine add_mesh
