@@ -367,11 +367,11 @@ contains
       type(rt_frame_t) :: frame, level_frames(size(levels))
       real(dp) :: x(2), w, sq(3, 2), f(2), lam_x, osc_mean(2), osc_sq(2), osc_w, ratio
       real(dp) :: c_disc(self%space%n_flux), c_alg(self%space%n_flux), c_sum(self%space%n_flux)
-      real(dp) :: pos_lw, pos_ll, neg_lw, neg_ll, sum_pos, grad_s(2, 2)
+      real(dp) :: pos_lw, pos_ll, neg_lw, neg_ll, sum_pos, grad_s(2, 2), hat(2, 3), inv_ratio_sq
       !> f ∓ λ_h at the 7 points of the degree-5 rule (RT0 only)
       real(dp) :: osc_values(2, 7)
       real(dp), parameter :: lambda_sign(2) = [1.0_dp, -1.0_dp]
-      integer(ip) :: t, anc, generations(size(levels))
+      integer(ip) :: t, anc, generations(size(levels)), frame_anc(size(levels))
       integer :: k, j, alpha, class
       integer(ip) :: v(3)
       integer :: finest
@@ -391,19 +391,26 @@ contains
       do j = 1, size(levels)
          generations(j) = 4_ip**(finest - levels(j)%level)
       end do
+      ! no ancestor's frame computed yet (per thread)
+      frame_anc = 0
       !$omp parallel do default(none) &
       !$omp shared(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, finest, generations, nt_own) &
       !$omp private(t, anc, k, j, alpha, v, frame, level_frames, x, w, sq, f, lam_x, osc_mean, osc_sq, ratio, class) &
       !$omp private(c_disc, c_alg, c_sum, osc_w, pos_lw, pos_ll, neg_lw, neg_ll, grad_s, osc_values) &
+      !$omp private(hat, inv_ratio_sq) firstprivate(frame_anc) &
       !$omp reduction(+:sum_pos) schedule(static)
       do t = 1, nt_own
          v = hierarchy%meshes(finest)%triangles(:, t)
          frame = frame_of(hierarchy%meshes(finest)%vertices, v)
          call triangle_class(finest, t, class, ratio)
+         inv_ratio_sq = 1.0_dp/ratio**2
          do j = 1, size(levels)
-            ! the ancestors' frames, once for both membranes
-            if (levels(j)%level /= finest) then
-               anc = (t - 1)/generations(j) + 1
+            ! the ancestors' frames, once for both membranes and, since the children of a
+            ! triangle are numbered consecutively, once per run of descendants in this thread's
+            ! static block rather than once per finest triangle
+            anc = (t - 1)/generations(j) + 1
+            if (levels(j)%level /= finest .and. anc /= frame_anc(j)) then
+               frame_anc(j) = anc
                associate (lm => hierarchy%meshes(levels(j)%level))
                   level_frames(j) = frame_of(lm%vertices, lm%triangles(:, anc))
                end associate
@@ -422,11 +429,9 @@ contains
                   c_alg = c_alg + c_sum
                end if
             end do
-            c_sum = c_disc + c_alg
             ! the class mass matrix is that of the class size: K's is ρ⁻² times it
-            sq(1, alpha) = quadratic_form(self%space%n_flux, self%shapes%mass(:, :, class), c_disc)/ratio**2
-            sq(2, alpha) = quadratic_form(self%space%n_flux, self%shapes%mass(:, :, class), c_alg)/ratio**2
-            sq(3, alpha) = quadratic_form(self%space%n_flux, self%shapes%mass(:, :, class), c_sum)/ratio**2
+            call quadratic_forms(self%space%n_flux, self%shapes%mass(:, :, class), c_disc, c_alg, sq(:, alpha))
+            sq(:, alpha) = sq(:, alpha)*inv_ratio_sq
          end do
          do alpha = 1, 2
             est%disc_k(alpha, t) = sqrt(max(0.0_dp, sq(1, alpha))/self%mu(alpha))
@@ -457,13 +462,26 @@ contains
             est%osc_k(:, t) = 0.0_dp
          end if
 
-         call sign_split(frame%vertices, lambda(v), u(v, 1) - u(v, 2), pos_lw, pos_ll)
-         call sign_split(frame%vertices, -lambda(v), u(v, 1) - u(v, 2), neg_lw, neg_ll)
+         ! most triangles lie where λ_h ≥ 0 or λ_h ≤ 0 throughout: the other part is then
+         ! exactly zero (the clipped polygon has l = 0 at all its points), without clipping
+         if (all(lambda(v) <= 0.0_dp)) then
+            pos_lw = 0.0_dp
+            pos_ll = 0.0_dp
+         else
+            call sign_split(frame%vertices, lambda(v), u(v, 1) - u(v, 2), pos_lw, pos_ll)
+         end if
+         if (all(lambda(v) >= 0.0_dp)) then
+            neg_lw = 0.0_dp
+            neg_ll = 0.0_dp
+         else
+            call sign_split(frame%vertices, -lambda(v), u(v, 1) - u(v, 2), neg_lw, neg_ll)
+         end if
          est%contact_k(t) = 2*pos_lw
          est%nonc2_k(t) = self%c_omega*sqrt(neg_ll)
          sum_pos = sum_pos + pos_ll
+         hat = p1_gradients(hierarchy%meshes(finest), t)
          do alpha = 1, 2
-            grad_s(:, alpha) = matmul(p1_gradients(hierarchy%meshes(finest), t), s(v, alpha)) - grad_u(:, t, alpha)
+            grad_s(:, alpha) = matmul(hat, s(v, alpha)) - grad_u(:, t, alpha)
          end do
          est%nonc1_k(t) = sqrt(frame%area*(self%mu(1)*sum(grad_s(:, 1)**2) + self%mu(2)*sum(grad_s(:, 2)**2)))
       end do
@@ -471,34 +489,44 @@ contains
       positive_sq = sum_pos
    end subroutine element_estimators
 
-   !> cᵀ M c for a contiguous n×n matrix M.
-   pure real(dp) function quadratic_form(n, m, c) result(q)
+   !> q = (aᵀ M a, bᵀ M b, (a + b)ᵀ M (a + b)) for a contiguous n×n matrix M, in one pass over M:
+   !> the third reuses the columns' products with a and b, (a + b)ᵀ(M a + M b).
+   pure subroutine quadratic_forms(n, m, a, b, q)
       integer, intent(in) :: n
-      real(dp), intent(in) :: m(n, n), c(n)
+      real(dp), intent(in) :: m(n, n), a(n), b(n)
+      real(dp), intent(out) :: q(3)
 
       integer :: i, j
-      real(dp) :: row
+      real(dp) :: row_a, row_b
 
       q = 0.0_dp
       if (n == 8) then
          ! RT1: a loop of constant length, unrolled
          do j = 1, 8
-            row = 0.0_dp
+            row_a = 0.0_dp
+            row_b = 0.0_dp
             do i = 1, 8
-               row = row + m(i, j)*c(i)
+               row_a = row_a + m(i, j)*a(i)
+               row_b = row_b + m(i, j)*b(i)
             end do
-            q = q + c(j)*row
+            q(1) = q(1) + a(j)*row_a
+            q(2) = q(2) + b(j)*row_b
+            q(3) = q(3) + (a(j) + b(j))*(row_a + row_b)
          end do
          return
       end if
       do j = 1, n
-         row = 0.0_dp
+         row_a = 0.0_dp
+         row_b = 0.0_dp
          do i = 1, n
-            row = row + m(i, j)*c(i)
+            row_a = row_a + m(i, j)*a(i)
+            row_b = row_b + m(i, j)*b(i)
          end do
-         q = q + c(j)*row
+         q(1) = q(1) + a(j)*row_a
+         q(2) = q(2) + b(j)*row_b
+         q(3) = q(3) + (a(j) + b(j))*(row_a + row_b)
       end do
-   end function quadratic_form
+   end subroutine quadratic_forms
 
    !> The coefficients in the basis of `child` of the RT_p field with coefficients c in the basis
    !> of `parent` ⊃ child: with ξ_parent = d + κ ξ_child (d the child's barycentre in the
