@@ -354,7 +354,7 @@ contains
    !> returns their part of ‖λ⁺‖²_Ω. The flux norms are exact quadratic
    !> forms with the shape class's RT mass matrix: μ_α∇u_α is constant on K, so it is the
    !> combination of the constant basis fields φ_1, φ_2, and each coarser level's σ_alg is
-   !> rewritten in K's own basis (`to_child_basis`), RT_p being closed under restriction.
+   !> rewritten in K's own basis (`add_in_child_basis`), RT_p being closed under restriction.
    subroutine element_estimators(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, positive_sq)
       class(estimator_t), intent(in) :: self
       type(mesh_hierarchy_t), intent(in) :: hierarchy
@@ -366,12 +366,14 @@ contains
 
       type(rt_frame_t) :: frame, level_frames(size(levels))
       real(dp) :: x(2), w, sq(3, 2), f(2), lam_x, osc_mean(2), osc_sq(2), osc_w, ratio
-      real(dp) :: c_disc(self%space%n_flux), c_alg(self%space%n_flux), c_sum(self%space%n_flux)
+      real(dp) :: c_disc(self%space%n_flux), c_alg(self%space%n_flux)
+      !> K's barycentre in each ancestor's scaled coordinates and the ratio of their scales
+      real(dp) :: shift(2, size(levels)), kappa(size(levels))
       real(dp) :: pos_lw, pos_ll, neg_lw, neg_ll, sum_pos, grad_s(2, 2), hat(2, 3), inv_ratio_sq
       !> f ∓ λ_h at the 7 points of the degree-5 rule (RT0 only)
       real(dp) :: osc_values(2, 7)
       real(dp), parameter :: lambda_sign(2) = [1.0_dp, -1.0_dp]
-      integer(ip) :: t, anc, generations(size(levels)), frame_anc(size(levels))
+      integer(ip) :: t, anc, generations(size(levels)), frame_anc(size(levels)), ancestors(size(levels))
       integer :: k, j, alpha, class
       integer(ip) :: v(3)
       integer :: finest
@@ -396,7 +398,7 @@ contains
       !$omp parallel do default(none) &
       !$omp shared(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, finest, generations, nt_own) &
       !$omp private(t, anc, k, j, alpha, v, frame, level_frames, x, w, sq, f, lam_x, osc_mean, osc_sq, ratio, class) &
-      !$omp private(c_disc, c_alg, c_sum, osc_w, pos_lw, pos_ll, neg_lw, neg_ll, grad_s, osc_values) &
+      !$omp private(c_disc, c_alg, shift, kappa, ancestors, osc_w, pos_lw, pos_ll, neg_lw, neg_ll, grad_s, osc_values) &
       !$omp private(hat, inv_ratio_sq) firstprivate(frame_anc) &
       !$omp reduction(+:sum_pos) schedule(static)
       do t = 1, nt_own
@@ -409,11 +411,16 @@ contains
             ! triangle are numbered consecutively, once per run of descendants in this thread's
             ! static block rather than once per finest triangle
             anc = (t - 1)/generations(j) + 1
-            if (levels(j)%level /= finest .and. anc /= frame_anc(j)) then
-               frame_anc(j) = anc
-               associate (lm => hierarchy%meshes(levels(j)%level))
-                  level_frames(j) = frame_of(lm%vertices, lm%triangles(:, anc))
-               end associate
+            ancestors(j) = anc
+            if (levels(j)%level /= finest) then
+               if (anc /= frame_anc(j)) then
+                  frame_anc(j) = anc
+                  associate (lm => hierarchy%meshes(levels(j)%level))
+                     level_frames(j) = frame_of(lm%vertices, lm%triangles(:, anc))
+                  end associate
+               end if
+               shift(:, j) = (frame%centre - level_frames(j)%centre)/level_frames(j)%scale
+               kappa(j) = frame%scale/level_frames(j)%scale
             end if
          end do
          do alpha = 1, 2
@@ -421,12 +428,11 @@ contains
             c_disc(1:2) = c_disc(1:2) + self%mu(alpha)*grad_u(:, t, alpha)
             c_alg = 0.0_dp
             do j = 1, size(levels)
-               anc = (t - 1)/generations(j) + 1
                if (levels(j)%level == finest) then
-                  c_alg = c_alg + levels(j)%sigma(:, anc, alpha)
+                  c_alg = c_alg + levels(j)%sigma(:, ancestors(j), alpha)
                else
-                  call to_child_basis(self%space%order, level_frames(j), frame, levels(j)%sigma(:, anc, alpha), c_sum)
-                  c_alg = c_alg + c_sum
+                  call add_in_child_basis(self%space%order, shift(:, j), kappa(j), &
+                                          levels(j)%sigma(:, ancestors(j), alpha), c_alg)
                end if
             end do
             ! the class mass matrix is that of the class size: K's is ρ⁻² times it
@@ -528,35 +534,31 @@ contains
       end do
    end subroutine quadratic_forms
 
-   !> The coefficients in the basis of `child` of the RT_p field with coefficients c in the basis
-   !> of `parent` ⊃ child: with ξ_parent = d + κ ξ_child (d the child's barycentre in the
+   !> f + the coefficients in the basis of a child triangle of the RT_p field with coefficients c
+   !> in the basis of its ancestor: with ξ_parent = d + κ ξ_child (d the child's barycentre in the
    !> parent's scaled coordinates, κ the ratio of the scales), each monomial field expands
-   !> exactly, e.g. ξ1 ξ = d1 d + κ(2 d1 ξ1, d2 ξ1 + d1 ξ2) + κ² ξ1 ξ.
-   pure subroutine to_child_basis(order, parent, child, c, f)
+   !> exactly, e.g. ξ1 ξ = d1 d + κ(2 d1 ξ1, d2 ξ1 + d1 ξ2) + κ² ξ1 ξ. Added in place, as the
+   !> caller sums the levels: no temporary, and the same sums as adding a converted copy.
+   pure subroutine add_in_child_basis(order, d, kappa, c, f)
       integer, intent(in) :: order
-      type(rt_frame_t), intent(in) :: parent, child
-      real(dp), intent(in) :: c(:)
-      real(dp), intent(out) :: f(:)
+      real(dp), intent(in) :: d(2), kappa, c(:)
+      real(dp), intent(inout) :: f(:)
 
-      real(dp) :: d(2), kappa
-
-      d = (child%centre - parent%centre)/parent%scale
-      kappa = child%scale/parent%scale
       if (order == 0) then
-         f(1) = c(1) + d(1)*c(3)
-         f(2) = c(2) + d(2)*c(3)
-         f(3) = kappa*c(3)
+         f(1) = f(1) + (c(1) + d(1)*c(3))
+         f(2) = f(2) + (c(2) + d(2)*c(3))
+         f(3) = f(3) + kappa*c(3)
       else
-         f(1) = c(1) + d(1)*c(3) + d(2)*c(4) + d(1)**2*c(7) + d(1)*d(2)*c(8)
-         f(2) = c(2) + d(1)*c(5) + d(2)*c(6) + d(1)*d(2)*c(7) + d(2)**2*c(8)
-         f(3) = kappa*(c(3) + 2*d(1)*c(7) + d(2)*c(8))
-         f(4) = kappa*(c(4) + d(1)*c(8))
-         f(5) = kappa*(c(5) + d(2)*c(7))
-         f(6) = kappa*(c(6) + d(1)*c(7) + 2*d(2)*c(8))
-         f(7) = kappa**2*c(7)
-         f(8) = kappa**2*c(8)
+         f(1) = f(1) + (c(1) + d(1)*c(3) + d(2)*c(4) + d(1)**2*c(7) + d(1)*d(2)*c(8))
+         f(2) = f(2) + (c(2) + d(1)*c(5) + d(2)*c(6) + d(1)*d(2)*c(7) + d(2)**2*c(8))
+         f(3) = f(3) + kappa*(c(3) + 2*d(1)*c(7) + d(2)*c(8))
+         f(4) = f(4) + kappa*(c(4) + d(1)*c(8))
+         f(5) = f(5) + kappa*(c(5) + d(2)*c(7))
+         f(6) = f(6) + kappa*(c(6) + d(1)*c(7) + 2*d(2)*c(8))
+         f(7) = f(7) + kappa**2*c(7)
+         f(8) = f(8) + kappa**2*c(8)
       end if
-   end subroutine to_child_basis
+   end subroutine add_in_child_basis
 
    !> Exact ∫_{l>0} l w and ∫_{l>0} l² over a triangle for linear l and w given at its vertices:
    !> clip at l = 0 and integrate the quadratics with the edge-midpoint rule on a fan.
