@@ -111,7 +111,7 @@ contains
       class(problem_data_t), intent(in) :: data
 
       type(quadrature_t) :: rule, check
-      real(dp) :: p(2, 3), m0(2, 2), moments(3, 2), x(2), u(3), g(2, 2, max_points)
+      real(dp) :: p(2, 3), m0(2, 2), moments(3, 2), g(2, 2, max_points)
       integer(ip) :: t
       integer :: q, alpha
 
@@ -122,14 +122,13 @@ contains
       rule = triangle_rule(8)
       check = triangle_rule(5)
       !$omp parallel do default(none) shared(self, mesh, data, rule, check) &
-      !$omp private(t, p, m0, moments, x, u, g, q, alpha) schedule(dynamic, 64)
+      !$omp private(t, p, m0, moments, g, q, alpha) schedule(dynamic, 64)
       do t = 1, mesh%nt
          p = mesh%vertices(:, mesh%triangles(:, t))
          ! the exact gradients at the rule's points once, for the mean and the element's moments
+         call exact_gradients(data, rule, p, g)
          m0 = 0.0_dp
          do q = 1, rule%n
-            x = matmul(p, rule%bary(:, q))
-            call data%exact(x, u, g(:, :, q))
             m0 = m0 + rule%weights(q)*g(:, :, q)
          end do
          moments = refined_moments(data, rule, check, m0, p, mesh%area(t), 0, &
@@ -149,15 +148,26 @@ contains
       real(dp), intent(in) :: m0(2, 2), p(2, 3), area
       real(dp) :: s(3, 2)
 
-      real(dp) :: x(2), u(3), g(2, 2, max_points)
+      real(dp) :: g(2, 2, max_points)
+
+      call exact_gradients(data, rule, p, g)
+      s = moments_of(rule, g(:, :, 1:rule%n), m0, area)
+   end function rule_moments
+
+   !> g(:, α, q) = ∇u_α at the rule's points on the triangle with corners p.
+   subroutine exact_gradients(data, rule, p, g)
+      class(problem_data_t), intent(in) :: data
+      type(quadrature_t), intent(in) :: rule
+      real(dp), intent(in) :: p(2, 3)
+      real(dp), intent(out) :: g(:, :, :)
+
+      real(dp) :: u(3)
       integer :: q
 
       do q = 1, rule%n
-         x = matmul(p, rule%bary(:, q))
-         call data%exact(x, u, g(:, :, q))
+         call data%exact(matmul(p, rule%bary(:, q)), u, g(:, :, q))
       end do
-      s = moments_of(rule, g(:, :, 1:rule%n), m0, area)
-   end function rule_moments
+   end subroutine exact_gradients
 
    !> rule_moments from the exact gradients g(:, α, q) at the rule's points.
    pure function moments_of(rule, g, m0, area) result(s)
