@@ -130,7 +130,7 @@ contains
          if (.not. allocated(err)) call solver%init(kind, options%precond, options%gmres, p, no_transfer, 0, err)
       end if
       if (allocated(err)) return
-      allocate (c(n), da(n), db(n), b(3*n), ax(3*n), x_new(3*n), active(n), previous(n))
+      allocate (c(n), da(n), db(n), b(3*n), x_new(3*n), active(n), previous(n))
       call watch%init(options%max_it)
       x = x0
       t0 = wall_time()
@@ -202,6 +202,8 @@ contains
             ! GMRES ended on this very residual (an operator application and a norm saved)
             row%alg_residual = solver%monitor%final_residual/b_norm
          else
+            ! (3n more values only for the solvers that do not return it)
+            if (.not. allocated(ax)) allocate (ax(3*n))
             call sys%apply(x_new, ax)
             ax = b - ax
             row%alg_residual = sys%dot%norm(ax)/b_norm
