@@ -1,13 +1,13 @@
 !> Sorting of integer keys, for the bookkeeping of distributed runs (interfaces listed in
 !> whole-mesh order, keys numbered on rank 0). Heap sort: O(n log n) in the worst case, no
-!> recursion, no extra memory. And an insertion sort of a sparse row's handful of columns with
-!> their values, where a heap sort's set-up would cost more than the sorting.
+!> recursion, no extra memory. And insertion sorts of a sparse row's handful of columns, with
+!> or without their values, where a heap sort's set-up would cost more than the sorting.
 module twomem_base_sort
    use twomem_base_kinds, only: dp, ip
    implicit none
    private
 
-   public :: sort_ints, sorting_permutation, sort_pairs
+   public :: sort_ints, sorting_permutation, sort_pairs, sort_row
 
 contains
 
@@ -106,4 +106,22 @@ contains
          other(j + 1) = o
       end do
    end subroutine sort_pairs
+
+   !> Insertion sort of `key` (a row's handful of columns).
+   pure subroutine sort_row(key)
+      integer(ip), intent(inout) :: key(:)
+
+      integer(ip) :: i, j, k
+
+      do i = 2, size(key)
+         k = key(i)
+         j = i - 1
+         do while (j >= 1)
+            if (key(j) <= k) exit
+            key(j + 1) = key(j)
+            j = j - 1
+         end do
+         key(j + 1) = k
+      end do
+   end subroutine sort_row
 end module twomem_base_sort

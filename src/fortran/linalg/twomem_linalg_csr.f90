@@ -5,6 +5,7 @@
 !> Galerkin product patterns) between Newton steps.
 module twomem_linalg_csr
    use twomem_base_kinds, only: dp, ip
+   use twomem_base_sort, only: sort_row
    implicit none
    private
 
@@ -48,7 +49,7 @@ contains
       ! Newton pattern has 3n of them)
       !$omp parallel do default(none) shared(self) private(i) schedule(static) if(self%n > 4096)
       do i = 1, self%n
-         call sort_ints(self%col(self%row_ptr(i):self%row_ptr(i + 1) - 1))
+         call sort_row(self%col(self%row_ptr(i):self%row_ptr(i + 1) - 1))
          self%val(self%row_ptr(i):self%row_ptr(i + 1) - 1) = 0.0_dp
       end do
       !$omp end parallel do
@@ -185,22 +186,4 @@ contains
          end do
       end do
    end function transposed
-
-   !> Insertion sort: rows hold a handful of entries.
-   pure subroutine sort_ints(a)
-      integer(ip), intent(inout) :: a(:)
-
-      integer(ip) :: i, j, key
-
-      do i = 2, size(a)
-         key = a(i)
-         j = i - 1
-         do while (j >= 1)
-            if (a(j) <= key) exit
-            a(j + 1) = a(j)
-            j = j - 1
-         end do
-         a(j + 1) = key
-      end do
-   end subroutine sort_ints
 end module twomem_linalg_csr
