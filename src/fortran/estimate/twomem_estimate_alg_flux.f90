@@ -11,6 +11,12 @@
 !> patch problems use the operators of the shape classes (twomem_estimate_shapes), and so do
 !> these projections and the patch data: every integral involved is one of scaled monomials
 !> and barycentric coordinates, its class's times the area ratio, so no quadrature runs here.
+!> On a refined patch ψ_a is 1, 1/2 or 0 at the children's corners and the children sit at
+!> fixed places in their parent's frame, so the divergence data of child c of a coarse
+!> triangle t, a its local vertex k, are the class tables of t for (k, c) applied to the child's
+!> P2 field (or r on T_J) and, above the first refined level, to Π_coarse(r ψ_a) in t's basis,
+!> times the child's area ratio: no coordinates are read per child, only ∇ψ_a per coarse
+!> triangle on the first level (whose smooth part ∇ρ·∇ψ_a is constant there).
 !> A refined patch's multipliers are numbered so that those inside each coarse triangle form a
 !> block (twomem_estimate_patch). The level parts and the P2 fields are kept between evaluations.
 !> On a rank's piece of a distributed hierarchy: the restriction of R_α starts from the finest
@@ -30,7 +36,7 @@ module twomem_estimate_alg_flux
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_fem_assembly, only: p1_gradients
    use twomem_linalg_gathered_solve, only: gathered_solver_t
-   use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, frame_of
+   use twomem_estimate_raviart_thomas, only: rt_space_t
    use twomem_estimate_shapes, only: shape_classes_t, triangle_class, n_p2
    use twomem_estimate_coloring, only: coloring_t
    use twomem_estimate_patch, only: solve_patch, solve_condensed_factored, inner_edge, edge_free, edge_neumann
@@ -283,18 +289,6 @@ contains
       end do
    end subroutine project_p2
 
-   !> The divergence test functions q_k(x) of rt_space_t (n_div = 1 or 3), without its
-   !> run-time-sized result, which the patch loops would allocate at every quadrature point.
-   pure function div_tests(n_div, frame, x) result(q)
-      integer, intent(in) :: n_div
-      type(rt_frame_t), intent(in) :: frame
-      real(dp), intent(in) :: x(2)
-      real(dp) :: q(n_div)
-
-      q(1) = 1.0_dp
-      if (n_div == 3) q(2:3) = (x - frame%centre)/frame%scale
-   end function div_tests
-
    !> The patch problems of one level: patches of the vertices of `coarse` (coloured by
    !> `colors`), triangles of `fine`, level `level` of the hierarchy (its red refinement, or the
    !> same mesh when `parents` is empty). `first`: the data are r ψ_a − ∇ρ·∇ψ_a (grad_rho on the
@@ -372,14 +366,12 @@ contains
       integer :: n_coarse, ne, k, kc, c, m, i, alpha, local_a, n_inner, n_blocks
       integer(ip) :: t, child, e, v(3), children(n_children*(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a)))
       integer(ip) :: inner(max_inner_per_triangle*(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a)))
-      type(rt_frame_t) :: coarse_frame
       logical :: opposite
       integer :: links(3, size(children)), classes(size(children))
       real(dp) :: ratios(size(children)), signs(3*space%n_trace, size(children))
       real(dp) :: rhs_flux(space%n_flux, size(children), 2), rhs_div(space%n_div, size(children), 2)
       real(dp) :: patch_sigma(space%n_flux, size(children), 2)
-      real(dp) :: grad_psi(2), coarse_part(space%n_div, 2), smooth(2), hat_gradients(2, 3), qc(space%n_div)
-      real(dp) :: psi_v(3), smooth_v(3, 2), area_factor, ratio, ratio_level
+      real(dp) :: coarse_part(space%n_div, 2), smooth(2), hat_gradients(2, 3), area_factor, ratio, ratio_level
       integer :: cls, id, coarse_level
       integer(ip) :: order(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a))
 
@@ -410,14 +402,16 @@ contains
       rhs_flux = 0.0_dp
       do kc = 1, n_coarse
          t = order(kc)
-         coarse_frame = frame_of(coarse%vertices, coarse%triangles(:, t))
          local_a = findloc(coarse%triangles(:, t), a, dim=1)
-         hat_gradients = p1_gradients(coarse, t)
-         grad_psi = hat_gradients(:, local_a)
-         if (.not. first) then
+         call triangle_class(coarse_level, t, cls, ratio)
+         if (first) then
+            ! ∇ρ·∇ψ_a, constant on t
+            hat_gradients = p1_gradients(coarse, t)
+            smooth = [dot_product(hat_gradients(:, local_a), grad_rho(:, t, 1)), &
+                      dot_product(hat_gradients(:, local_a), grad_rho(:, t, 2))]
+         else
             ! Π_coarse(r ψ_a) on t, in the divergence basis of t: r is P2 there, and the projection
             ! of each monomial times ψ_a is its class's
-            call triangle_class(coarse_level, t, cls, ratio)
             coarse_part = 0.0_dp
             do alpha = 1, 2
                do i = 1, n_p2
@@ -429,12 +423,12 @@ contains
             ne = ne + 1
             child = merge(4*(t - 1) + c, t, n_children == 4)
             children(ne) = child
-            v = fine%triangles(:, child)
             if (id > 0) then
                ! the signature holds the classes and the relative trace signs
                classes(ne) = table%sig(id)%classes(ne)
                ratios(ne) = ratio_level
             else
+               v = fine%triangles(:, child)
                call triangle_class(level, child, classes(ne), ratios(ne))
                call edge_signs(space%n_trace, v, signs(:, ne))
             end if
@@ -455,36 +449,34 @@ contains
                   call inner_edge(inner, n_inner, e, links(m, ne))
                end if
             end do
-            rhs_div(:, ne, :) = 0.0_dp
-            if (first) smooth = [dot_product(grad_psi, grad_rho(:, t, 1)), dot_product(grad_psi, grad_rho(:, t, 2))]
-            ! r, ψ_a and the smooth part on the child: ψ_a and the smooth part linear, r linear on
-            ! T_J and P2 (in the child's monomials) above; the class integrals ∫ λ_j ψ_i q_k or
-            ! ∫ m_j ψ_i q_k, ∫ ψ_i q_k and ∫ q_k, scaled by the area, are exact
+            ! the moments of r ψ_a on the child (r linear on T_J, P2 in the child's monomials
+            ! above) and of the smooth part (∇ρ·∇ψ_a constant, or Π_coarse(r ψ_a) in t's q_l): the
+            ! tables of t's class for local vertex a and child c, or of the child's own class
+            ! when it is t itself, scaled by the child's area, are exact; no geometry is needed
             area_factor = 1/ratios(ne)**2
-            cls = classes(ne)
-            do i = 1, 3
-               psi_v(i) = 1.0_dp/3 + dot_product(grad_psi, fine%vertices(:, v(i)) - coarse_frame%centre)
-               if (.not. first) then
-                  qc = div_tests(space%n_div, coarse_frame, fine%vertices(:, v(i)))
-                  smooth_v(i, 1) = dot_product(qc, coarse_part(:, 1))
-                  smooth_v(i, 2) = dot_product(qc, coarse_part(:, 2))
+            rhs_div(:, ne, :) = 0.0_dp
+            if (n_children == 1) then
+               if (allocated(p2_fine%c)) then
+                  call add_moments(space%n_div, n_p2, shapes%mono_psi_q(:, :, local_a, cls), area_factor, &
+                                   p2_fine%c(:, child, :), rhs_div(:, ne, :))
+               else
+                  call add_moments(space%n_div, 3, shapes%bary_psi_q(:, :, local_a, cls), area_factor, r(:, child, :), &
+                                   rhs_div(:, ne, :))
                end if
-            end do
-            ! the moments of r ψ_a: those of the basis times ψ_a (on T_J the child's λ_j, r being P1,
-            ! above its monomials m_j), combined for both membranes
-            if (allocated(p2_fine%c)) then
-               call add_psi_moments(space%n_div, n_p2, shapes%mono_psi_q(:, :, :, cls), area_factor*psi_v, &
-                                    p2_fine%c(:, child, :), rhs_div(:, ne, :))
+            else if (allocated(p2_fine%c)) then
+               call add_moments(space%n_div, n_p2, shapes%child_mono_psi_q(:, :, local_a, c, cls), area_factor, &
+                                p2_fine%c(:, child, :), rhs_div(:, ne, :))
             else
-               call add_psi_moments(space%n_div, 3, shapes%bary_psi_q(:, :, :, cls), area_factor*psi_v, r(:, child, :), &
-                                    rhs_div(:, ne, :))
+               call add_moments(space%n_div, 3, shapes%child_bary_psi_q(:, :, local_a, c, cls), area_factor, &
+                                r(:, child, :), rhs_div(:, ne, :))
             end if
             if (first) then
                do alpha = 1, 2
-                  rhs_div(:, ne, alpha) = rhs_div(:, ne, alpha) - area_factor*smooth(alpha)*shapes%q_int(:, cls)
+                  rhs_div(:, ne, alpha) = rhs_div(:, ne, alpha) - area_factor*smooth(alpha)*shapes%q_int(:, classes(ne))
                end do
             else
-               call add_moments(space%n_div, 3, shapes%psi_q(:, :, cls), -area_factor*smooth_v, rhs_div(:, ne, :))
+               call add_moments(space%n_div, space%n_div, shapes%child_q_coarse(:, :, c, cls), -area_factor, coarse_part, &
+                                rhs_div(:, ne, :))
             end if
          end do
       end do
@@ -503,40 +495,20 @@ contains
       end if
    end subroutine coarse_patch
 
-   !> add_moments with the moments Σ_i w(i) table(:, j, i) of a class table (nd, nb, 3) of ψ_i,
-   !> each formed once for both membranes as it is needed (no table of them in between).
-   pure subroutine add_psi_moments(nd, nb, table, w, coef, rhs)
+   !> rhs(:, α) += factor Σ_j coef(j, α) moments(:, j) for both membranes (one pass over the
+   !> moments): the moments of the fields with coefficients coef in a basis whose moments, at
+   !> the class size, are `moments`, scaled by `factor`.
+   pure subroutine add_moments(nd, nb, moments, factor, coef, rhs)
       integer, intent(in) :: nd, nb
-      real(dp), intent(in) :: table(nd, nb, 3), w(3), coef(:, :)
-      real(dp), intent(inout) :: rhs(:, :)
-
-      integer :: j, q
-      real(dp) :: c1, c2, m
-
-      do j = 1, nb
-         c1 = coef(j, 1)
-         c2 = coef(j, 2)
-         do q = 1, nd
-            m = w(1)*table(q, j, 1) + w(2)*table(q, j, 2) + w(3)*table(q, j, 3)
-            rhs(q, 1) = rhs(q, 1) + c1*m
-            rhs(q, 2) = rhs(q, 2) + c2*m
-         end do
-      end do
-   end subroutine add_psi_moments
-
-   !> rhs(:, α) += Σ_j coef(j, α) moments(:, j) for both membranes (one pass over the moments):
-   !> the moments of the fields with coefficients coef in a basis whose moments are `moments`.
-   pure subroutine add_moments(nd, nb, moments, coef, rhs)
-      integer, intent(in) :: nd, nb
-      real(dp), intent(in) :: moments(nd, nb), coef(:, :)
+      real(dp), intent(in) :: moments(nd, nb), factor, coef(:, :)
       real(dp), intent(inout) :: rhs(:, :)
 
       integer :: j, q
       real(dp) :: c1, c2
 
       do j = 1, nb
-         c1 = coef(j, 1)
-         c2 = coef(j, 2)
+         c1 = factor*coef(j, 1)
+         c2 = factor*coef(j, 2)
          do q = 1, nd
             rhs(q, 1) = rhs(q, 1) + c1*moments(q, j)
             rhs(q, 2) = rhs(q, 2) + c2*moments(q, j)

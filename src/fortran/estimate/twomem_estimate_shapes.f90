@@ -19,7 +19,10 @@
 !> between such spaces (a Gram matrix's inverse times moments, both ∝ ρ⁻²) is its class's
 !> unchanged; red refinement keeps the children's local order, so this holds from a triangle's
 !> four children to it as well. The algebraic flux's P2 fields of r_α on the coarser meshes and
-!> their patch data (twomem_estimate_alg_flux) come from these class operators, not quadrature.
+!> their patch data (twomem_estimate_alg_flux) come from these class operators, not quadrature;
+!> for a refined patch, whose hat function ψ_a lives on the parent triangle, the moments on each
+!> child are tabled per parent class, local vertex of a and child (child_*), so the patch loop
+!> reads no coordinates.
 module twomem_estimate_shapes
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_io
@@ -52,6 +55,14 @@ module twomem_estimate_shapes
       !> that is m_j (resp. λ_j) of child c (refine_red's numbering, in the child's own frame and
       !> local order) on that child and zero on the other three
       real(dp), allocatable :: div_proj(:, :, :, :), p2_from_p2(:, :, :, :), p2_from_p1(:, :, :, :)
+      !> the algebraic flux's patch data on the children of a triangle of the class, at the
+      !> children's class size (∝ ρ_child⁻², ρ_child the children's ratio), with ψ_i the hat function
+      !> of the parent's local vertex i and q_k, m_j, λ_j those of child c (refine_red's numbering):
+      !> child_mono_psi_q(k, j, i, c) = ∫ m_j ψ_i q_k and child_bary_psi_q(k, j, i, c) = ∫ λ_j ψ_i q_k
+      !> over child c, the moments of r ψ_i for r = m_j (resp. λ_j) on the child; child_q_coarse(k, l, c)
+      !> = ∫ q_l^parent q_k over child c, those of a polynomial of P_p of the parent (the parent's q_l)
+      real(dp), allocatable :: child_mono_psi_q(:, :, :, :, :), child_bary_psi_q(:, :, :, :, :)
+      real(dp), allocatable :: child_q_coarse(:, :, :, :)
       !> the triangle condensed for a patch in which its edge i carries zero flux and the other
       !> two are inner edges (every triangle of an interior vertex's patch, with i the local
       !> index of the vertex; the children on the far edge of a refined patch): with N the trace
@@ -140,6 +151,8 @@ contains
                    self%bary_psi_q(nd, 3, 3, n_classes), self%q_int(nd, n_classes))
          allocate (self%mono_psi_q(nd, n_p2, 3, n_classes), self%div_proj(nd, n_p2, 3, n_classes), &
                    self%p2_from_p2(n_p2, n_p2, 4, n_classes), self%p2_from_p1(n_p2, 3, 4, n_classes))
+         allocate (self%child_mono_psi_q(nd, n_p2, 3, 4, n_classes), self%child_bary_psi_q(nd, 3, 3, 4, n_classes), &
+                   self%child_q_coarse(nd, nd, 4, n_classes))
          allocate (self%cond_a(nc - space%n_trace, nc - space%n_trace, 3, n_classes), &
                    self%cond_q(nc - space%n_trace, nd + 2, 3, n_classes), &
                    self%cond_r(nf, nd + nc - space%n_trace + 2, 3, n_classes), self%y_zc(nf, nd + nc, n_classes))
@@ -188,6 +201,8 @@ contains
             all_ok = all_ok .and. ok
             call children_projection(space, v0, self%p2_from_p2(:, :, :, c), self%p2_from_p1(:, :, :, c), ok)
             all_ok = all_ok .and. ok
+            call children_moments(space, v0, self%child_mono_psi_q(:, :, :, :, c), self%child_bary_psi_q(:, :, :, :, c), &
+                                  self%child_q_coarse(:, :, :, c))
             do i = 1, 3
                call condense(self, space, c, i, ok)
                all_ok = all_ok .and. ok
@@ -354,6 +369,54 @@ contains
       p2_from_p1 = reshape(b(:, 6*4 + 1:), shape(p2_from_p1))
    end subroutine children_projection
 
+   !> child_mono_psi_q, child_bary_psi_q and child_q_coarse (see the type) of the triangle with
+   !> vertices v, by the degree-5 rule on each child (exact: degree 4 at most), times 4: at its
+   !> class size a child is twice as large as v's child. ψ_i at a point of a child follows from
+   !> the child's barycentric coordinates and its corners' in v (1, 1/2 or 0).
+   pure subroutine children_moments(space, v, mono, bary, q_coarse)
+      type(rt_space_t), intent(in) :: space
+      real(dp), intent(in) :: v(2, 3)
+      real(dp), intent(out) :: mono(:, :, :, :), bary(:, :, :, :), q_coarse(:, :, :)
+
+      type(rt_frame_t) :: frame, child_frame
+      real(dp) :: children(2, 3, 4), corners(2, 3, 4), x(2), w, lambda(3), psi(3), m(n_p2)
+      real(dp) :: q(space%n_div), q_parent(space%n_div)
+      integer :: c, k, i, j
+
+      frame = make_frame(v)
+      children = red_children(v)
+      ! the first two barycentric coordinates in v of the children's corners: red_children of
+      ! the triangle (1, 0), (0, 1), (0, 0) of those coordinates
+      corners = red_children(reshape([1.0_dp, 0.0_dp, 0.0_dp, 1.0_dp, 0.0_dp, 0.0_dp], [2, 3]))
+      mono = 0.0_dp
+      bary = 0.0_dp
+      q_coarse = 0.0_dp
+      do c = 1, 4
+         child_frame = make_frame(children(:, :, c))
+         do k = 1, space%rule%n
+            lambda = space%rule%bary(:, k)
+            x = matmul(child_frame%vertices, lambda)
+            w = 4*space%rule%weights(k)*child_frame%area
+            psi(1:2) = matmul(corners(:, :, c), lambda)
+            psi(3) = 1.0_dp - psi(1) - psi(2)
+            m = p2_monomials(child_frame, x)
+            q = space%div_test_values(child_frame, x)
+            q_parent = space%div_test_values(frame, x)
+            do i = 1, 3
+               do j = 1, n_p2
+                  mono(:, j, i, c) = mono(:, j, i, c) + w*m(j)*psi(i)*q
+               end do
+               do j = 1, 3
+                  bary(:, j, i, c) = bary(:, j, i, c) + w*lambda(j)*psi(i)*q
+               end do
+            end do
+            do j = 1, space%n_div
+               q_coarse(:, j, c) = q_coarse(:, j, c) + w*q_parent(j)*q
+            end do
+         end do
+      end do
+   end subroutine children_moments
+
    !> The scaled P2 monomials of a triangle's frame at x.
    pure function p2_monomials(frame, x) result(m)
       type(rt_frame_t), intent(in) :: frame
@@ -399,6 +462,7 @@ contains
       if (allocated(self%z)) deallocate (self%z, self%y, self%zc, self%czc, self%cy, self%mass)
       if (allocated(self%psi_phi)) deallocate (self%psi_phi, self%psi_q, self%bary_psi_q, self%q_int)
       if (allocated(self%mono_psi_q)) deallocate (self%mono_psi_q, self%div_proj, self%p2_from_p2, self%p2_from_p1)
+      if (allocated(self%child_mono_psi_q)) deallocate (self%child_mono_psi_q, self%child_bary_psi_q, self%child_q_coarse)
       if (allocated(self%cond_a)) deallocate (self%cond_a, self%cond_q, self%cond_r, self%y_zc)
    end subroutine free
 end module twomem_estimate_shapes
