@@ -19,7 +19,10 @@ the direct one to 3e-12 (u) and 2e-10 (λ), and the adaptive run's estimate boun
 nothing else, when runs began to take them from the exact solution's element moments
 (src/fortran/fem/twomem_fem_error.f90): the first iterate's moved by 1.6e-6, because the
 direct adaptive rule, judged on a large error, had accepted free-boundary elements too early
-(unit test energy_error/cached_energy_error compares both with a uniform subdivision). Regenerate (after checking why a result changed) with:
+(unit test energy_error/cached_energy_error compares both with a uniform subdivision). The
+adaptive references' /summary estimator_evaluations went from 4 to 3, and nothing else, when a
+full Newton step began to take GMRES's iterate itself: the final result then reuses the last
+evaluation instead of repeating it for an iterate that differed by round-off. Regenerate (after checking why a result changed) with:
     twomem run input/default.nml mesh.levels=1 METHOD_OVERRIDES \
         output.file=tests/regression/reference/radial_small_METHOD.h5
 using the overrides of METHODS below.

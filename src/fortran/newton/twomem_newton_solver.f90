@@ -211,7 +211,13 @@ contains
          step = 1.0_dp
          if (options%line_search) step = search%step(residual, k, x, x_new)
          if (step < 1.0_dp) call watch%damped(k)
-         x = x + step*(x_new - x)
+         ! a full step takes GMRES's iterate itself: x + (x_new − x) differs from it by round-off,
+         ! and the observer's evaluation at x_new (the last inner row) must be of this very iterate
+         if (step == 1.0_dp) then
+            x = x_new
+         else
+            x = x + step*(x_new - x)
+         end if
          call residual%relative(x, row%lin_residual, c, da, db)
          row%step = step
          call record(k, row, reuses_inner_row(step))
