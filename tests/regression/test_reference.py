@@ -22,7 +22,10 @@ direct adaptive rule, judged on a large error, had accepted free-boundary elemen
 (unit test energy_error/cached_energy_error compares both with a uniform subdivision). The
 adaptive references' /summary estimator_evaluations went from 4 to 3, and nothing else, when a
 full Newton step began to take GMRES's iterate itself: the final result then reuses the last
-evaluation instead of repeating it for an iterate that differed by round-off. Regenerate (after checking why a result changed) with:
+evaluation instead of repeating it for an iterate that differed by round-off; then to 2, with
+the estimator columns of their history row 0 set to NaN, and nothing else, when the adaptive
+method stopped evaluating the estimators at the initial iterate, where no test reads them.
+Regenerate (after checking why a result changed) with:
     twomem run input/default.nml mesh.levels=1 METHOD_OVERRIDES \
         output.file=tests/regression/reference/radial_small_METHOD.h5
 using the overrides of METHODS below.

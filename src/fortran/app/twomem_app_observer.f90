@@ -44,16 +44,17 @@ module twomem_app_observer
 
 contains
 
-   subroutine observe(self, x, row)
+   subroutine observe(self, x, row, estimates)
       class(run_observer_t), intent(inout) :: self
       real(dp), intent(in) :: x(:)
       type(history_row_t), intent(inout) :: row
+      logical, intent(in) :: estimates
 
       integer(ip) :: n
       real(dp) :: t0
       real(dp), allocatable :: energy(:)
 
-      if (self%with_estimates .and. .not. allocated(self%err)) then
+      if (estimates .and. self%with_estimates .and. .not. allocated(self%err)) then
          call self%refresh(x)
          if (.not. allocated(self%err)) then
             row%eta_disc = self%last%disc

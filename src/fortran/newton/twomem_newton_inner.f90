@@ -16,18 +16,21 @@ module twomem_newton_inner
 
    public :: newton_observer_t, inner_observer_t, alg_criterion, lin_criterion
 
-   !> Extension point: fill the error/estimator columns of a history row for iterate x.
+   !> Extension point: fill the error/estimator columns of a history row for iterate x; the
+   !> estimator columns only when `estimates` (a row whose estimators no stopping test reads,
+   !> such as the adaptive method's initial iterate, is spared their cost).
    type, abstract :: newton_observer_t
    contains
       procedure(observe_interface), deferred :: observe
    end type newton_observer_t
 
    abstract interface
-      subroutine observe_interface(self, x, row)
+      subroutine observe_interface(self, x, row, estimates)
          import :: newton_observer_t, history_row_t, dp
          class(newton_observer_t), intent(inout) :: self
          real(dp), intent(in) :: x(:)
          type(history_row_t), intent(inout) :: row
+         logical, intent(in) :: estimates
       end subroutine observe_interface
    end interface
 
@@ -70,7 +73,7 @@ contains
       row%inner = .true.
       row%step = ieee_value(1.0_dp, ieee_quiet_nan)
       row%active_changed = -1
-      if (associated(self%user)) call self%user%observe(x, row)
+      if (associated(self%user)) call self%user%observe(x, row, estimates=.true.)
       row%wall_time = wall_time() - self%t0
       call self%history%append(row)
       ! For Newton-min, once GMRES's iterate has the Jacobian's contact set, B − A x and R_lin(x)
