@@ -23,7 +23,7 @@ module twomem_app_run
    use twomem_app_loads, only: make_data
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_newton_solver, only: newton_options_t, newton_result_t, method_direct, method_gmres, method_adaptive, &
-      forcing_paper, forcing_fixed
+      forcing_paper, forcing_fixed, automatic_every
    use twomem_newton_cfun, only: cfun_kind, c_function_fb
    use twomem_newton_linear, only: precond_kind, precond_mg
    use twomem_estimate_estimators, only: estimator_t, estimates_t, poincare_constant
@@ -317,7 +317,8 @@ contains
       options%gmres%max_it = cfg%gmres%max_it
       options%gmres%rtol = cfg%gmres%rtol
       options%gmres%observe_every = cfg%estimate%every
-      if (options%gmres%observe_every == 0) options%gmres%observe_every = merge(3, 10, options%precond == precond_mg)
+      if (options%gmres%observe_every == 0) &
+         options%gmres%observe_every = automatic_every(options%linear, options%cfun, options%precond)
       options%gamma_lin = cfg%newton%gamma_lin
       options%gamma_alg = cfg%estimate%gamma_alg
       options%local_criteria = trim(cfg%estimate%criteria) == 'local'

@@ -4,6 +4,10 @@
 !> the paper's forcing that is ‖R_alg‖/‖B‖ ≤ ‖R_lin(x)‖/‖[F; 0]‖; in the adaptive method it is
 !> η_alg ≤ γ_alg max(η_disc, η_lin) (paper eq. (63a)) or its local form (64a). The Newton-level
 !> counterparts (63b)/(64b) live here too, so both of the paper's criteria sit in one place.
+!> One refinement of the paper's forcing: when the GMRES iterate takes the Newton step's branch
+!> of the min at every vertex, R_lin and the algebraic residual are the same vector, and stopping
+!> there would only hand the rest of this linear solve to the next Newton step (one more
+!> linearization, preconditioner update and GMRES start): GMRES goes on to newton.tol instead.
 module twomem_newton_inner
    use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
    use twomem_base_kinds, only: dp, ip
@@ -40,7 +44,7 @@ module twomem_newton_inner
       type(history_t), pointer :: history => null()
       class(newton_observer_t), pointer :: user => null()
       logical :: paper_forcing = .true., adaptive = .false., local_criteria = .false.
-      real(dp) :: gamma_alg = 0.3_dp
+      real(dp) :: gamma_alg = 0.3_dp, newton_tol = 0.0_dp
       integer :: newton_it = 0, gmres_before = 0
       real(dp) :: b_norm = 1.0_dp, t0 = 0.0_dp
       !> work: C and its Jacobian at the GMRES iterate
@@ -76,14 +80,29 @@ contains
       if (associated(self%user)) call self%user%observe(x, row, estimates=.true.)
       row%wall_time = wall_time() - self%t0
       call self%history%append(row)
-      ! For Newton-min, once GMRES's iterate has the Jacobian's contact set, B − A x and R_lin(x)
-      ! are the same vector computed two ways: the slack keeps round-off from deciding the tie.
       if (self%adaptive) then
          stop = alg_criterion(row, self%gamma_alg, self%local_criteria)
       else
+         ! For Newton-min, once GMRES's iterate has the Jacobian's contact set, B − A x and
+         ! R_lin(x) are the same vector computed two ways: the slack keeps round-off from
+         ! deciding the tie. At that tie the linearization residual is all algebraic, and
+         ! stopping would leave the next Newton step nothing to do but go on with this very
+         ! solve: GMRES goes on to newton.tol instead.
          stop = self%paper_forcing .and. row%alg_residual <= row%lin_residual*(1 + 1.0e-8_dp)
+         if (stop .and. row%lin_residual > self%newton_tol) stop = .not. same_branches(self)
       end if
    end subroutine observe_gmres
+
+   !> Whether C's Jacobian at the GMRES iterate (from `relative`, in self%da, self%db) is the one
+   !> the Newton step linearized (Newton-min: the same branch of the min at every vertex), on
+   !> every rank. An exact comparison: the decision does not depend on round-off.
+   logical function same_branches(self) result(same)
+      type(inner_observer_t), intent(in) :: self
+
+      associate (sys => self%residual%sys)
+         same = .not. sys%halo%comm%any_true(any(self%da /= sys%da .or. self%db /= sys%db))
+      end associate
+   end function same_branches
 
    !> The paper's GMRES stop (63a), η_alg ≤ γ_alg max(η_disc, η_lin), or its local form (64a).
    pure logical function alg_criterion(row, gamma_alg, local) result(ok)
