@@ -13,6 +13,7 @@ module twomem_newton_inner
    use twomem_base_kinds, only: dp, ip
    use twomem_base_timer, only: wall_time
    use twomem_linalg_gmres, only: gmres_observer_t
+   use twomem_newton_cfun, only: c_function_min, cfun_eval
    use twomem_newton_residual, only: nonlinear_residual_t
    use twomem_newton_history, only: history_t, history_row_t, not_computed
    implicit none
@@ -45,6 +46,8 @@ module twomem_newton_inner
       class(newton_observer_t), pointer :: user => null()
       logical :: paper_forcing = .true., adaptive = .false., local_criteria = .false.
       real(dp) :: gamma_alg = 0.3_dp, newton_tol = 0.0_dp
+      !> the C-function of the Newton step's Jacobian (min also in FB's active-set steps)
+      integer :: linearized = c_function_min
       integer :: newton_it = 0, gmres_before = 0
       real(dp) :: b_norm = 1.0_dp, t0 = 0.0_dp
       !> work: C and its Jacobian at the GMRES iterate
@@ -89,17 +92,22 @@ contains
          ! stopping would leave the next Newton step nothing to do but go on with this very
          ! solve: GMRES goes on to newton.tol instead.
          stop = self%paper_forcing .and. row%alg_residual <= row%lin_residual*(1 + 1.0e-8_dp)
-         if (stop .and. row%lin_residual > self%newton_tol) stop = .not. same_branches(self)
+         if (stop .and. row%lin_residual > self%newton_tol .and. self%linearized == c_function_min) &
+            stop = .not. same_branches(self, x)
       end if
    end subroutine observe_gmres
 
-   !> Whether C's Jacobian at the GMRES iterate (from `relative`, in self%da, self%db) is the one
-   !> the Newton step linearized (Newton-min: the same branch of the min at every vertex), on
-   !> every rank. An exact comparison: the decision does not depend on round-off.
-   logical function same_branches(self) result(same)
-      type(inner_observer_t), intent(in) :: self
+   !> Whether the min's Jacobian at the GMRES iterate x is the one the Newton step linearized
+   !> (the same branch of the min at every vertex), on every rank. An exact comparison: the
+   !> decision does not depend on round-off. With Newton-min, `relative` has left that Jacobian
+   !> in self%da, self%db; in an active-set step of Fischer–Burmeister it is computed here (the
+   !> FB residual of the iterate then tends to zero with the algebraic one too).
+   logical function same_branches(self, x) result(same)
+      type(inner_observer_t), intent(inout) :: self
+      real(dp), intent(in) :: x(:)
 
       associate (sys => self%residual%sys)
+         if (self%residual%cfun /= c_function_min) call cfun_eval(c_function_min, x, self%c, self%da, self%db)
          same = .not. sys%halo%comm%any_true(any(self%da /= sys%da .or. self%db /= sys%db))
       end associate
    end function same_branches

@@ -206,6 +206,7 @@ contains
          b_norm = max(sys%dot%norm(b), tiny(1.0_dp))
          if (kind == solver_gmres) then
             inner%newton_it = k
+            inner%linearized = merge(c_function_min, options%cfun, active_set_step)
             inner%gmres_before = result%linear_iterations
             inner%b_norm = b_norm
             call solver%solve(sys, b, x_new, err, observer=inner)
