@@ -392,7 +392,7 @@ contains
       type(poly_data_t) :: data
       type(discrete_problem_t) :: p
       type(estimator_t) :: estimator
-      type(estimates_t) :: est
+      type(estimates_t) :: est, totals
       real(dp), allocatable :: x(:), u(:, :), ds(:, :), lambda(:)
       real(dp) :: c_omega, nonc1, neg, pos, osc, g(2, 3), f(7), b(3), mu(2)
       integer(ip) :: n, t, v(3)
@@ -446,6 +446,17 @@ contains
                        'eta_lin')
       call check_close(err, est%osc, sqrt(osc), 1.0e-10_dp, 0.0_dp, 'eta_osc')
       call check(err, est%total <= (est%disc + est%lin + est%alg)*(1 + 1.0e-12_dp), 'total <= disc + lin + alg')
+      ! the totals alone (the global stopping tests), then the fields of that same evaluation
+      call estimator%evaluate(h, data, p, x, totals, err, fields=.false.)
+      if (allocated(err)) return
+      call check(err, .not. totals%has_fields(), 'no per-triangle arrays without fields')
+      call check(err, all([totals%total, totals%disc, totals%lin, totals%alg, totals%osc, totals%contact] == &
+                          [est%total, est%disc, est%lin, est%alg, est%osc, est%contact]), 'the same totals without fields')
+      call estimator%element_fields(h, data, totals)
+      call check(err, totals%has_fields(), 'fields added')
+      call check(err, all(totals%flux_k == est%flux_k) .and. all(totals%disc_k == est%disc_k) .and. &
+                 all(totals%alg_k == est%alg_k) .and. all(totals%lin_k == est%lin_k) .and. &
+                 all(totals%nonc3_k == est%nonc3_k) .and. totals%total == est%total, 'the same fields added later')
    end subroutine test_nonconforming
 
    !> The disk's constant is 1/j_{0,1}: J_0 vanishes at its reciprocal (intrinsic bessel_j0) and

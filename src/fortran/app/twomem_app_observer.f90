@@ -25,6 +25,9 @@ module twomem_app_observer
       type(estimator_t), pointer :: estimator => null()
       logical :: with_error = .false., with_estimates = .false.
       real(dp) :: gamma_alg = 0.3_dp, gamma_lin = 0.3_dp
+      !> the local stopping criteria (64) read per-triangle values at every evaluation; the
+      !> global ones only totals, and the output the final iterate's fields
+      logical :: local_criteria = .false.
       integer :: evaluations = 0
       !> the exact solution's part of the energy error, integrated at the first error
       type(exact_energy_t) :: exact_energy
@@ -61,8 +64,9 @@ contains
             row%eta_lin = self%last%lin
             row%eta_alg = self%last%alg
             row%eta_total = self%last%total
-            call self%last%local_criteria(self%hierarchy%meshes(self%hierarchy%levels), self%gamma_alg, self%gamma_lin, &
-                                          row%local_alg_ok, row%local_lin_ok, self%p%halo%comm)
+            if (self%local_criteria) &
+               call self%last%local_criteria(self%hierarchy%meshes(self%hierarchy%levels), self%gamma_alg, &
+                                             self%gamma_lin, row%local_alg_ok, row%local_lin_ok, self%p%halo%comm)
          end if
       end if
       if (self%with_error) then
@@ -79,24 +83,36 @@ contains
       end if
    end subroutine observe
 
-   !> Every estimator at x: one timed evaluation, or the previous one if it saw this very x.
+   !> Every estimator at x with its per-triangle fields: one timed evaluation, or the previous one
+   !> if it saw this very x (with its element pass run again for the fields it left out).
    subroutine estimate(self, x, est)
       class(run_observer_t), intent(inout) :: self
       real(dp), intent(in) :: x(:)
       type(estimates_t), intent(out) :: est
 
-      call self%refresh(x)
-      if (.not. allocated(self%err)) est = self%last
+      real(dp) :: t0
+
+      call self%refresh(x, fields=.true.)
+      if (allocated(self%err)) return
+      if (.not. self%last%has_fields()) then
+         t0 = wall_time()
+         call self%estimator%element_fields(self%hierarchy, self%data, self%last)
+         self%estimator_time = self%estimator_time + (wall_time() - t0)
+      end if
+      est = self%last
    end subroutine estimate
 
    !> self%last at x, evaluated into the arrays of the previous evaluation (no new mesh-sized
    !> allocations in the Newton loop), unless it already is at x (on every rank: the
-   !> evaluation is collective, so the ranks decide together).
-   subroutine refresh(self, x)
+   !> evaluation is collective, so the ranks decide together). Per-triangle fields when the
+   !> local criteria need them, or `fields`.
+   subroutine refresh(self, x, fields)
       class(run_observer_t), intent(inout) :: self
       real(dp), intent(in) :: x(:)
+      logical, intent(in), optional :: fields
 
       real(dp) :: t0
+      logical :: with_fields
 
       if (self%p%halo%comm%any_true(.not. allocated(self%last_x))) then
          if (allocated(self%last_x)) deallocate (self%last_x)
@@ -104,7 +120,9 @@ contains
          return
       end if
       t0 = wall_time()
-      call self%estimator%evaluate(self%hierarchy, self%data, self%p, x, self%last, self%err)
+      with_fields = self%local_criteria
+      if (present(fields)) with_fields = with_fields .or. fields
+      call self%estimator%evaluate(self%hierarchy, self%data, self%p, x, self%last, self%err, fields=with_fields)
       self%estimator_time = self%estimator_time + (wall_time() - t0)
       self%evaluations = self%evaluations + 1
       if (allocated(self%err)) then

@@ -119,6 +119,7 @@ contains
       observer%estimator => estimator
       observer%gamma_alg = cfg%estimate%gamma_alg
       observer%gamma_lin = cfg%newton%gamma_lin
+      observer%local_criteria = options%local_criteria
       observer%with_error = data%has_exact() .and. cfg%output%history
       observer%with_estimates = options%linear == method_adaptive .or. (cfg%estimate%enabled .and. cfg%output%history)
 

@@ -46,6 +46,8 @@ module twomem_estimate_estimators
    public :: estimator_t, estimates_t, poincare_constant
 
    real(dp), parameter :: pi = acos(-1.0_dp)
+   !> the sums of the element pass: see element_estimators
+   integer, parameter :: n_sums = 9
 
    !> One evaluation: global values and the per-triangle fields of `/estimators`.
    type :: estimates_t
@@ -60,7 +62,9 @@ module twomem_estimate_estimators
    contains
       procedure :: local_criteria
       procedure :: field
+      procedure :: has_fields
       procedure :: ensure
+      procedure :: drop_fields
    end type estimates_t
 
    type :: estimator_t
@@ -90,6 +94,7 @@ module twomem_estimate_estimators
    contains
       procedure :: init
       procedure :: evaluate
+      procedure :: element_fields
    end type estimator_t
 
 contains
@@ -224,10 +229,12 @@ contains
    end subroutine data_oscillation
 
    !> Every estimator for the iterate x = [X1; X2; X3] of the discrete problem p on the finest
-   !> mesh. Collective (every rank returns the same error). The per-triangle values are those of
-   !> the local triangles: right on the rank's own ones, and on the ghost ones for the arrays of
-   !> the local criteria (disc_k, alg_k, lin_k); the other arrays are zero there.
-   subroutine evaluate(self, hierarchy, data, p, x, est, err)
+   !> mesh. Collective (every rank returns the same error). With `fields` (the default) also the
+   !> per-triangle values: right on the rank's own triangles, and on the ghost ones for the
+   !> arrays of the local criteria (disc_k, alg_k, lin_k); the other arrays are zero there.
+   !> Without, only the totals (what the global stopping tests read), and no per-triangle array
+   !> is held: `element_fields` adds them later for this same iterate.
+   subroutine evaluate(self, hierarchy, data, p, x, est, err, fields)
       class(estimator_t), intent(inout) :: self
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       class(problem_data_t), intent(in) :: data
@@ -236,19 +243,19 @@ contains
       !> its per-triangle arrays are reused when they have the mesh's size
       type(estimates_t), intent(inout) :: est
       type(error_t), allocatable, intent(out) :: err
+      logical, intent(in), optional :: fields
 
-      real(dp) :: positive_norm, positive_sq, lin_factor
-      real(dp) :: sums(7)
-      integer(ip) :: n, nt_own
+      integer(ip) :: n
       integer :: alpha
-      logical :: ok
+      logical :: ok, with_fields
 
+      with_fields = .true.
+      if (present(fields)) with_fields = fields
       n = p%n
       if (.not. self%has_halo) then
          self%halo = p%halo
          self%has_halo = .true.
       end if
-      nt_own = hierarchy%meshes(hierarchy%levels)%nt_owned
       associate (mesh => hierarchy%meshes(hierarchy%levels), u => self%u, s => self%s, lambda => self%lambda, &
                  residual => self%residual, grad_u => self%grad_u, r => self%r)
          call scatter(p, x(1:n), p%g, u(:, 1))
@@ -281,19 +288,43 @@ contains
          call self%alg%compute(self%shapes, hierarchy, residual, r, self%single, self%refined, err)
          call self%comm%agree(err)
          if (allocated(err)) return
-
-         call est%ensure(mesh%nt)
-         call element_estimators(self, hierarchy, data, u, lambda, s, grad_u, self%sigma, self%alg%levels, est, &
-                                 positive_sq)
       end associate
-      positive_norm = sqrt(self%comm%sum(positive_sq))
+      call element_pass(self, hierarchy, data, est, with_fields)
+   end subroutine evaluate
 
+   !> The per-triangle fields of `est`, the last evaluation (made without them): its fluxes and
+   !> nodal fields are still held here, so only the element pass runs again (about a tenth of an
+   !> evaluation), with the same totals. Collective.
+   subroutine element_fields(self, hierarchy, data, est)
+      class(estimator_t), intent(inout) :: self
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
+      class(problem_data_t), intent(in) :: data
+      type(estimates_t), intent(inout) :: est
+
+      call element_pass(self, hierarchy, data, est, .true.)
+   end subroutine element_fields
+
+   !> The element estimators from the fluxes and nodal fields of the last evaluation, their
+   !> totals over the ranks and, with `fields`, the per-triangle arrays.
+   subroutine element_pass(self, hierarchy, data, est, fields)
+      type(estimator_t), intent(inout) :: self
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
+      class(problem_data_t), intent(in) :: data
+      type(estimates_t), intent(inout) :: est
+      logical, intent(in) :: fields
+
+      real(dp) :: positive_norm, lin_factor, sums(n_sums)
+
+      if (fields) then
+         call est%ensure(hierarchy%meshes(hierarchy%levels)%nt)
+      else
+         call est%drop_fields()
+      end if
+      call element_estimators(self, hierarchy, data, self%u, self%lambda, self%s, self%grad_u, self%sigma, &
+                              self%alg%levels, est, sums)
       ! the rank's own triangles, summed over the ranks
-      est%nonc3_k = 2*self%c_omega*positive_norm*est%nonc1_k
-      sums = [sum((est%flux_k(:, 1:nt_own) + est%osc_k(:, 1:nt_own))**2), sum(est%flux_k(:, 1:nt_own)**2), &
-              sum(est%osc_k(:, 1:nt_own)**2), sum(est%contact_k(1:nt_own)), sum(est%nonc1_k(1:nt_own)**2), &
-              sum(est%nonc2_k(1:nt_own)**2), sum((est%disc_k(:, 1:nt_own) + est%osc_k(:, 1:nt_own))**2)]
       call self%comm%sum_in_place(sums)
+      positive_norm = sqrt(sums(9))
       est%eta_1 = sqrt(sums(1))
       est%flux = sqrt(sums(2))
       est%osc = sqrt(sums(3))
@@ -304,7 +335,9 @@ contains
       est%total = sqrt(max(0.0_dp, (est%eta_1 + est%nonc1 + est%nonc2)**2 + est%nonc3 + est%contact))
       est%disc = sqrt(sums(7)) + sqrt(abs(est%contact))
       est%lin = est%nonc1 + est%nonc2 + sqrt(est%nonc3)
-      est%alg = sqrt(self%comm%sum(sum(est%alg_k(:, 1:nt_own)**2)))
+      est%alg = sqrt(sums(8))
+      if (.not. fields) return
+      est%nonc3_k = 2*self%c_omega*positive_norm*est%nonc1_k
       ! (65a): the local linearization estimator whose criterion implies the global one
       lin_factor = 1.0_dp
       if (est%nonc1 > 0.0_dp) lin_factor = 1 + sqrt(2*self%c_omega*positive_norm/est%nonc1)
@@ -313,7 +346,7 @@ contains
       call self%ghosts%fill(hierarchy%levels, est%disc_k)
       call self%ghosts%fill(hierarchy%levels, est%alg_k)
       call self%ghosts%fill(hierarchy%levels, est%lin_k)
-   end subroutine evaluate
+   end subroutine element_pass
 
    !> The nodal field of the interior values x (discrete_problem_t%to_nodal into a kept array).
    subroutine scatter(p, x, boundary_value, u)
@@ -350,149 +383,179 @@ contains
       !$omp end parallel do
    end subroutine gradients
 
-   !> The per-triangle parts on the rank's own triangles (zero on the ghost ones); positive_sq
-   !> returns their part of ‖λ⁺‖²_Ω. The flux norms are exact quadratic
-   !> forms with the shape class's RT mass matrix: μ_α∇u_α is constant on K, so it is the
-   !> combination of the constant basis fields φ_1, φ_2, and each coarser level's σ_alg is
+   !> The per-triangle parts on the rank's own triangles (zero on the ghost ones), stored in
+   !> est's arrays when it has them, and this rank's sums of them: `sums` = Σ(η_F + η_osc)²,
+   !> Ση_F², Ση_osc², Ση_C, Ση_nonc,1², Ση_nonc,2², Σ(η_disc + η_osc)², Ση_alg² (both membranes)
+   !> and ‖λ⁺‖². The sums go by blocks of `block` triangles in a fixed order, so that they do not
+   !> depend on the thread count nor on whether the arrays are kept. The flux norms are exact
+   !> quadratic forms with the shape class's RT mass matrix: μ_α∇u_α is constant on K, so it is
+   !> the combination of the constant basis fields φ_1, φ_2, and each coarser level's σ_alg is
    !> rewritten in K's own basis (`add_in_child_basis`), RT_p being closed under restriction.
-   subroutine element_estimators(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, positive_sq)
+   subroutine element_estimators(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, sums)
       class(estimator_t), intent(in) :: self
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       class(problem_data_t), intent(in) :: data
       real(dp), intent(in) :: u(:, :), lambda(:), s(:, :), grad_u(:, :, :), sigma(:, :, :)
       type(level_flux_t), intent(in) :: levels(:)
       type(estimates_t), intent(inout) :: est
-      real(dp), intent(out) :: positive_sq
+      real(dp), intent(out) :: sums(n_sums)
+
+      integer(ip), parameter :: block = 1024
 
       type(rt_frame_t) :: frame, level_frames(size(levels))
       real(dp) :: x(2), w, sq(3, 2), f(2), lam_x, osc_mean(2), osc_sq(2), osc_w, ratio
       real(dp) :: c_disc(self%space%n_flux), c_alg(self%space%n_flux)
       !> K's barycentre in each ancestor's scaled coordinates and the ratio of their scales
       real(dp) :: shift(2, size(levels)), kappa(size(levels))
-      real(dp) :: pos_lw, pos_ll, neg_lw, neg_ll, sum_pos, grad_s(2, 2), hat(2, 3), inv_ratio_sq
+      real(dp) :: pos_lw, pos_ll, neg_lw, neg_ll, grad_s(2, 2), hat(2, 3), inv_ratio_sq
       !> f ∓ λ_h at the 7 points of the degree-5 rule (RT0 only)
       real(dp) :: osc_values(2, 7)
+      !> one triangle's parts: η_disc,K,α, η_alg,K,α, η_F,K,α, η_osc,K,α; η_C,K, η_nonc,1,K, η_nonc,2,K
+      real(dp) :: disc_k(2), alg_k(2), flux_k(2), osc_k(2), contact_k, nonc1_k, nonc2_k
+      real(dp), allocatable :: partial(:, :)
       real(dp), parameter :: lambda_sign(2) = [1.0_dp, -1.0_dp]
-      integer(ip) :: t, anc, generations(size(levels)), frame_anc(size(levels)), ancestors(size(levels))
+      integer(ip) :: t, anc, generations(size(levels)), frame_anc(size(levels)), ancestors(size(levels)), b, n_blocks
       integer :: k, j, alpha, class
       integer(ip) :: v(3)
       integer :: finest
       integer(ip) :: nt_own
+      logical :: fields
 
-      sum_pos = 0.0_dp
       finest = hierarchy%levels
       nt_own = hierarchy%meshes(finest)%nt_owned
-      est%disc_k(:, nt_own + 1:) = 0.0_dp
-      est%alg_k(:, nt_own + 1:) = 0.0_dp
-      est%flux_k(:, nt_own + 1:) = 0.0_dp
-      est%osc_k(:, nt_own + 1:) = 0.0_dp
-      est%contact_k(nt_own + 1:) = 0.0_dp
-      est%nonc1_k(nt_own + 1:) = 0.0_dp
-      est%nonc2_k(nt_own + 1:) = 0.0_dp
+      fields = est%has_fields()
+      if (fields) then
+         est%disc_k(:, nt_own + 1:) = 0.0_dp
+         est%alg_k(:, nt_own + 1:) = 0.0_dp
+         est%flux_k(:, nt_own + 1:) = 0.0_dp
+         est%osc_k(:, nt_own + 1:) = 0.0_dp
+         est%contact_k(nt_own + 1:) = 0.0_dp
+         est%nonc1_k(nt_own + 1:) = 0.0_dp
+         est%nonc2_k(nt_own + 1:) = 0.0_dp
+      end if
       ! the ancestor of finest triangle t on level l is (t − 1)/4^(J−l) + 1 (children 4(t−1)+1..4t)
       do j = 1, size(levels)
          generations(j) = 4_ip**(finest - levels(j)%level)
       end do
+      n_blocks = (nt_own + block - 1)/block
+      allocate (partial(n_sums, n_blocks))
       ! no ancestor's frame computed yet (per thread)
       frame_anc = 0
       !$omp parallel do default(none) &
       !$omp shared(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, finest, generations, nt_own) &
-      !$omp private(t, anc, k, j, alpha, v, frame, level_frames, x, w, sq, f, lam_x, osc_mean, osc_sq, ratio, class) &
+      !$omp shared(n_blocks, partial, fields) &
+      !$omp private(b, t, anc, k, j, alpha, v, frame, level_frames, x, w, sq, f, lam_x, osc_mean, osc_sq, ratio, class) &
       !$omp private(c_disc, c_alg, shift, kappa, ancestors, osc_w, pos_lw, pos_ll, neg_lw, neg_ll, grad_s, osc_values) &
-      !$omp private(hat, inv_ratio_sq) firstprivate(frame_anc) &
-      !$omp reduction(+:sum_pos) schedule(static)
-      do t = 1, nt_own
-         v = hierarchy%meshes(finest)%triangles(:, t)
-         frame = frame_of(hierarchy%meshes(finest)%vertices, v)
-         call triangle_class(finest, t, class, ratio)
-         inv_ratio_sq = 1.0_dp/ratio**2
-         do j = 1, size(levels)
-            ! the ancestors' frames, once for both membranes and, since the children of a
-            ! triangle are numbered consecutively, once per run of descendants in this thread's
-            ! static block rather than once per finest triangle
-            anc = (t - 1)/generations(j) + 1
-            ancestors(j) = anc
-            if (levels(j)%level /= finest) then
-               if (anc /= frame_anc(j)) then
-                  frame_anc(j) = anc
-                  associate (lm => hierarchy%meshes(levels(j)%level))
-                     level_frames(j) = frame_of(lm%vertices, lm%triangles(:, anc))
-                  end associate
+      !$omp private(hat, inv_ratio_sq, disc_k, alg_k, flux_k, osc_k, contact_k, nonc1_k, nonc2_k) &
+      !$omp firstprivate(frame_anc) schedule(static)
+      do b = 1, n_blocks
+         partial(:, b) = 0.0_dp
+         do t = (b - 1)*block + 1, min(b*block, nt_own)
+            v = hierarchy%meshes(finest)%triangles(:, t)
+            frame = frame_of(hierarchy%meshes(finest)%vertices, v)
+            call triangle_class(finest, t, class, ratio)
+            inv_ratio_sq = 1.0_dp/ratio**2
+            do j = 1, size(levels)
+               ! the ancestors' frames, once for both membranes and, since the children of a
+               ! triangle are numbered consecutively, once per run of descendants in this thread's
+               ! static block rather than once per finest triangle
+               anc = (t - 1)/generations(j) + 1
+               ancestors(j) = anc
+               if (levels(j)%level /= finest) then
+                  if (anc /= frame_anc(j)) then
+                     frame_anc(j) = anc
+                     associate (lm => hierarchy%meshes(levels(j)%level))
+                        level_frames(j) = frame_of(lm%vertices, lm%triangles(:, anc))
+                     end associate
+                  end if
+                  shift(:, j) = (frame%centre - level_frames(j)%centre)/level_frames(j)%scale
+                  kappa(j) = frame%scale/level_frames(j)%scale
                end if
-               shift(:, j) = (frame%centre - level_frames(j)%centre)/level_frames(j)%scale
-               kappa(j) = frame%scale/level_frames(j)%scale
+            end do
+            do alpha = 1, 2
+               c_disc = sigma(:, t, alpha)
+               c_disc(1:2) = c_disc(1:2) + self%mu(alpha)*grad_u(:, t, alpha)
+               c_alg = 0.0_dp
+               do j = 1, size(levels)
+                  if (levels(j)%level == finest) then
+                     c_alg = c_alg + levels(j)%sigma(:, ancestors(j), alpha)
+                  else
+                     call add_in_child_basis(self%space%order, shift(:, j), kappa(j), &
+                                             levels(j)%sigma(:, ancestors(j), alpha), c_alg)
+                  end if
+               end do
+               ! the class mass matrix is that of the class size: K's is ρ⁻² times it
+               call quadratic_forms(self%space%n_flux, self%shapes%mass(:, :, class), c_disc, c_alg, sq(:, alpha))
+               sq(:, alpha) = sq(:, alpha)*inv_ratio_sq
+            end do
+            do alpha = 1, 2
+               disc_k(alpha) = sqrt(max(0.0_dp, sq(1, alpha))/self%mu(alpha))
+               alg_k(alpha) = sqrt(max(0.0_dp, sq(2, alpha))/self%mu(alpha))
+               flux_k(alpha) = sqrt(max(0.0_dp, sq(3, alpha))/self%mu(alpha))
+            end do
+            if (self%space%order == 0) then
+               ! RT0: the oscillation of f_α ∓ λ_h around its mean
+               osc_mean = 0.0_dp
+               osc_sq = 0.0_dp
+               do k = 1, self%space%rule%n
+                  x = matmul(frame%vertices, self%space%rule%bary(:, k))
+                  w = self%space%rule%weights(k)*frame%area
+                  lam_x = dot_product(lambda(v), self%space%rule%bary(:, k))
+                  f = [data%load(1, x), data%load(2, x)] + lambda_sign*lam_x
+                  osc_values(:, k) = f
+                  osc_mean = osc_mean + w*f
+               end do
+               osc_mean = osc_mean/frame%area
+               do k = 1, self%space%rule%n
+                  osc_w = self%space%rule%weights(k)*frame%area
+                  osc_sq = osc_sq + osc_w*(osc_values(:, k) - osc_mean)**2
+               end do
+               osc_k = hierarchy%meshes(finest)%h(t)/acos(-1.0_dp)*sqrt(osc_sq/self%mu)
+            else if (allocated(self%osc_data)) then
+               osc_k = self%osc_data(:, t)
+            else
+               osc_k = 0.0_dp
+            end if
+
+            ! most triangles lie where λ_h ≥ 0 or λ_h ≤ 0 throughout: the other part is then
+            ! exactly zero (the clipped polygon has l = 0 at all its points), without clipping
+            if (all(lambda(v) <= 0.0_dp)) then
+               pos_lw = 0.0_dp
+               pos_ll = 0.0_dp
+            else
+               call sign_split(frame%vertices, lambda(v), u(v, 1) - u(v, 2), pos_lw, pos_ll)
+            end if
+            if (all(lambda(v) >= 0.0_dp)) then
+               neg_lw = 0.0_dp
+               neg_ll = 0.0_dp
+            else
+               call sign_split(frame%vertices, -lambda(v), u(v, 1) - u(v, 2), neg_lw, neg_ll)
+            end if
+            contact_k = 2*pos_lw
+            nonc2_k = self%c_omega*sqrt(neg_ll)
+            hat = p1_gradients(hierarchy%meshes(finest), t)
+            do alpha = 1, 2
+               grad_s(:, alpha) = matmul(hat, s(v, alpha)) - grad_u(:, t, alpha)
+            end do
+            nonc1_k = sqrt(frame%area*(self%mu(1)*sum(grad_s(:, 1)**2) + self%mu(2)*sum(grad_s(:, 2)**2)))
+            partial(:, b) = partial(:, b) + [sum((flux_k + osc_k)**2), sum(flux_k**2), sum(osc_k**2), contact_k, &
+                                             nonc1_k**2, nonc2_k**2, sum((disc_k + osc_k)**2), sum(alg_k**2), pos_ll]
+            if (fields) then
+               est%disc_k(:, t) = disc_k
+               est%alg_k(:, t) = alg_k
+               est%flux_k(:, t) = flux_k
+               est%osc_k(:, t) = osc_k
+               est%contact_k(t) = contact_k
+               est%nonc1_k(t) = nonc1_k
+               est%nonc2_k(t) = nonc2_k
             end if
          end do
-         do alpha = 1, 2
-            c_disc = sigma(:, t, alpha)
-            c_disc(1:2) = c_disc(1:2) + self%mu(alpha)*grad_u(:, t, alpha)
-            c_alg = 0.0_dp
-            do j = 1, size(levels)
-               if (levels(j)%level == finest) then
-                  c_alg = c_alg + levels(j)%sigma(:, ancestors(j), alpha)
-               else
-                  call add_in_child_basis(self%space%order, shift(:, j), kappa(j), &
-                                          levels(j)%sigma(:, ancestors(j), alpha), c_alg)
-               end if
-            end do
-            ! the class mass matrix is that of the class size: K's is ρ⁻² times it
-            call quadratic_forms(self%space%n_flux, self%shapes%mass(:, :, class), c_disc, c_alg, sq(:, alpha))
-            sq(:, alpha) = sq(:, alpha)*inv_ratio_sq
-         end do
-         do alpha = 1, 2
-            est%disc_k(alpha, t) = sqrt(max(0.0_dp, sq(1, alpha))/self%mu(alpha))
-            est%alg_k(alpha, t) = sqrt(max(0.0_dp, sq(2, alpha))/self%mu(alpha))
-            est%flux_k(alpha, t) = sqrt(max(0.0_dp, sq(3, alpha))/self%mu(alpha))
-         end do
-         if (self%space%order == 0) then
-            ! RT0: the oscillation of f_α ∓ λ_h around its mean
-            osc_mean = 0.0_dp
-            osc_sq = 0.0_dp
-            do k = 1, self%space%rule%n
-               x = matmul(frame%vertices, self%space%rule%bary(:, k))
-               w = self%space%rule%weights(k)*frame%area
-               lam_x = dot_product(lambda(v), self%space%rule%bary(:, k))
-               f = [data%load(1, x), data%load(2, x)] + lambda_sign*lam_x
-               osc_values(:, k) = f
-               osc_mean = osc_mean + w*f
-            end do
-            osc_mean = osc_mean/frame%area
-            do k = 1, self%space%rule%n
-               osc_w = self%space%rule%weights(k)*frame%area
-               osc_sq = osc_sq + osc_w*(osc_values(:, k) - osc_mean)**2
-            end do
-            est%osc_k(:, t) = hierarchy%meshes(finest)%h(t)/acos(-1.0_dp)*sqrt(osc_sq/self%mu)
-         else if (allocated(self%osc_data)) then
-            est%osc_k(:, t) = self%osc_data(:, t)
-         else
-            est%osc_k(:, t) = 0.0_dp
-         end if
-
-         ! most triangles lie where λ_h ≥ 0 or λ_h ≤ 0 throughout: the other part is then
-         ! exactly zero (the clipped polygon has l = 0 at all its points), without clipping
-         if (all(lambda(v) <= 0.0_dp)) then
-            pos_lw = 0.0_dp
-            pos_ll = 0.0_dp
-         else
-            call sign_split(frame%vertices, lambda(v), u(v, 1) - u(v, 2), pos_lw, pos_ll)
-         end if
-         if (all(lambda(v) >= 0.0_dp)) then
-            neg_lw = 0.0_dp
-            neg_ll = 0.0_dp
-         else
-            call sign_split(frame%vertices, -lambda(v), u(v, 1) - u(v, 2), neg_lw, neg_ll)
-         end if
-         est%contact_k(t) = 2*pos_lw
-         est%nonc2_k(t) = self%c_omega*sqrt(neg_ll)
-         sum_pos = sum_pos + pos_ll
-         hat = p1_gradients(hierarchy%meshes(finest), t)
-         do alpha = 1, 2
-            grad_s(:, alpha) = matmul(hat, s(v, alpha)) - grad_u(:, t, alpha)
-         end do
-         est%nonc1_k(t) = sqrt(frame%area*(self%mu(1)*sum(grad_s(:, 1)**2) + self%mu(2)*sum(grad_s(:, 2)**2)))
       end do
       !$omp end parallel do
-      positive_sq = sum_pos
+      sums = 0.0_dp
+      do b = 1, n_blocks
+         sums = sums + partial(:, b)
+      end do
    end subroutine element_estimators
 
    !> q = (aᵀ M a, bᵀ M b, (a + b)ᵀ M (a + b)) for a contiguous n×n matrix M, in one pass over M:
@@ -644,6 +707,23 @@ contains
          lin_ok = .not. comm%any_true(.not. lin_ok)
       end if
    end subroutine local_criteria
+
+   !> Whether the per-triangle arrays hold this evaluation's values (an evaluation for the
+   !> global stopping tests leaves them out: `estimator_t%element_fields`).
+   pure logical function has_fields(self)
+      class(estimates_t), intent(in) :: self
+
+      has_fields = allocated(self%lin_k)
+   end function has_fields
+
+   !> No per-triangle arrays (their 13 numbers per triangle are the largest part of an
+   !> evaluation's result, and only the output and the local criteria read them).
+   subroutine drop_fields(self)
+      class(estimates_t), intent(inout) :: self
+
+      if (allocated(self%lin_k)) deallocate (self%disc_k, self%alg_k, self%flux_k, self%osc_k, self%contact_k, &
+                                             self%nonc1_k, self%nonc2_k, self%nonc3_k, self%lin_k)
+   end subroutine drop_fields
 
    !> Per-triangle arrays for nt triangles, kept when they are already of that size.
    subroutine ensure(self, nt)
