@@ -54,7 +54,7 @@ contains
       type(newton_options_t) :: quiet
       type(newton_result_t) :: step
       type(multigrid_transfer_t), target :: transfer
-      real(dp), allocatable :: fine(:, :)
+      real(dp), allocatable :: fine(:, :), x0(:)
       real(dp) :: t_level
       integer :: l, finest, bottom
 
@@ -101,7 +101,10 @@ contains
          end if
          call interpolate(hierarchy, l, pl, data%g, step%x, fine)
       end do
-      call newton_solve(p, options, interior_values(p, fine), newton, err, observer, transfer, finest - bottom)
+      ! the interpolated nodal fields are not kept through the finest solve
+      x0 = interior_values(p, fine)
+      deallocate (fine)
+      call newton_solve(p, options, x0, newton, err, observer, transfer, finest - bottom)
    end subroutine solve_levels
 
    !> The multigrid transfers of levels bottom..top of the hierarchy (level l of the hierarchy is

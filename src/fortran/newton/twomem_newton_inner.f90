@@ -50,8 +50,9 @@ module twomem_newton_inner
       integer :: linearized = c_function_min
       integer :: newton_it = 0, gmres_before = 0
       real(dp) :: b_norm = 1.0_dp, t0 = 0.0_dp
-      !> work: C and its Jacobian at the GMRES iterate
-      real(dp), allocatable :: c(:), da(:), db(:)
+      !> work: C and its Jacobian at the GMRES iterate (the Newton driver's arrays for them,
+      !> which it does not read while GMRES runs)
+      real(dp), pointer, contiguous :: c(:) => null(), da(:) => null(), db(:) => null()
    contains
       procedure :: observe => observe_gmres
    end type inner_observer_t
@@ -70,7 +71,6 @@ contains
       integer(ip) :: n
 
       n = size(x, kind=ip)/3
-      if (.not. allocated(self%c)) allocate (self%c(n), self%da(n), self%db(n))
       row = not_computed()
       call self%residual%relative(x, row%lin_residual, self%c, self%da, self%db)
       row%alg_residual = residual_norm/self%b_norm

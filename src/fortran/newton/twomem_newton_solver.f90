@@ -122,7 +122,8 @@ contains
       type(active_set_watch_t) :: watch
       type(inner_observer_t) :: inner
       type(history_row_t) :: row
-      real(dp), allocatable :: x(:), x_new(:), b(:), c(:), da(:), db(:), ax(:)
+      real(dp), allocatable :: x(:), x_new(:), b(:), ax(:)
+      real(dp), allocatable, target :: c(:), da(:), db(:)
       logical, allocatable :: active(:), previous(:)
       integer(ip) :: n, i
       integer :: k, kind, streak
@@ -165,6 +166,9 @@ contains
       if (row%lin_residual <= options%tol) why = 'converged'
 
       inner%residual => residual
+      inner%c => c
+      inner%da => da
+      inner%db => db
       inner%history => result%history
       if (present(observer)) inner%user => observer
       inner%paper_forcing = options%forcing == forcing_paper .and. .not. adaptive
