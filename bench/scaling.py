@@ -14,13 +14,17 @@ solution; its exact error is not computed here, as it is not part of a solve). T
 run's own phase clock (`/performance` of the result file), the median over `--repeat` runs;
 memory is the peak resident set of the run. Columns: Newton steps and GMRES iterations on the
 finest level, their ratio, seconds per phase, the total without estimators, µs per vertex of
-that total, peak MiB and bytes per vertex.
+that total, peak MiB and bytes per vertex, and the share of the run's CPU time spent in the
+kernel (getrusage of the child: system over user + system), which is mostly the zeroing of
+pages the run touches for the first time: on a virtual machine whose first touch of fresh
+memory is slow, it is what bends the time per vertex at the largest sizes.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -42,7 +46,10 @@ def run_once(exe: str, overrides: list[str], out: Path, threads: int) -> dict:
     cmd = [exe, "run", str(ROOT / "input" / "default.nml"), *overrides, "estimate.enabled=.false.",
            "output.history=.false.", "output.xdmf=.false.", f"output.file={out}"]
     env = dict(os.environ, OMP_NUM_THREADS=str(threads))
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    user, system = after.ru_utime - before.ru_utime, after.ru_stime - before.ru_stime
     if proc.returncode != 0:
         sys.exit(f"scaling: {' '.join(cmd)} exited {proc.returncode}:\n{proc.stderr.strip()}")
     with h5py.File(out) as f:
@@ -54,7 +61,8 @@ def run_once(exe: str, overrides: list[str], out: Path, threads: int) -> dict:
             "newton_coarse": int(summary["newton_iterations_coarse"]),
             "gmres_coarse": int(summary["gmres_iterations_coarse"]),
             **{p: float(perf[f"{p}_seconds"]) for p in PHASES},
-            "peak_mib": max(float(v) for k, v in perf.items() if k.endswith("_peak_mib"))}
+            "peak_mib": max(float(v) for k, v in perf.items() if k.endswith("_peak_mib")),
+            "kernel_share": system/max(user + system, 1e-9)}
 
 
 def measure(args, case: str, cfun: str, levels: int, tmp: Path) -> dict:
@@ -63,7 +71,7 @@ def measure(args, case: str, cfun: str, levels: int, tmp: Path) -> dict:
     runs = [run_once(args.exe, overrides, tmp / f"{case}_{cfun}_{levels}_{i}.h5", args.threads)
             for i in range(args.repeat)]
     row = dict(runs[0])
-    for key in (*PHASES, "peak_mib"):
+    for key in (*PHASES, "peak_mib", "kernel_share"):
         row[key] = statistics.median(r[key] for r in runs)
     row["total"] = sum(row[p] for p in PHASES)
     row.update(case=case, cfun=cfun, levels=levels)
@@ -72,13 +80,13 @@ def measure(args, case: str, cfun: str, levels: int, tmp: Path) -> dict:
 
 def table(rows: list[dict]) -> str:
     lines = ["| case | cfun | vertices | Newton | GMRES | GMRES/Newton | mesh s | assembly s | solve s | output s "
-             "| total s | µs/vertex | peak MiB | B/vertex |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+             "| total s | µs/vertex | peak MiB | B/vertex | kernel CPU |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in rows:
         lines.append(f"| {r['case']} | {r['cfun']} | {r['nv']} | {r['newton']} | {r['gmres']} | "
                      f"{r['gmres'] / max(1, r['newton']):.1f} | {r['mesh']:.3f} | {r['assembly']:.3f} | "
                      f"{r['solve']:.3f} | {r['output']:.3f} | {r['total']:.3f} | {1e6 * r['total'] / r['nv']:.2f} | "
-                     f"{r['peak_mib']:.0f} | {r['peak_mib'] * 2**20 / r['nv']:.0f} |")
+                     f"{r['peak_mib']:.0f} | {r['peak_mib'] * 2**20 / r['nv']:.0f} | {100 * r['kernel_share']:.0f}% |")
     return "\n".join(lines)
 
 

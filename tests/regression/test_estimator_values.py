@@ -12,13 +12,12 @@ inverses, dense patch systems), by
 (the first references, of commit 7c04e15, were replaced because the solver changes merged in
 between, such as the stable Fischer–Burmeister back-substitution, moved the iterates of the
 adaptive and GMRES cases by up to 1e-3 relative; the estimators themselves were not compared
-across that change). They were made again with 30774a0 plus three solver changes, the same as
+across that change). They were made again with 30774a0 plus two solver changes, the same as
 main's: a full Newton step takes GMRES's iterate itself (x = x_new instead of
 x + 1·(x_new − x), which differs by round-off), which moves every iterate after the first by
-round-off and the converged η_lin, itself round-off, by more than 1e-12; the adaptive
-method evaluates no estimators at its initial iterate (history row 0 NaN); and the paper's
-inexact GMRES goes on to newton.tol once its iterate takes the Jacobian's branch of the min at
-every vertex (the GMRES cases end with fewer Newton steps). The command runs each case of CASES below with OMP_NUM_THREADS=1 and stores the `/history` and
+round-off and the converged η_lin, itself round-off, by more than 1e-12; and the adaptive
+method evaluates no estimators at its initial iterate (history row 0 NaN). (The GMRES cases
+keep the paper's forcing, gmres.forcing = 'paper', not the default 'finish'.) The command runs each case of CASES below with OMP_NUM_THREADS=1 and stores the `/history` and
 `/estimators` groups of its result file as tests/regression/reference/estimators_<case>.h5. Regenerate
 only where round-off moves a value beyond the tolerance, and say so in the commit.
 

@@ -26,11 +26,11 @@ evaluation instead of repeating it for an iterate that differed by round-off; th
 the estimator columns of their history row 0 set to NaN, and nothing else, when the adaptive
 method stopped evaluating the estimators at the initial iterate, where no test reads them.
 The GMRES references (`gmres`, `gmres_mg`) were regenerated, and the adaptive one's coarse-level
-counts lowered (36 -> 35 GMRES iterations, 4 -> 3 Newton steps), when the paper's inexact GMRES
-began to go on to newton.tol once its iterate takes the Jacobian's branch of the min at every
-vertex (fewer Newton steps to the same solution) and the multigrid GMRES of Newton-min began to
-check after every iteration (ν = 1): both still agree with the direct solution to 1.5e-9
-(λ) and 1.2e-10 (u), as test_methods.py requires.
+counts lowered (36 -> 35 GMRES iterations, 4 -> 3 Newton steps), when the default forcing became
+'finish' (the paper's test, except that GMRES goes on to newton.tol once its iterate takes the
+Jacobian's branch of the min at every vertex: fewer Newton steps to the same solution) and the
+multigrid GMRES of Newton-min began to check after every iteration (ν = 1): both still agree
+with the direct solution to 1.5e-9 (λ) and 1.2e-10 (u), as test_methods.py requires.
 Regenerate (after checking why a result changed) with:
     twomem run input/default.nml mesh.levels=1 METHOD_OVERRIDES \
         output.file=tests/regression/reference/radial_small_METHOD.h5

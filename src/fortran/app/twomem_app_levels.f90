@@ -21,7 +21,7 @@ module twomem_app_levels
    use twomem_linalg_halo, only: halo_t
    use twomem_linalg_multigrid, only: multigrid_transfer_t
    use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_observer_t, newton_solve, &
-      method_direct, method_gmres, method_adaptive, forcing_paper, automatic_every
+      method_direct, method_gmres, method_adaptive, forcing_finish, automatic_every
    use twomem_newton_linear, only: precond_mg
    implicit none
    private
@@ -72,10 +72,11 @@ contains
       quiet = options
       quiet%verbose = .false.
       ! the estimators live on the finest hierarchy: coarser levels of an adaptive run use the
-      ! paper's inexact GMRES instead, checked as often as that method is
+      ! inexact GMRES instead (the paper's forcing, finishing the last solve), checked as often as
+      ! that method is
       if (quiet%linear == method_adaptive) then
          quiet%linear = method_gmres
-         quiet%forcing = forcing_paper
+         quiet%forcing = forcing_finish
          if (cfg%estimate%every == 0) quiet%gmres%observe_every = automatic_every(quiet%linear, quiet%cfun, quiet%precond)
       end if
       do l = bottom, finest - 1

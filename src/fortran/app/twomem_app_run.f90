@@ -23,7 +23,7 @@ module twomem_app_run
    use twomem_app_loads, only: make_data
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_newton_solver, only: newton_options_t, newton_result_t, method_direct, method_gmres, method_adaptive, &
-      forcing_paper, forcing_fixed, automatic_every
+      forcing_paper, forcing_finish, forcing_fixed, automatic_every
    use twomem_newton_cfun, only: cfun_kind, c_function_fb
    use twomem_newton_linear, only: precond_kind, precond_mg
    use twomem_estimate_estimators, only: estimator_t, estimates_t, poincare_constant
@@ -312,7 +312,14 @@ contains
          options%line_search = options%cfun == c_function_fb
       end select
       options%fb_active_set = trim(cfg%newton%fb_finish) == 'active_set'
-      options%forcing = merge(forcing_fixed, forcing_paper, trim(cfg%gmres%forcing) == 'fixed')
+      select case (trim(cfg%gmres%forcing))
+      case ('fixed')
+         options%forcing = forcing_fixed
+      case ('paper')
+         options%forcing = forcing_paper
+      case default
+         options%forcing = forcing_finish
+      end select
       options%precond = precond_kind(trim(cfg%gmres%precond))
       options%gmres%restart = cfg%gmres%restart
       options%gmres%max_it = cfg%gmres%max_it

@@ -61,7 +61,7 @@ module twomem_input_case
       character(len=config_len) :: precond = 'mg'
       !> 'paper': stop when the relative algebraic residual ≤ the relative linearization
       !> residual (the paper's inexact method); 'fixed': at gmres.rtol
-      character(len=config_len) :: forcing = 'paper'
+      character(len=config_len) :: forcing = 'finish'
    end type gmres_config_t
 
    type :: estimate_config_t

@@ -71,7 +71,7 @@ contains
          call check_int(err, origin, k_gmres_max_it, g%max_it, 1, huge(1))
          call check_real(err, origin, k_rtol, g%rtol, gt=0.0_dp, lt=1.0_dp)
          call check_word(err, origin, k_precond, g%precond, [character(len=8) :: 'mg', 'ilu0', 'jacobi', 'none'])
-         call check_word(err, origin, k_forcing, g%forcing, [character(len=8) :: 'paper', 'fixed'])
+         call check_word(err, origin, k_forcing, g%forcing, [character(len=8) :: 'finish', 'paper', 'fixed'])
       end associate
 
       call check_real(err, origin, k_gamma_alg, cfg%estimate%gamma_alg, gt=0.0_dp, le=1.0_dp)

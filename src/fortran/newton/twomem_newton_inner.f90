@@ -4,9 +4,10 @@
 !> the paper's forcing that is ‖R_alg‖/‖B‖ ≤ ‖R_lin(x)‖/‖[F; 0]‖; in the adaptive method it is
 !> η_alg ≤ γ_alg max(η_disc, η_lin) (paper eq. (63a)) or its local form (64a). The Newton-level
 !> counterparts (63b)/(64b) live here too, so both of the paper's criteria sit in one place.
-!> One refinement of the paper's forcing: when the GMRES iterate takes the Newton step's branch
-!> of the min at every vertex, R_lin and the algebraic residual are the same vector, and stopping
-!> there would only hand the rest of this linear solve to the next Newton step (one more
+!> One refinement of the paper's forcing (gmres.forcing = 'finish', the default; 'paper' keeps the
+!> paper's test as published): when the GMRES iterate takes the Newton step's branch of the min
+!> at every vertex, R_lin and the algebraic residual are the same vector, and stopping there
+!> would only hand the rest of this linear solve to the next Newton step (one more
 !> linearization, preconditioner update and GMRES start): GMRES goes on to newton.tol instead.
 module twomem_newton_inner
    use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
@@ -45,6 +46,8 @@ module twomem_newton_inner
       type(history_t), pointer :: history => null()
       class(newton_observer_t), pointer :: user => null()
       logical :: paper_forcing = .true., adaptive = .false., local_criteria = .false.
+      !> finish the linear solve once the iterate takes the step's branches (gmres.forcing 'finish')
+      logical :: finish = .false.
       real(dp) :: gamma_alg = 0.3_dp, newton_tol = 0.0_dp
       !> the C-function of the Newton step's Jacobian (min also in FB's active-set steps)
       integer :: linearized = c_function_min
@@ -92,7 +95,7 @@ contains
          ! stopping would leave the next Newton step nothing to do but go on with this very
          ! solve: GMRES goes on to newton.tol instead.
          stop = self%paper_forcing .and. row%alg_residual <= row%lin_residual*(1 + 1.0e-8_dp)
-         if (stop .and. row%lin_residual > self%newton_tol .and. self%linearized == c_function_min) &
+         if (stop .and. self%finish .and. row%lin_residual > self%newton_tol .and. self%linearized == c_function_min) &
             stop = .not. same_branches(self, x)
       end if
    end subroutine observe_gmres

@@ -41,11 +41,11 @@ module twomem_newton_solver
    private
 
    public :: newton_options_t, newton_result_t, newton_observer_t, newton_solve, automatic_every
-   public :: method_direct, method_gmres, method_adaptive, forcing_paper, forcing_fixed
+   public :: method_direct, method_gmres, method_adaptive, forcing_paper, forcing_finish, forcing_fixed
 
    !> the method (newton.linear) and the GMRES forcing (gmres.forcing)
    integer, parameter :: method_direct = 1, method_gmres = 2, method_adaptive = 3
-   integer, parameter :: forcing_paper = 1, forcing_fixed = 2
+   integer, parameter :: forcing_paper = 1, forcing_fixed = 2, forcing_finish = 3
 
    type :: newton_options_t
       !> c_function_min or c_function_fb
@@ -60,8 +60,9 @@ module twomem_newton_solver
       logical :: line_search = .false.
       !> Fischer–Burmeister: Newton-min (active-set) steps once the contact set settles
       logical :: fb_active_set = .true.
-      !> GMRES: forcing_paper (algebraic ≤ linearization residual) or forcing_fixed (gmres%rtol)
-      integer :: forcing = forcing_paper
+      !> GMRES: forcing_paper (algebraic ≤ linearization residual), forcing_finish (the same until
+      !> the iterate's contact set is the step's, then on to tol) or forcing_fixed (gmres%rtol)
+      integer :: forcing = forcing_finish
       !> precond_mg (block elimination with multigrid), precond_ilu0, precond_jacobi, precond_none
       integer :: precond = precond_mg
       type(gmres_options_t) :: gmres
@@ -171,7 +172,8 @@ contains
       inner%db => db
       inner%history => result%history
       if (present(observer)) inner%user => observer
-      inner%paper_forcing = options%forcing == forcing_paper .and. .not. adaptive
+      inner%paper_forcing = options%forcing /= forcing_fixed .and. .not. adaptive
+      inner%finish = options%forcing == forcing_finish
       inner%adaptive = adaptive
       inner%local_criteria = options%local_criteria
       inner%gamma_alg = options%gamma_alg
