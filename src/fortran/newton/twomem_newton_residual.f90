@@ -54,7 +54,7 @@ contains
 
       call cfun_eval(self%cfun, x, c, da, db)
       call self%sys%apply_e(x, self%ex)
-      rel = sqrt(membrane_squares(self, .false.) + self%sys%sum_squares(c))/self%f_norm
+      rel = sqrt(self%sys%sum_squares(self%sys%f, minus=self%ex) + self%sys%sum_squares(c))/self%f_norm
    end subroutine relative
 
    !> ‖[D⁻¹(F − E X); C(X)]‖. With the weak rows instead, (g, 0, 0) looks almost solved
@@ -65,28 +65,6 @@ contains
 
       call cfun_eval(self%cfun, x, self%c, self%da, self%db)
       call self%sys%apply_e(x, self%ex)
-      merit = sqrt(membrane_squares(self, .true.) + self%sys%sum_squares(self%c))
+      merit = sqrt(self%sys%sum_squares(self%sys%f, minus=self%ex, weight=self%inv_mass) + self%sys%sum_squares(self%c))
    end function merit
-
-   !> ‖F − E X‖² of the membrane rows (E X in self%ex), strong (D⁻¹(F − E X)) when `strong`:
-   !> the sums of newton_system_t%sum_squares, in its order, without a 2N temporary per call.
-   real(dp) function membrane_squares(self, strong) result(s)
-      type(nonlinear_residual_t), intent(in) :: self
-      logical, intent(in) :: strong
-
-      integer(ip) :: i, n, f
-      real(dp) :: r
-
-      n = self%sys%n
-      s = 0.0_dp
-      do f = 0, 1
-         do i = 1, n
-            if (.not. self%sys%halo%owned(i)) cycle
-            r = self%sys%f(f*n + i) - self%ex(f*n + i)
-            if (strong) r = self%inv_mass(i)*r
-            s = s + r**2
-         end do
-      end do
-      s = self%sys%halo%comm%sum(s)
-   end function membrane_squares
 end module twomem_newton_residual

@@ -82,19 +82,27 @@ contains
       if (assembled) call assemble(self)
    end subroutine system_init
 
-   !> Σ v(i)² over the owned unknowns of every rank; v stacks fields of the unknowns (length a
-   !> multiple of n). In the order of the entries, as Fortran's sum would add them.
-   real(dp) function sum_squares(self, v) result(s)
+   !> Σ r(i)² over the owned unknowns of every rank, r = v, or v − minus when given, each entry
+   !> times weight(i) when given (one weight per unknown, for every field); v stacks fields of the
+   !> unknowns (length a multiple of n). In the order of the entries, as Fortran's sum would add
+   !> them, and without a temporary for v − minus.
+   real(dp) function sum_squares(self, v, minus, weight) result(s)
       class(newton_system_t), intent(in) :: self
       real(dp), intent(in) :: v(:)
+      real(dp), intent(in), optional :: minus(:), weight(:)
 
       integer(ip) :: i, n, f
+      real(dp) :: r
 
       n = self%n
       s = 0.0_dp
       do f = 0, size(v, kind=ip)/n - 1
          do i = 1, n
-            if (self%halo%owned(i)) s = s + v(f*n + i)**2
+            if (.not. self%halo%owned(i)) cycle
+            r = v(f*n + i)
+            if (present(minus)) r = r - minus(f*n + i)
+            if (present(weight)) r = weight(i)*r
+            s = s + r**2
          end do
       end do
       s = self%halo%comm%sum(s)
