@@ -76,14 +76,15 @@ def test_multigrid_iterations_do_not_grow_with_the_mesh(cfun):
     assert per_step[-1] <= per_step[0] + 3, per_step
 
 
-@pytest.mark.parametrize("levels,most", [(2, 6), (3, 4)])
+@pytest.mark.parametrize("levels,most", [(2, 5), (3, 4)])
 def test_fischer_burmeister_finishes_like_newton_min(levels, most):
     """bench/scaling.py's `membranes` case with the paper's forcing. Fischer–Burmeister alone
     took 7 finest-level Newton steps at both sizes (18k and 72k vertices): after the contact
     set settles, its quadratic convergence has a constant ~1/|(u1 − u2, λ)| of the solution,
     which is ~h² on the first free layer beside the contact zone, and the tail took 4–5 steps.
-    The active-set step after a step that keeps the contact set finishes as Newton-min does:
-    6 and 4 steps, measured with 1 and 2 threads, debug and release builds."""
+    Active-set steps once an FB step moves at most 1% of the contact set finish as Newton-min
+    does: 5 and 4 steps, measured with 1 and 2 threads, debug and release builds (6 and 4 when
+    they waited for an FB step that moved no vertex)."""
     path = out_file(f"methods/fb_finish_{levels}.h5")
     run("mesh.coarse_h=0.1", "mesh.boundary_h=0.02", f"mesh.levels={levels}", "problem.exact=none",
         "problem.mu1=2", "problem.mu2=0.5", "problem.f1=-2", "problem.f2=1", "problem.g=0.05", "newton.cfun=fb",
