@@ -310,7 +310,7 @@ contains
       logical, intent(out) :: ok
       integer(ip), intent(in) :: parents(:, :)
 
-      integer(ip) :: a, m
+      integer(ip) :: a, ib, m
       integer :: c
       logical :: patch_ok, refined
 
@@ -319,22 +319,24 @@ contains
       !$omp parallel default(none) &
       !$omp shared(space, shapes, table, coarse, fine, level, colors, first, grad_rho, p2_coarse, p2_fine, r, sigma) &
       !$omp shared(parents, refined) &
-      !$omp private(a, m, c, patch_ok) reduction(.and.:ok)
+      !$omp private(a, ib, m, c, patch_ok) reduction(.and.:ok)
       !$omp workshare
       sigma = 0.0_dp
       !$omp end workshare
       do c = 1, colors%n_colors
-         !$omp do schedule(dynamic, 64)
-         do m = colors%ptr(c), colors%ptr(c + 1) - 1
-            a = colors%vertices(m)
-            if (refined) then
-               call coarse_patch(space, shapes, table, coarse, fine, level, a, 4, first, grad_rho, p2_coarse, p2_fine, r, sigma, &
-                                 patch_ok, parents)
-            else
-               call coarse_patch(space, shapes, table, coarse, fine, level, a, 1, first, grad_rho, p2_coarse, p2_fine, r, sigma, &
-                                 patch_ok, parents)
-            end if
-            ok = ok .and. patch_ok
+         !$omp do schedule(dynamic, 1)
+         do ib = colors%ptr(c), colors%ptr(c + 1) - 1
+            do m = colors%block_ptr(ib), colors%block_ptr(ib + 1) - 1
+               a = colors%vertices(m)
+               if (refined) then
+                  call coarse_patch(space, shapes, table, coarse, fine, level, a, 4, first, grad_rho, p2_coarse, p2_fine, &
+                                    r, sigma, patch_ok, parents)
+               else
+                  call coarse_patch(space, shapes, table, coarse, fine, level, a, 1, first, grad_rho, p2_coarse, p2_fine, &
+                                    r, sigma, patch_ok, parents)
+               end if
+               ok = ok .and. patch_ok
+            end do
          end do
          !$omp end do
       end do

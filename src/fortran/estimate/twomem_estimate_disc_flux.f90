@@ -117,7 +117,7 @@ contains
       real(dp), intent(inout) :: sigma(:, :, :)
       logical, intent(out) :: ok
 
-      integer(ip) :: m, a
+      integer(ip) :: ib, m, a
       integer :: c, id
       logical :: patch_ok, signatures
 
@@ -125,23 +125,25 @@ contains
       signatures = allocated(table%levels)
       !$omp parallel default(none) &
       !$omp shared(space, shapes, table, mesh, level, colors, mu, loads, grad_u, lambda, r, sigma) &
-      !$omp shared(signatures) private(c, m, a, id, patch_ok) reduction(.and.:ok)
+      !$omp shared(signatures) private(c, ib, m, a, id, patch_ok) reduction(.and.:ok)
       !$omp workshare
       sigma = 0.0_dp
       !$omp end workshare
       do c = 1, colors%n_colors
-         !$omp do schedule(dynamic, 256)
-         do m = colors%ptr(c), colors%ptr(c + 1) - 1
-            a = colors%vertices(m)
-            id = 0
-            if (signatures) id = table%levels(level)%id(a)
-            if (id > 0) then
-               call interior_patch(space, shapes, table%sig(id), mesh, level, a, mu, loads, &
-                                   grad_u, lambda(a), r, sigma)
-            else
-               call vertex_patch(space, shapes, mesh, level, a, mu, loads, grad_u, lambda(a), r, sigma, patch_ok)
-               ok = ok .and. patch_ok
-            end if
+         !$omp do schedule(dynamic, 1)
+         do ib = colors%ptr(c), colors%ptr(c + 1) - 1
+            do m = colors%block_ptr(ib), colors%block_ptr(ib + 1) - 1
+               a = colors%vertices(m)
+               id = 0
+               if (signatures) id = table%levels(level)%id(a)
+               if (id > 0) then
+                  call interior_patch(space, shapes, table%sig(id), mesh, level, a, mu, loads, &
+                                      grad_u, lambda(a), r, sigma)
+               else
+                  call vertex_patch(space, shapes, mesh, level, a, mu, loads, grad_u, lambda(a), r, sigma, patch_ok)
+                  ok = ok .and. patch_ok
+               end if
+            end do
          end do
          !$omp end do
       end do
