@@ -55,7 +55,8 @@ contains
                new_unittest('at_discrete_solution', test_at_solution), &
                new_unittest('nonconforming_iterate', test_nonconforming), &
                new_unittest('poincare_constant', test_poincare), &
-               new_unittest('local_criteria', test_local_criteria)]
+               new_unittest('local_criteria', test_local_criteria), &
+               new_unittest('block_colouring', test_block_colouring)]
    end subroutine collect_estimate
 
    !> Green's formula per basis function, (∇·φ_i, q) + (φ_i, ∇q) = ⟨φ_i·n, q⟩_∂K, for q = 1 and
@@ -527,6 +528,65 @@ contains
 
    !> The discrete problem of `data` (μ2 = 2μ1) on the unit disk (boundary spacing half the
    !> interior one) or the square (−1, 1)², of mesh size coarse_h, refined `levels` times.
+   !> The patch loops' block colouring: every vertex listed once, in one block; no two blocks of
+   !> one colour share a triangle (no triangle has corners in two different blocks of one
+   !> colour), so their patches can add into their triangles in parallel; and, on a mesh large
+   !> enough for it, several blocks per colour (work for more than one thread). From a single
+   !> coarse mesh (one block) to four red refinements of the disk.
+   subroutine test_block_colouring(err)
+      type(error_t), allocatable, intent(out) :: err
+
+      type(poly_data_t) :: data
+      type(mesh_hierarchy_t) :: h
+      type(discrete_problem_t) :: p
+      type(coloring_t) :: colors
+      integer(ip), allocatable :: block_of(:), seen(:)
+      integer, allocatable :: color_of(:)
+      integer(ip) :: ib, m, t, a
+      integer :: c, levels, i, j
+      logical :: shared, many
+
+      do levels = 0, 4, 2
+         call mesh_problem('disk', 0.4_dp, levels, data, h, p, err)
+         if (allocated(err)) return
+         associate (mesh => h%meshes(levels))
+            call colors%init(mesh)
+            allocate (block_of(mesh%nv), color_of(size(colors%block_ptr) - 1), seen(mesh%nv))
+            seen = 0
+            block_of = 0
+            many = .true.
+            do c = 1, colors%n_colors
+               many = many .and. colors%ptr(c + 1) - colors%ptr(c) >= 4
+               do ib = colors%ptr(c), colors%ptr(c + 1) - 1
+                  color_of(ib) = c
+                  do m = colors%block_ptr(ib), colors%block_ptr(ib + 1) - 1
+                     a = colors%vertices(m)
+                     seen(a) = seen(a) + 1
+                     block_of(a) = ib
+                  end do
+               end do
+            end do
+            call check(err, all(seen == 1), 'every vertex in exactly one block')
+            if (allocated(err)) return
+            shared = .false.
+            do t = 1, mesh%nt
+               do i = 1, 3
+                  do j = i + 1, 3
+                     associate (bi => block_of(mesh%triangles(i, t)), bj => block_of(mesh%triangles(j, t)))
+                        shared = shared .or. (bi /= bj .and. color_of(bi) == color_of(bj))
+                     end associate
+                  end do
+               end do
+            end do
+            call check(err, .not. shared, 'two blocks of one colour share a triangle')
+            if (allocated(err)) return
+            if (levels == 4) call check(err, many .and. colors%n_colors <= 12, 'several blocks per colour, few colours')
+            if (allocated(err)) return
+            deallocate (block_of, color_of, seen)
+         end associate
+      end do
+   end subroutine test_block_colouring
+
    subroutine mesh_problem(domain, coarse_h, levels, data, h, p, err)
       character(len=*), intent(in) :: domain
       real(dp), intent(in) :: coarse_h
