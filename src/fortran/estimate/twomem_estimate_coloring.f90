@@ -11,9 +11,9 @@
 !> case at 10^6 vertices took about 12 s with it in vertex order, 10.6 s in first-triangle order
 !> and 8.1 s by blocks (medians of three alternating runs for the last two). Blocks are coloured
 !> greedily in order and run their vertices in order, so a result is summed in the same order
-!> whatever the number of threads. On a rank's piece of a
-!> distributed mesh only the vertices of its own triangles are listed: their patches are whole
-!> there (the ghost layer), the others' are not and belong to other ranks.
+!> whatever the number of threads. On a rank's piece of a distributed mesh only the vertices of
+!> its own triangles are listed: their patches are whole there (the ghost layer), the others'
+!> are not and belong to other ranks.
 module twomem_estimate_coloring
    use twomem_base_kinds, only: ip
    use twomem_mesh_triangulation, only: mesh_t
@@ -42,22 +42,35 @@ contains
       class(coloring_t), intent(out) :: self
       type(mesh_t), intent(in) :: mesh
 
+      integer(ip), allocatable :: block_of(:), first(:), members(:)
+      integer, allocatable :: color(:)
+
+      call make_blocks(mesh, block_of, first, members)
+      call color_blocks(mesh, block_of, first, color)
+      call group_by_color(self, first, members, color)
+   end subroutine init
+
+   !> block_of(a): the block of vertex a (0 outside the rank's subdomain), the run of consecutive
+   !> triangles its first patch triangle lies in; block b's vertices are
+   !> members(first(b):first(b+1)-1), in the order of their first patch triangle.
+   subroutine make_blocks(mesh, block_of, first, members)
+      type(mesh_t), intent(in) :: mesh
+      integer(ip), allocatable, intent(out) :: block_of(:), first(:), members(:)
+
       logical, allocatable :: inside(:)
-      integer(ip), allocatable :: block_of(:), first(:), members(:), fill(:), adj_ptr(:), adj(:), order(:)
-      integer, allocatable :: color(:), count(:)
-      logical, allocatable :: used(:)
-      integer(ip) :: a, t, span, n_blocks, b, m, nb(3)
-      integer :: i, j, c
+      integer(ip), allocatable :: fill(:)
+      integer(ip) :: a, t, span, n_blocks, b
+      integer :: i
 
       inside = mesh%in_subdomain()
       span = max(1_ip, min(max_block_triangles, mesh%nt/min_blocks))
       n_blocks = (mesh%nt + span - 1)/span
-      ! block of a vertex: the run of its first patch triangle (patches list triangles ascending)
       allocate (block_of(mesh%nv), first(n_blocks + 1))
       first = 0
       do a = 1, mesh%nv
          block_of(a) = 0
          if (.not. inside(a)) cycle
+         ! patches list their triangles in ascending order
          block_of(a) = (mesh%patch_triangles(mesh%patch_ptr(a)) - 1)/span + 1
          first(block_of(a) + 1) = first(block_of(a) + 1) + 1
       end do
@@ -65,7 +78,6 @@ contains
       do b = 1, n_blocks
          first(b + 1) = first(b) + first(b + 1)
       end do
-      ! members of each block in first-triangle order
       allocate (members(first(n_blocks + 1) - 1), fill(n_blocks))
       fill = first(1:n_blocks)
       do t = 1, mesh%nt
@@ -76,38 +88,41 @@ contains
             fill(block_of(a)) = fill(block_of(a)) + 1
          end do
       end do
-      ! two blocks conflict when their vertices share a triangle, i.e. are corners of one
-      allocate (adj_ptr(n_blocks + 1))
+   end subroutine make_blocks
+
+   !> Greedy colours of the non-empty blocks in block order (0 for an empty one): two blocks
+   !> conflict when vertices of theirs are corners of one triangle, i.e. their patches share it.
+   subroutine color_blocks(mesh, block_of, first, color)
+      type(mesh_t), intent(in) :: mesh
+      integer(ip), intent(in) :: block_of(:), first(:)
+      integer, allocatable, intent(out) :: color(:)
+
+      integer(ip), allocatable :: adj_ptr(:), adj(:), fill(:)
+      logical, allocatable :: used(:)
+      integer(ip) :: t, n_blocks, b, m
+      integer :: pass
+
+      n_blocks = size(first) - 1
+      ! the conflicts as adjacency lists, counted in the first pass and filled in the second
+      ! (a pair is listed once per triangle it shares: repeats only repeat a mark below)
+      allocate (adj_ptr(n_blocks + 1), adj(0), fill(n_blocks))
       adj_ptr = 0
-      do t = 1, mesh%nt
-         nb = block_of(mesh%triangles(:, t))
-         do i = 1, 3
-            do j = 1, 3
-               if (i /= j .and. nb(i) > 0 .and. nb(j) > 0 .and. nb(i) /= nb(j)) adj_ptr(nb(i) + 1) = adj_ptr(nb(i) + 1) + 1
+      do pass = 1, 2
+         if (pass == 2) then
+            adj_ptr(1) = 1
+            do b = 1, n_blocks
+               adj_ptr(b + 1) = adj_ptr(b) + adj_ptr(b + 1)
             end do
+            deallocate (adj)
+            allocate (adj(adj_ptr(n_blocks + 1) - 1))
+            fill = adj_ptr(1:n_blocks)
+         end if
+         do t = 1, mesh%nt
+            call conflicts_of(block_of(mesh%triangles(:, t)), pass)
          end do
       end do
-      adj_ptr(1) = 1
-      do b = 1, n_blocks
-         adj_ptr(b + 1) = adj_ptr(b) + adj_ptr(b + 1)
-      end do
-      allocate (adj(adj_ptr(n_blocks + 1) - 1))
-      fill = adj_ptr(1:n_blocks)
-      do t = 1, mesh%nt
-         nb = block_of(mesh%triangles(:, t))
-         do i = 1, 3
-            do j = 1, 3
-               if (i /= j .and. nb(i) > 0 .and. nb(j) > 0 .and. nb(i) /= nb(j)) then
-                  adj(fill(nb(i))) = nb(j)
-                  fill(nb(i)) = fill(nb(i)) + 1
-               end if
-            end do
-         end do
-      end do
-      ! greedy colours in block order (repeated neighbours only repeat a mark)
-      allocate (color(n_blocks), used(maxval(adj_ptr(2:) - adj_ptr(:n_blocks)) + 1))
+      allocate (color(n_blocks), used(max(0_ip, maxval(adj_ptr(2:) - adj_ptr(:n_blocks))) + 1))
       color = 0
-      self%n_colors = 0
       do b = 1, n_blocks
          if (first(b + 1) == first(b)) cycle
          used = .false.
@@ -115,24 +130,55 @@ contains
             if (color(adj(m)) > 0) used(color(adj(m))) = .true.
          end do
          color(b) = findloc(used, .false., dim=1)
-         self%n_colors = max(self%n_colors, color(b))
       end do
-      ! blocks grouped by colour, each colour's blocks in block order
-      allocate (count(self%n_colors + 1), order(n_blocks))
-      count = 0
-      do b = 1, n_blocks
-         if (color(b) > 0) count(color(b) + 1) = count(color(b) + 1) + 1
+
+   contains
+
+      subroutine conflicts_of(nb, pass)
+         integer(ip), intent(in) :: nb(3)
+         integer, intent(in) :: pass
+
+         integer :: i, j
+
+         do i = 1, 3
+            do j = 1, 3
+               if (i == j .or. nb(i) == 0 .or. nb(j) == 0 .or. nb(i) == nb(j)) cycle
+               if (pass == 1) then
+                  adj_ptr(nb(i) + 1) = adj_ptr(nb(i) + 1) + 1
+               else
+                  adj(fill(nb(i))) = nb(j)
+                  fill(nb(i)) = fill(nb(i)) + 1
+               end if
+            end do
+         end do
+      end subroutine conflicts_of
+   end subroutine color_blocks
+
+   !> The blocks grouped by colour (each colour's in block order) into self.
+   subroutine group_by_color(self, first, members, color)
+      type(coloring_t), intent(inout) :: self
+      integer(ip), intent(in) :: first(:), members(:)
+      integer, intent(in) :: color(:)
+
+      integer(ip), allocatable :: order(:), next(:)
+      integer(ip) :: b, m
+      integer :: c
+
+      self%n_colors = max(0, maxval(color))
+      allocate (self%ptr(self%n_colors + 1), next(self%n_colors), order(size(color)))
+      self%ptr = 0
+      do b = 1, size(color)
+         if (color(b) > 0) self%ptr(color(b) + 1) = self%ptr(color(b) + 1) + 1
       end do
-      allocate (self%ptr(self%n_colors + 1))
       self%ptr(1) = 1
       do c = 1, self%n_colors
-         self%ptr(c + 1) = self%ptr(c) + count(c + 1)
+         self%ptr(c + 1) = self%ptr(c) + self%ptr(c + 1)
       end do
-      count(1:self%n_colors) = int(self%ptr(1:self%n_colors))
-      do b = 1, n_blocks
+      next = self%ptr(1:self%n_colors)
+      do b = 1, size(color)
          if (color(b) == 0) cycle
-         order(count(color(b))) = b
-         count(color(b)) = count(color(b)) + 1
+         order(next(color(b))) = b
+         next(color(b)) = next(color(b)) + 1
       end do
       allocate (self%block_ptr(self%ptr(self%n_colors + 1)), self%vertices(size(members)))
       self%block_ptr(1) = 1
@@ -141,5 +187,5 @@ contains
          self%block_ptr(m + 1) = self%block_ptr(m) + first(b + 1) - first(b)
          self%vertices(self%block_ptr(m):self%block_ptr(m + 1) - 1) = members(first(b):first(b + 1) - 1)
       end do
-   end subroutine init
+   end subroutine group_by_color
 end module twomem_estimate_coloring
