@@ -18,7 +18,7 @@ fields, /estimators and the history written, as a real run writes them. From the
 - later s/eval = the three-step run's estimator_time minus the one-step run's, over the
   difference of their evaluation counts: an evaluation into arrays already in use, which is
   what every further Newton step of an adaptive run pays. On this virtual machine the first
-  touch of fresh memory costs 1–2 s per GiB, a large share of the first evaluation;
+  touch of fresh memory costs 0.4–2.2 s per GiB, a large share of the first evaluation;
 - µs/vertex = s/eval / N · 1e6; the speed-up is that of the later evaluations;
 - peak KB/vertex = the whole run's peak resident memory (/performance: the largest phase peak)
   over N, in KiB; `est. KB/vertex` the same for the peak up to the estimator phase minus the

@@ -497,9 +497,9 @@ contains
                ! RT0, constant loads: f_α ∓ λ_h deviates from its mean as λ_h does, and for a
                ! linear function ∫_K (l − l̄)² = |K|/36 Σ_{i<j} (l_i − l_j)² (what the degree-5
                ! rule below gives, up to round-off, without 14 load evaluations per triangle)
-               lam_x = ((lambda(v(1)) - lambda(v(2)))**2 + (lambda(v(2)) - lambda(v(3)))**2 + &
-                        (lambda(v(3)) - lambda(v(1)))**2)*frame%area/36
-               osc_k = hierarchy%meshes(finest)%h(t)/acos(-1.0_dp)*sqrt(lam_x/self%mu)
+               osc_sq = ((lambda(v(1)) - lambda(v(2)))**2 + (lambda(v(2)) - lambda(v(3)))**2 + &
+                         (lambda(v(3)) - lambda(v(1)))**2)*frame%area/36
+               osc_k = hierarchy%meshes(finest)%h(t)/acos(-1.0_dp)*sqrt(osc_sq/self%mu)
             else if (self%space%order == 0) then
                ! RT0: the oscillation of f_α ∓ λ_h around its mean
                osc_mean = 0.0_dp

@@ -13,16 +13,16 @@
 !> newton.fb_finish; docs/method.md §2): once an FB step moves the contact set {a ≤ b} by at most
 !> `fb_settle_fraction` of its size, the next step linearizes min instead, which imposes u1 = u2
 !> on that set and λ = 0 off it and so lands on the discrete solution at once when the set is
-!> right. FB alone converges there only
-!> quadratically with a constant ~1/|(a, b)| of the solution, and the first free layer beside the
-!> contact zone has a ~ h², b = 0: four or five steps of the tail measured at every mesh size. A
-!> nearly biactive vertex may be guessed on the wrong side (measured at 1.1e6 vertices: 13 vertices,
-!> the residual rose to 3e-3); the next step, again an active-set step (a primal–dual active set
-!> update), corrects the guess. Active-set steps go on while they change the set, at most three in a
-!> row, then FB resumes. They are judged by the FB merit like any other step (line search) and the
-!> stopping test is FB's. Waiting for an FB step that moves no vertex at all cost two steps at
-!> 1.1e6 vertices (99, 4, 0 vertices moved by FB's 2nd to 4th steps, each quadratically closer),
-!> which the active-set steps do in one.
+!> right. FB alone converges there only quadratically with a constant ~1/|(a, b)| of the
+!> solution, and the first free layer beside the contact zone has a ~ h², b = 0: four or five
+!> steps of the tail measured at every mesh size. A nearly biactive vertex may be guessed on the
+!> wrong side (measured at 1.1e6 vertices: 13 vertices, the residual rose to 3e-3); the next
+!> step, again an active-set step (a primal–dual active set update), corrects the guess.
+!> Active-set steps go on while they change the set, at most three in a row, then FB resumes.
+!> They are judged by the FB merit like any other step (line search) and the stopping test is
+!> FB's. Waiting for an FB step that moves no vertex at all cost two steps at 1.1e6 vertices
+!> (99, 4, 0 vertices moved by FB's 2nd to 4th steps, each quadratically closer), which the
+!> active-set steps do in one.
 module twomem_newton_solver
    use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
    use twomem_base_kinds, only: dp, ip
