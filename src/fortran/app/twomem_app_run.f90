@@ -22,8 +22,8 @@ module twomem_app_run
    use twomem_fem_problem, only: problem_data_t
    use twomem_app_loads, only: make_data
    use twomem_fem_discrete, only: discrete_problem_t
-   use twomem_newton_solver, only: newton_options_t, newton_result_t, method_direct, method_gmres, method_adaptive, &
-      forcing_paper, forcing_finish, forcing_fixed, automatic_every
+   use twomem_newton_solver, only: newton_options_t, newton_result_t, method_direct, method_adaptive, &
+      method_kind, forcing_kind, automatic_every
    use twomem_newton_cfun, only: cfun_kind, c_function_fb
    use twomem_newton_linear, only: precond_kind, precond_mg
    use twomem_estimate_estimators, only: estimator_t, estimates_t, poincare_constant
@@ -293,14 +293,7 @@ contains
       type(newton_options_t), intent(out) :: options
 
       options%cfun = cfun_kind(trim(cfg%newton%cfun))
-      select case (trim(cfg%newton%linear))
-      case ('direct')
-         options%linear = method_direct
-      case ('gmres')
-         options%linear = method_gmres
-      case default
-         options%linear = method_adaptive
-      end select
+      options%linear = method_kind(trim(cfg%newton%linear))
       options%max_it = cfg%newton%max_it
       options%tol = cfg%newton%tol
       select case (trim(cfg%newton%line_search))
@@ -312,14 +305,7 @@ contains
          options%line_search = options%cfun == c_function_fb
       end select
       options%fb_active_set = trim(cfg%newton%fb_finish) == 'active_set'
-      select case (trim(cfg%gmres%forcing))
-      case ('fixed')
-         options%forcing = forcing_fixed
-      case ('paper')
-         options%forcing = forcing_paper
-      case default
-         options%forcing = forcing_finish
-      end select
+      options%forcing = forcing_kind(trim(cfg%gmres%forcing))
       options%precond = precond_kind(trim(cfg%gmres%precond))
       options%gmres%restart = cfg%gmres%restart
       options%gmres%max_it = cfg%gmres%max_it

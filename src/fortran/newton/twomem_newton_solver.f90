@@ -44,6 +44,7 @@ module twomem_newton_solver
    private
 
    public :: newton_options_t, newton_result_t, newton_observer_t, newton_solve, automatic_every
+   public :: method_kind, forcing_kind
    public :: method_direct, method_gmres, method_adaptive, forcing_paper, forcing_finish, forcing_fixed
 
    !> the method (newton.linear) and the GMRES forcing (gmres.forcing)
@@ -89,6 +90,38 @@ module twomem_newton_solver
    end type newton_result_t
 
 contains
+
+   !> The method of input word newton.linear (0 for a word that is not one).
+   pure integer function method_kind(name) result(which)
+      character(len=*), intent(in) :: name
+
+      select case (name)
+      case ('direct')
+         which = method_direct
+      case ('gmres')
+         which = method_gmres
+      case ('adaptive')
+         which = method_adaptive
+      case default
+         which = 0
+      end select
+   end function method_kind
+
+   !> The forcing of input word gmres.forcing (0 for a word that is not one).
+   pure integer function forcing_kind(name) result(which)
+      character(len=*), intent(in) :: name
+
+      select case (name)
+      case ('paper')
+         which = forcing_paper
+      case ('fixed')
+         which = forcing_fixed
+      case ('finish')
+         which = forcing_finish
+      case default
+         which = 0
+      end select
+   end function forcing_kind
 
    !> ν, the GMRES iterations between two checks of the inner stopping test, when the case
    !> leaves it to the program (estimate.every = 0). ILU(0) takes the paper's 10. With the
