@@ -80,9 +80,9 @@ module twomem_estimate_estimators
       !> (f_α ψ_i, q_k)_K and, for RT1, (h_K/π)‖f_α − Π_1 f_α‖_K (data only, fixed on the mesh)
       type(load_moments_t) :: loads
       real(dp), allocatable :: osc_data(:, :)
-      !> workspaces of `evaluate`, kept between evaluations: σ_disc (n_flux, nt, 2), nodal u, s_h,
+      !> workspaces of `evaluate`, kept between evaluations: σ_disc (n_flux, nt, 2), nodal u and
       !> residuals (nv, 2) and λ_h, ∇u_α and the residual lifting per triangle
-      real(dp), allocatable :: sigma(:, :, :), u(:, :), s(:, :), residual(:, :), lambda(:), grad_u(:, :, :), r(:, :, :)
+      real(dp), allocatable :: sigma(:, :, :), u(:, :), residual(:, :), lambda(:), grad_u(:, :, :), r(:, :, :)
       real(dp), allocatable :: r1(:), r2(:)
       real(dp) :: mu(2) = 1, c_omega = 1
       !> the ranks (one by default), the copies to the ghost triangles, and a copy of the
@@ -151,8 +151,8 @@ contains
          call patch_tables(self, hierarchy, err)
          call self%comm%agree(err)
          if (allocated(err)) return
-         allocate (self%sigma(self%space%n_flux, mesh%nt, 2), self%u(mesh%nv, 2), self%s(mesh%nv, 2), &
-                   self%residual(mesh%nv, 2), self%lambda(mesh%nv), self%grad_u(2, mesh%nt, 2), self%r(3, mesh%nt, 2))
+         allocate (self%sigma(self%space%n_flux, mesh%nt, 2), self%u(mesh%nv, 2), self%residual(mesh%nv, 2), &
+                   self%lambda(mesh%nv), self%grad_u(2, mesh%nt, 2), self%r(3, mesh%nt, 2))
       end associate
    end subroutine init
 
@@ -256,17 +256,11 @@ contains
          self%halo = p%halo
          self%has_halo = .true.
       end if
-      associate (mesh => hierarchy%meshes(hierarchy%levels), u => self%u, s => self%s, lambda => self%lambda, &
+      associate (mesh => hierarchy%meshes(hierarchy%levels), u => self%u, lambda => self%lambda, &
                  residual => self%residual, grad_u => self%grad_u, r => self%r)
          call scatter(p, x(1:n), p%g, u(:, 1))
          call scatter(p, x(n + 1:2*n), 0.0_dp, u(:, 2))
          call scatter(p, x(2*n + 1:3*n), 0.0_dp, lambda)
-         ! s_h: where u1 < u2 both take the mean
-         s = u
-         where (u(:, 1) < u(:, 2))
-            s(:, 1) = 0.5_dp*(u(:, 1) + u(:, 2))
-            s(:, 2) = s(:, 1)
-         end where
          call gradients(mesh, u, grad_u)
          if (.not. allocated(self%r1)) allocate (self%r1(n), self%r2(n))
          call algebraic_residuals(p, x, self%r1, self%r2, self%halo)
@@ -320,7 +314,7 @@ contains
       else
          call est%drop_fields()
       end if
-      call element_estimators(self, hierarchy, data, self%u, self%lambda, self%s, self%grad_u, self%sigma, &
+      call element_estimators(self, hierarchy, data, self%u, self%lambda, self%grad_u, self%sigma, &
                               self%alg%levels, est, sums)
       ! the rank's own triangles, summed over the ranks
       call self%comm%sum_in_place(sums)
@@ -391,11 +385,11 @@ contains
    !> quadratic forms with the shape class's RT mass matrix: μ_α∇u_α is constant on K, so it is
    !> the combination of the constant basis fields φ_1, φ_2, and each coarser level's σ_alg is
    !> rewritten in K's own basis (`add_in_child_basis`), RT_p being closed under restriction.
-   subroutine element_estimators(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, sums)
+   subroutine element_estimators(self, hierarchy, data, u, lambda, grad_u, sigma, levels, est, sums)
       class(estimator_t), intent(in) :: self
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       class(problem_data_t), intent(in) :: data
-      real(dp), intent(in) :: u(:, :), lambda(:), s(:, :), grad_u(:, :, :), sigma(:, :, :)
+      real(dp), intent(in) :: u(:, :), lambda(:), grad_u(:, :, :), sigma(:, :, :)
       type(level_flux_t), intent(in) :: levels(:)
       type(estimates_t), intent(inout) :: est
       real(dp), intent(out) :: sums(n_sums)
@@ -408,6 +402,8 @@ contains
       !> K's barycentre in each ancestor's scaled coordinates and the ratio of their scales
       real(dp) :: shift(2, size(levels)), kappa(size(levels))
       real(dp) :: pos_lw, pos_ll, neg_lw, neg_ll, grad_s(2, 2), hat(2, 3), inv_ratio_sq
+      !> s_h at K's vertices: the nodewise projection onto u1 ≥ u2 (the mean where u1 < u2)
+      real(dp) :: s(3, 2)
       !> f ∓ λ_h at the 7 points of the degree-5 rule (RT0 only)
       real(dp) :: osc_values(2, 7)
       !> one triangle's parts: η_disc,K,α, η_alg,K,α, η_F,K,α, η_osc,K,α; η_C,K, η_nonc,1,K, η_nonc,2,K
@@ -442,11 +438,11 @@ contains
       ! no ancestor's frame computed yet (per thread)
       frame_anc = 0
       !$omp parallel do default(none) &
-      !$omp shared(self, hierarchy, data, u, lambda, s, grad_u, sigma, levels, est, finest, generations, nt_own) &
+      !$omp shared(self, hierarchy, data, u, lambda, grad_u, sigma, levels, est, finest, generations, nt_own) &
       !$omp shared(n_blocks, partial, fields) &
       !$omp private(b, t, anc, k, j, alpha, v, frame, level_frames, x, w, sq, f, lam_x, osc_mean, osc_sq, ratio, class) &
       !$omp private(c_disc, c_alg, shift, kappa, ancestors, osc_w, pos_lw, pos_ll, neg_lw, neg_ll, grad_s, osc_values) &
-      !$omp private(hat, inv_ratio_sq, disc_k, alg_k, flux_k, osc_k, contact_k, nonc1_k, nonc2_k) &
+      !$omp private(hat, s, inv_ratio_sq, disc_k, alg_k, flux_k, osc_k, contact_k, nonc1_k, nonc2_k) &
       !$omp firstprivate(frame_anc) schedule(static)
       do b = 1, n_blocks
          partial(:, b) = 0.0_dp
@@ -540,9 +536,16 @@ contains
             end if
             contact_k = 2*pos_lw
             nonc2_k = self%c_omega*sqrt(neg_ll)
+            s = u(v, :)
+            do k = 1, 3
+               if (u(v(k), 1) < u(v(k), 2)) then
+                  s(k, 1) = 0.5_dp*(u(v(k), 1) + u(v(k), 2))
+                  s(k, 2) = s(k, 1)
+               end if
+            end do
             hat = p1_gradients(hierarchy%meshes(finest), t)
             do alpha = 1, 2
-               grad_s(:, alpha) = matmul(hat, s(v, alpha)) - grad_u(:, t, alpha)
+               grad_s(:, alpha) = matmul(hat, s(:, alpha)) - grad_u(:, t, alpha)
             end do
             nonc1_k = sqrt(frame%area*(self%mu(1)*sum(grad_s(:, 1)**2) + self%mu(2)*sum(grad_s(:, 2)**2)))
             partial(:, b) = partial(:, b) + [sum((flux_k + osc_k)**2), sum(flux_k**2), sum(osc_k**2), contact_k, &

@@ -83,15 +83,17 @@ module twomem_linalg_gmres
 
    !> The Krylov basis V (n × (m+1)), Z = M⁻¹V (n × m) and the small Hessenberg problem. The
    !> columns are allocated when first used and kept, so a solve that converges in k ≪ m
-   !> iterations holds 2k vectors, not 2m + 1, and a caller solving many systems of one size
-   !> (Newton steps) keeps one workspace to reuse them.
+   !> iterations holds 2k + 1 vectors, not 2m + 1, and a caller solving many systems of one size
+   !> (Newton steps) keeps one workspace to reuse them. The residual is formed in V's first
+   !> column and each product A z_j in the next column, so that the only other n-vector is the
+   !> current iterate (a Newton system of 3·10⁶ unknowns: 24 MB a vector).
    type :: gmres_workspace_t
       private
       integer(ip) :: n = 0
       integer :: m = 0
       type(column_t), allocatable :: v(:), z(:)
       real(dp), allocatable :: h(:, :), g(:), cs(:), sn(:), y(:)
-      real(dp), allocatable :: r(:), w(:), xc(:)
+      real(dp), allocatable :: xc(:)
    contains
       procedure :: init => workspace_init
       procedure :: free => workspace_free
@@ -113,14 +115,14 @@ contains
       self%n = n
       self%m = m
       allocate (self%v(m + 1), self%z(m), self%h(m + 1, m), self%g(m + 1), self%cs(m), self%sn(m), self%y(m), &
-                self%r(n), self%w(n), self%xc(n))
+                self%xc(n))
    end subroutine workspace_init
 
    subroutine workspace_free(self)
       class(gmres_workspace_t), intent(inout) :: self
 
       if (allocated(self%v)) deallocate (self%v, self%z, self%h, self%g, self%cs, self%sn, &
-                                         self%y, self%r, self%w, self%xc)
+                                         self%y, self%xc)
       self%n = 0
       self%m = 0
    end subroutine workspace_free
@@ -244,8 +246,9 @@ contains
       ! grown on demand: max_it is a safeguard, often far above what a solve takes
       allocate (history(0:min(opt%max_it, 1023)))
 
-      call residual(op, b, x, ws%r)
-      beta = dot%norm(ws%r)
+      call reach(ws%v, 1, ws%n)
+      call residual(op, b, x, ws%v(1)%x)
+      beta = dot%norm(ws%v(1)%x)
       mon%initial_residual = beta
       history(0) = beta
       it = 0
@@ -296,8 +299,8 @@ contains
 
          call arnoldi_cycle(op, prec, dot, x, beta, target, opt, ws, it, history, outcome, &
                             mon%reorthogonalizations, observer)
-         call residual(op, b, x, ws%r)
-         beta = dot%norm(ws%r)
+         call residual(op, b, x, ws%v(1)%x)
+         beta = dot%norm(ws%v(1)%x)
          if (outcome == cycle_estimate .and. beta > target) &
             mon%false_convergences = mon%false_convergences + 1
          mon%happy_breakdown = outcome == cycle_breakdown
@@ -315,7 +318,7 @@ contains
       mon%converged = reason == 'converged'
    end subroutine finish
 
-   !> One cycle of at most m Arnoldi steps from the residual in ws%r (norm beta); on return
+   !> One cycle of at most m Arnoldi steps from the residual in ws%v(1) (norm beta); on return
    !> x = x + Z y, y minimising the residual over the cycle's Krylov space.
    subroutine arnoldi_cycle(op, prec, dot, x, beta, target, opt, ws, it, history, outcome, &
                             reorths, observer)
@@ -336,8 +339,6 @@ contains
       real(dp) :: colnorm, hnext, rr, estimate
       logical :: stop
 
-      call reach(ws%v, 1, ws%n)
-      call copy(ws%r, ws%v(1)%x)
       call divide(ws%v(1)%x, beta)
       ws%h = 0.0_dp
       ws%g = 0.0_dp
@@ -347,8 +348,9 @@ contains
       do j = 1, opt%restart
          call reach(ws%z, j, ws%n)
          call prec%apply(ws%v(j)%x, ws%z(j)%x)
-         call op%apply(ws%z(j)%x, ws%w)
-         call orthogonalize(dot, ws%v, j, opt%reorth_factor, ws%w, ws%h(1:j + 1, j), reorths)
+         call reach(ws%v, j + 1, ws%n)
+         call op%apply(ws%z(j)%x, ws%v(j + 1)%x)
+         call orthogonalize(dot, ws%v(1:j), ws%v(j + 1)%x, opt%reorth_factor, ws%h(1:j + 1, j), reorths)
          ! the Hessenberg column is small and replicated, so plain Fortran is fine here
          colnorm = norm2(ws%h(1:j + 1, j))
          hnext = ws%h(j + 1, j)
@@ -379,8 +381,6 @@ contains
             outcome = cycle_limit
          end if
          if (outcome /= cycle_full .or. j == opt%restart) exit
-         call reach(ws%v, j + 1, ws%n)
-         call copy(ws%w, ws%v(j + 1)%x)
          call divide(ws%v(j + 1)%x, hnext)
          ! a cycle that ends here is observed at the restart, with its true residual
          if (present(observer) .and. mod(it, opt%observe_every) == 0) then
@@ -413,25 +413,26 @@ contains
       history(it) = value
    end subroutine record
 
-   !> Modified Gram–Schmidt of w against v(:, 1:j); h(1:j) gets the coefficients, h(j+1) the
-   !> norm of what is left. "Twice is enough" (Kahan–Parlett; Daniel, Gragg, Kaufman &
-   !> Stewart 1976; Giraud, Langou & Rozložník 2005): if one pass shrank w below η = 1/√2 of
-   !> its norm, cancellation may have cost orthogonality and a second pass restores it to
-   !> working precision; a third never helps. Shifted operators (a Laplacian's large diagonal)
-   !> trip this test at almost every step, doubling the orthogonalization cost, which is why
-   !> η is an option.
-   subroutine orthogonalize(dot, v, j, eta, w, h, reorths)
+   !> Modified Gram–Schmidt of w against the j = size(v) columns of v; h(1:j) gets the
+   !> coefficients, h(j+1) the norm of what is left. "Twice is enough" (Kahan–Parlett; Daniel,
+   !> Gragg, Kaufman & Stewart 1976; Giraud, Langou & Rozložník 2005): if one pass shrank w below
+   !> η = 1/√2 of its norm, cancellation may have cost orthogonality and a second pass restores it
+   !> to working precision; a third never helps. Shifted operators (a Laplacian's large diagonal)
+   !> trip this test at almost every step, doubling the orthogonalization cost, which is why η is
+   !> an option.
+   subroutine orthogonalize(dot, v, w, eta, h, reorths)
       class(inner_product_t), intent(in) :: dot
+      !> the basis so far (w is the next column, passed apart: it is not in v)
       type(column_t), intent(in) :: v(:)
-      integer, intent(in) :: j
-      real(dp), intent(in) :: eta
       real(dp), intent(inout) :: w(:)
+      real(dp), intent(in) :: eta
       real(dp), intent(out) :: h(:)
       integer, intent(inout) :: reorths
 
       real(dp) :: w0, c
-      integer :: i
+      integer :: i, j
 
+      j = size(v)
       w0 = dot%norm(w)
       do i = 1, j
          h(i) = dot%dot(w, v(i)%x)

@@ -22,7 +22,8 @@ module twomem_newton_residual
       real(dp) :: f_norm = 1.0_dp
       !> 1/(|ω_a|/3) per vertex
       real(dp), allocatable :: inv_mass(:)
-      !> work: E X, and C with its Jacobian for the merit
+      !> work: E X, and C with its Jacobian for the merit (with inv_mass allocated at the first
+      !> merit: only the line search asks for it, and Newton-min runs without)
       real(dp), allocatable :: ex(:), c(:), da(:), db(:)
    contains
       procedure :: init
@@ -33,16 +34,15 @@ module twomem_newton_residual
 contains
 
    subroutine init(self, sys, cfun)
-      class(nonlinear_residual_t), intent(inout) :: self
+      class(nonlinear_residual_t), intent(out) :: self
       type(newton_system_t), target, intent(in) :: sys
       integer, intent(in) :: cfun
 
       self%sys => sys
       self%cfun = cfun
-      self%inv_mass = 1/sys%mass
       self%f_norm = sqrt(sys%sum_squares(sys%f))
       if (.not. self%f_norm > 0.0_dp) self%f_norm = 1.0_dp
-      allocate (self%ex(2*sys%n), self%c(sys%n), self%da(sys%n), self%db(sys%n))
+      allocate (self%ex(2*sys%n))
    end subroutine init
 
    !> ‖[F − E X; −C(X)]‖/‖[F; 0]‖, with C and its Jacobian at x.
@@ -63,6 +63,10 @@ contains
       class(nonlinear_residual_t), intent(inout) :: self
       real(dp), intent(in) :: x(:)
 
+      if (.not. allocated(self%c)) then
+         allocate (self%c(self%sys%n), self%da(self%sys%n), self%db(self%sys%n))
+         self%inv_mass = 1/self%sys%mass
+      end if
       call cfun_eval(self%cfun, x, self%c, self%da, self%db)
       call self%sys%apply_e(x, self%ex)
       merit = sqrt(self%sys%sum_squares(self%sys%f, minus=self%ex, weight=self%inv_mass) + self%sys%sum_squares(self%c))
