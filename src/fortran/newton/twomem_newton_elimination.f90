@@ -27,7 +27,7 @@ module twomem_newton_elimination
    use twomem_linalg_csr, only: csr_t
    use twomem_linalg_halo, only: halo_t
    use twomem_linalg_operators, only: preconditioner_t
-   use twomem_linalg_multigrid, only: multigrid_t, multigrid_options_t, multigrid_transfer_t
+   use twomem_linalg_multigrid, only: multigrid_t, multigrid_options_t, multigrid_transfer_t, multigrid_work_t
    use twomem_fem_discrete, only: discrete_problem_t
    implicit none
    private
@@ -50,8 +50,11 @@ module twomem_newton_elimination
       real(dp), allocatable :: k_diag(:)
       !> the w-block operator K + c_μ D a/b with identity rows at fixed unknowns
       type(csr_t) :: w_matrix
-      !> S-block (K) and w-block hierarchies
+      !> S-block (K) and w-block hierarchies, and the vectors of their V-cycles (one set: the
+      !> two cycles run one after the other). Allocatable: as a plain component, gfortran 12 left
+      !> its levels allocated when the preconditioner was deallocated (the valgrind test).
       type(multigrid_t) :: s_mg, w_mg
+      type(multigrid_work_t), allocatable :: cycle_work
       !> the C-function rows of the current Newton matrix: a = ∂C/∂(u1 − u2), b = ∂C/∂λ
       real(dp), allocatable :: a(:), b(:)
       logical, allocatable :: fixed(:)
@@ -69,8 +72,9 @@ module twomem_newton_elimination
       logical :: built = .false.
       !> positions of the diagonals of K in its value array
       integer(ip), allocatable :: diag(:)
-      !> work: the two right-hand sides, S, w, w's fixed values and products with K
-      real(dp), allocatable :: rhs_s(:), rhs_w(:), s(:), w(:), w_fixed(:), kw(:)
+      !> work: w's right-hand side and fixed values, products with K (S, w and S's right-hand side
+      !> live in the output's thirds while `apply` runs)
+      real(dp), allocatable :: rhs_w(:), w_fixed(:), kw(:)
    contains
       procedure :: init
       procedure :: setup
@@ -108,6 +112,8 @@ contains
       ! Newton step only recomputes the coarse rows near the contact zone
       call self%w_mg%init(self%w_matrix, transfer, top, options, .false., err, start_from=self%s_mg, base=p%stiffness)
       if (allocated(err)) return
+      allocate (self%cycle_work)
+      call self%cycle_work%init(self%s_mg)
       allocate (self%diag(n), self%k_diag(n))
       do i = 1, n
          self%diag(i) = p%stiffness%find(i, i)
@@ -116,8 +122,7 @@ contains
       call self%halo%add(self%k_diag)
       allocate (self%a(n), self%b(n), self%fixed(n), self%row_changed(n), self%flipped(n), self%refill(n), &
                 self%by_balance(n), self%shift(n), &
-                self%rhs_s(n), self%rhs_w(n), &
-                self%s(n), self%w(n), self%w_fixed(n), self%kw(n))
+                self%rhs_w(n), self%w_fixed(n), self%kw(n))
       self%fixed = .false.
       self%shift = 0.0_dp
       self%built = self%w_mg%valid
@@ -245,19 +250,25 @@ contains
       real(dp), intent(in) :: r(:)
       real(dp), intent(out) :: z(:)
 
-      call right_hand_sides(self%n, self%mu1, self%mu2, self%c_mu, self%mass, self%a, self%b, self%fixed, r, &
-                            self%rhs_s, self%rhs_w, self%w_fixed)
-      ! the fixed values enter the free rows as K_FC w_C on the right-hand side
-      call fixed_coupling(self%k, self%fixed, self%w_fixed, self%kw)
+      integer(ip) :: n
+
+      n = self%n
+      ! S, w and S's right-hand side in z's thirds, which back_substitute overwrites row by row
+      associate (s => z(1:n), w => z(n + 1:2*n), rhs_s => z(2*n + 1:3*n))
+         call right_hand_sides(n, self%mu1, self%mu2, self%c_mu, self%mass, self%a, self%b, self%fixed, r, &
+                               rhs_s, self%rhs_w, self%w_fixed)
+         ! the fixed values enter the free rows as K_FC w_C on the right-hand side
+         call fixed_coupling(self%k, self%fixed, self%w_fixed, self%kw)
+         call self%halo%add(self%kw)
+         call subtract_free(self%fixed, self%kw, self%rhs_w)
+         call self%s_mg%vcycle(rhs_s, s, self%cycle_work)
+         call self%w_mg%vcycle(self%rhs_w, w, self%cycle_work)
+         call add_fixed_values(self%w_fixed, w)
+         call rows_product(self%k, self%by_balance, w, self%kw)
+      end associate
       call self%halo%add(self%kw)
-      call subtract_free(self%fixed, self%kw, self%rhs_w)
-      call self%s_mg%vcycle(self%rhs_s, self%s)
-      call self%w_mg%vcycle(self%rhs_w, self%w)
-      call add_fixed_values(self%w_fixed, self%w)
-      call rows_product(self%k, self%by_balance, self%w, self%kw)
-      call self%halo%add(self%kw)
-      call back_substitute(self%n, self%mu1, self%mu2, self%c_mu, self%mass, self%a, self%b, self%by_balance, &
-                           self%kw, r, self%s, self%w, z)
+      call back_substitute(n, self%mu1, self%mu2, self%c_mu, self%mass, self%a, self%b, self%by_balance, &
+                           self%kw, r, z)
    end subroutine apply
 
    !> rhs_s = r1 + r2; on free rows rhs_w = r1/μ1 − r2/μ2 + c_μ D r3/b (the K_FC w_C part comes
@@ -362,27 +373,30 @@ contains
       !$omp end parallel do
    end subroutine add_fixed_values
 
-   !> z from S and w: X3 from the C-function row or from the balance (ii) (kw = K w on those
-   !> rows), then X1, X2.
-   subroutine back_substitute(n, mu1, mu2, c_mu, mass, a, b, by_balance, kw, r, s, w, z)
+   !> z from S and w, which it holds on entry as [S; w; ·]: X3 from the C-function row or from
+   !> the balance (ii) (kw = K w on those rows), then X1, X2.
+   subroutine back_substitute(n, mu1, mu2, c_mu, mass, a, b, by_balance, kw, r, z)
       integer(ip), intent(in) :: n
       real(dp), intent(in) :: mu1, mu2, c_mu, mass(:), a(:), b(:)
       logical, intent(in) :: by_balance(:)
-      real(dp), intent(in) :: kw(:), r(:), s(:), w(:)
-      real(dp), intent(out) :: z(:)
+      real(dp), intent(in) :: kw(:), r(:)
+      real(dp), intent(inout) :: z(:)
 
       integer(ip) :: i
+      real(dp) :: s, w
 
-      !$omp parallel do default(none) shared(n, mu1, mu2, c_mu, mass, a, b, by_balance, kw, r, s, w, z) &
-      !$omp private(i) schedule(static) if(n > 4096)
+      !$omp parallel do default(none) shared(n, mu1, mu2, c_mu, mass, a, b, by_balance, kw, r, z) &
+      !$omp private(i, s, w) schedule(static) if(n > 4096)
       do i = 1, n
+         s = z(i)
+         w = z(n + i)
          if (by_balance(i)) then
             z(2*n + i) = (kw(i) - r(i)/mu1 + r(n + i)/mu2)/(c_mu*mass(i))
          else
-            z(2*n + i) = (r(2*n + i) - a(i)*w(i))/b(i)
+            z(2*n + i) = (r(2*n + i) - a(i)*w)/b(i)
          end if
-         z(i) = (s(i) + mu2*w(i))/(mu1 + mu2)
-         z(n + i) = (s(i) - mu1*w(i))/(mu1 + mu2)
+         z(i) = (s + mu2*w)/(mu1 + mu2)
+         z(n + i) = (s - mu1*w)/(mu1 + mu2)
       end do
       !$omp end parallel do
    end subroutine back_substitute
