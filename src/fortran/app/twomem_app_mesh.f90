@@ -47,6 +47,7 @@ contains
       call hierarchy%init(piece, cfg%mesh%levels, err)
       call comm%agree(err)
       if (allocated(err)) return
+      call hierarchy%meshes(hierarchy%levels)%drop_refinement_tables()
       do l = 0, hierarchy%levels
          associate (m => hierarchy%meshes(l))
             call report_level(comm, l, m)

@@ -23,7 +23,8 @@ module twomem_mesh_triangulation
       integer(ip), allocatable :: edges(:, :)
       !> edge of triangle t opposite its local vertex i, (3, nt)
       integer(ip), allocatable :: triangle_edges(:, :)
-      !> triangles on either side of an edge, (2, ne); the second is 0 on the boundary
+      !> triangles on either side of an edge, (2, ne); the second is 0 on the boundary (not kept
+      !> on a run's finest mesh: see drop_refinement_tables)
       integer(ip), allocatable :: edge_triangles(:, :)
       logical, allocatable :: boundary_vertex(:), boundary_edge(:)
       !> vertex patches in CSR form: the triangles around vertex a are
@@ -53,6 +54,7 @@ module twomem_mesh_triangulation
       procedure :: total_area
       procedure :: set_whole
       procedure :: in_subdomain
+      procedure :: drop_refinement_tables
    end type mesh_t
 
 contains
@@ -397,4 +399,14 @@ contains
          end do
       end do
    end function boundary_diameter
+
+   !> Free what only refining or partitioning this mesh reads: the triangles on either side of
+   !> each edge and the global edge numbers. A run's finest mesh is neither refined nor
+   !> partitioned, and these are 36 MB of it at 10⁶ vertices.
+   subroutine drop_refinement_tables(self)
+      class(mesh_t), intent(inout) :: self
+
+      if (allocated(self%edge_triangles)) deallocate (self%edge_triangles)
+      if (allocated(self%global_edge)) deallocate (self%global_edge)
+   end subroutine drop_refinement_tables
 end module twomem_mesh_triangulation
