@@ -512,10 +512,10 @@ contains
       rows = pack([(i, i=1, size(mask, kind=ip))], mask)
    end function row_list
 
-   !> x = one V-cycle applied to b, from a zero initial guess. b (full values at shared unknowns)
-   !> must vanish at the fixed unknowns; x then does too. Collective.
-   !> x = one V-cycle applied to b, with the vectors of `work` (made by `work%init` for this
-   !> hierarchy or one on the same levels) or, without, the hierarchy's own.
+   !> x = one V-cycle applied to b, from a zero initial guess, with the vectors of `work` (made by
+   !> `work%init` for this hierarchy or one on the same levels) or, without, the hierarchy's own.
+   !> b (full values at shared unknowns) must vanish at the fixed unknowns; x then does too.
+   !> Collective.
    subroutine vcycle(self, b, x, work)
       class(multigrid_t), intent(inout) :: self
       real(dp), intent(in) :: b(:)
