@@ -6,6 +6,7 @@
 module twomem_input_formula_parser
    use twomem_base_kinds, only: dp
    use twomem_base_text, only: to_lower
+   use twomem_base_errors, only: excerpt
    use twomem_input_values, only: scan_real
    use twomem_input_formula, only: formula_t, formula_status_text, status_ok, max_depth, apply, compare, &
       is_binary, op_const, op_x, op_y, op_r, op_add, op_sub, op_mul, op_div, op_pow, op_neg, op_lt, op_le, &
@@ -271,7 +272,7 @@ contains
       case ('min'); op = op_min; need = -2
       case ('max'); op = op_max; need = -2
       case default
-         call fail_at(p, start, "unknown name '"//name//"' (variables: x, y, r, pi; functions: sqrt, exp, log, "// &
+         call fail_at(p, start, "unknown name '"//excerpt(name)//"' (variables: x, y, r, pi; functions: sqrt, exp, log, "// &
                       'sin, cos, tan, atan2, abs, min, max)')
          return
       end select
