@@ -10,7 +10,8 @@ plot.
 Each size COARSE_H:LEVELS is input/default.nml (radial on the disk, its exact error switched
 off) with mesh.coarse_h and mesh.levels set; the default sizes have 2.2e4, 1.5e5, 1.0e6 and
 4.1e6 vertices. Two runs per size, flux and thread count: the adaptive method (the estimators
-drive its GMRES stopping test) from (g, 0, 0) for one Newton step and for three, with the
+drive its GMRES stopping test, here at every check: estimate.checks=all) from (g, 0, 0) for
+one Newton step and for three, with the
 fields, /estimators and the history written, as a real run writes them. From the results:
 - first s/eval = /summary estimator_time of the one-step run (its single evaluation, with the
   fields of the output): the evaluation alone (residual lifting, both flux reconstructions,
@@ -45,7 +46,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def run(exe: str, coarse_h: str, levels: str, flux: str, threads: int, out: Path, steps: int = 1) -> dict:
     cmd = [exe, "run", str(ROOT / "input" / "default.nml"), f"mesh.coarse_h={coarse_h}", f"mesh.levels={levels}",
            "problem.exact=none", f"estimate.flux={flux}", "newton.linear=adaptive", "newton.initial=paper",
-           f"newton.max_it={steps}", "output.xdmf=.false.", f"output.file={out}"]
+           "estimate.checks=all", f"newton.max_it={steps}", "output.xdmf=.false.", f"output.file={out}"]
     env = dict(os.environ, OMP_NUM_THREADS=str(threads))
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
     # exit 1: not converged within newton.max_it, which is what we ask for

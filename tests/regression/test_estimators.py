@@ -20,12 +20,13 @@ from twomem_testlib import SOURCE, out_file, run
 MESH = ("mesh.coarse_h=0.5", "mesh.boundary_h=0.03")
 # The adaptive method evaluates the estimators from its first step on (not at the initial
 # iterate, where no test reads them), and nested iteration often leaves it a single step: here it
-# starts from (g, 0, 0), so that the bound is checked on several iterates far from the solution.
+# starts from (g, 0, 0), so that the bound is checked on several iterates far from the solution,
+# and evaluates at every check (by default it skips those where Newton cannot stop).
 METHODS = {
     "direct-min": ("newton.linear=direct",),
     "gmres-min": ("newton.linear=gmres", "gmres.forcing=paper"),
-    "adaptive-min": ("newton.linear=adaptive", "newton.initial=paper"),
-    "adaptive-fb": ("newton.linear=adaptive", "newton.cfun=fb", "newton.initial=paper"),
+    "adaptive-min": ("newton.linear=adaptive", "newton.initial=paper", "estimate.checks=all"),
+    "adaptive-fb": ("newton.linear=adaptive", "newton.cfun=fb", "newton.initial=paper", "estimate.checks=all"),
     "direct-fb": ("newton.linear=direct", "newton.cfun=fb"),
 }
 # the iterative methods on two levels only, to keep the debug CI run short
@@ -95,6 +96,43 @@ def test_adaptive_method_stops_on_the_estimators():
     for row in newton_rows:
         assert h["eta_alg"][row] <= 0.3 * max(h["eta_disc"][row], h["eta_lin"][row])
     assert 1.0 <= s["effectivity"] <= 1.15
+
+
+@pytest.mark.parametrize("cfun", ["min", "fb"])
+def test_predicted_checks_skip_only_where_newton_cannot_stop(cfun):
+    """estimate.checks = 'predicted' (the default) against 'all', from (g, 0, 0): the skipped
+    checks are exactly those where the last evaluation's η_lin, scaled by the fall of the
+    linearization residual, fails η_lin ≤ γ_lin η_disc (recomputed here from the history); Newton
+    stops only on an evaluated row that passes the test; fewer evaluations; the same accuracy."""
+    common = ("problem.exact=bbbv", "mesh.levels=2", "newton.linear=adaptive", "newton.initial=paper",
+              f"newton.cfun={cfun}")
+    every = solve(f"checks-all-{cfun}", *common, "estimate.checks=all")
+    predicted = solve(f"checks-predicted-{cfun}", *common)
+    h, s, s_all = history(predicted), summary(predicted), summary(every)
+    for path in (every, predicted):
+        with h5py.File(path, "r") as f:
+            assert f.attrs["status"] == "converged"
+    assert s["estimator_evaluations"] < s_all["estimator_evaluations"]
+    evaluated = np.isfinite(h["eta_total"])
+    last = None
+    for row in range(len(h["eta_total"])):
+        if h["newton_it"][row] == 0:
+            continue
+        if last is not None:
+            predicted_lin = h["eta_lin"][last] * h["lin_residual"][row] / h["lin_residual"][last]
+            assert evaluated[row] == (predicted_lin <= 0.3 * h["eta_disc"][last]), f"row {row}"
+        else:
+            assert evaluated[row], "the first check evaluates"
+        if evaluated[row]:
+            last = row
+    newton_rows = np.flatnonzero((h["inner"] == 0) & (h["newton_it"] > 0))
+    for row in newton_rows[:-1]:
+        assert not h["eta_lin"][row] <= 0.3 * h["eta_disc"][row], f"Newton went on past a passed test, row {row}"
+    final = newton_rows[-1]
+    assert evaluated[final] and h["eta_lin"][final] <= 0.3 * h["eta_disc"][final]
+    assert s["eta_total"] >= s["energy_error"]
+    # both stopped on the same test: errors within the linearization part they allow
+    assert s["energy_error"] == pytest.approx(s_all["energy_error"], rel=0.05)
 
 
 def test_local_criteria_imply_the_global_ones():

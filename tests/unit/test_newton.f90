@@ -7,6 +7,8 @@ module test_newton
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_newton_cfun, only: cfun_min, cfun_fb
    use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_solve
+   use twomem_newton_inner, only: check_schedule_t
+   use twomem_newton_history, only: history_row_t, not_computed
    use twomem_testing, only: unittest_t, new_unittest, check, check_close, error_t
    use test_refinement, only: square_problem
    implicit none
@@ -23,7 +25,8 @@ contains
                new_unittest('cfun_jacobians_finite_differences', test_cfun_fd), &
                new_unittest('cfun_fb_values_and_kink', test_cfun_fb), &
                new_unittest('discrete_equations_roundoff', test_discrete_equations), &
-               new_unittest('iteration_limit_reported', test_limit)]
+               new_unittest('iteration_limit_reported', test_limit), &
+               new_unittest('check_schedule_predicts_the_newton_test', test_check_schedule)]
    end subroutine collect_newton
 
    subroutine test_cfun_min(err)
@@ -150,4 +153,39 @@ contains
       call check(err, .not. res%converged, 'one step is not enough')
       call check(err, index(res%status, 'iteration limit') > 0, 'status names the limit: '//res%status)
    end subroutine test_limit
+
+   !> The adaptive method's checks: the first evaluates; a later one only where η_lin, scaled by
+   !> the fall of the linearization residual, would pass η_lin ≤ γ_lin η_disc; an evaluation
+   !> that failed (NaN) makes the next check evaluate; 'all' evaluates every check.
+   subroutine test_check_schedule(err)
+      type(error_t), allocatable, intent(out) :: err
+      type(check_schedule_t) :: schedule
+      type(history_row_t) :: row
+
+      schedule%predict = .true.
+      schedule%gamma_lin = 0.3_dp
+      call check(err, schedule%wanted(1.0_dp), 'the first check evaluates')
+      row = not_computed()
+      row%lin_residual = 1.0_dp
+      row%eta_lin = 1.0e-2_dp
+      row%eta_disc = 1.0e-3_dp
+      call schedule%remember(row)
+      ! predicted η_lin at residual ρ: 1e-2 ρ, against 0.3e-3: evaluate below ρ = 0.03
+      call check(err, .not. schedule%wanted(0.5_dp), 'a residual halved cannot pass a test failing by 33x')
+      call check(err, .not. schedule%wanted(0.031_dp), 'just above the predicted pass')
+      call check(err, schedule%wanted(0.029_dp), 'just below the predicted pass')
+      call check(err, schedule%wanted(0.0_dp), 'a zero residual evaluates')
+      row%eta_lin = ieee_nan()
+      call schedule%remember(row)
+      call check(err, schedule%wanted(0.5_dp), 'after a failed evaluation the next check evaluates')
+      row%eta_lin = 1.0e-2_dp
+      call schedule%remember(row)
+      schedule%predict = .false.
+      call check(err, schedule%wanted(0.5_dp), "estimate.checks = 'all' evaluates every check")
+   contains
+      real(dp) function ieee_nan()
+         use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
+         ieee_nan = ieee_value(1.0_dp, ieee_quiet_nan)
+      end function ieee_nan
+   end subroutine test_check_schedule
 end module test_newton

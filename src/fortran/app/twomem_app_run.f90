@@ -316,6 +316,7 @@ contains
       options%gamma_lin = cfg%newton%gamma_lin
       options%gamma_alg = cfg%estimate%gamma_alg
       options%local_criteria = trim(cfg%estimate%criteria) == 'local'
+      options%predicted_checks = trim(cfg%estimate%checks) == 'predicted'
       options%verbose = comm%is_root()
    end subroutine newton_options_from
 

@@ -77,6 +77,9 @@ module twomem_input_case
       integer :: alg_levels = 3
       !> adaptive stopping: 'global' (paper eq. (63)) or 'local' (eq. (64), implies the global)
       character(len=config_len) :: criteria = 'global'
+      !> which of the adaptive method's checks evaluate the estimators: 'predicted' (those where
+      !> the last evaluation predicts that Newton's stop can hold) or 'all' (the paper)
+      character(len=config_len) :: checks = 'predicted'
    end type estimate_config_t
 
    type :: output_config_t

@@ -258,6 +258,7 @@ contains
       case (k_initial); cfg%newton%initial = s
       case (k_line_search); cfg%newton%line_search = s
       case (k_fb_finish); cfg%newton%fb_finish = s
+      case (k_checks); cfg%estimate%checks = s
       case (k_forcing); cfg%gmres%forcing = s
       case (k_flux); cfg%estimate%flux = s
       case (k_criteria); cfg%estimate%criteria = s
@@ -369,6 +370,7 @@ contains
       case (k_initial); s = quote(trim(cfg%newton%initial))
       case (k_line_search); s = quote(trim(cfg%newton%line_search))
       case (k_fb_finish); s = quote(trim(cfg%newton%fb_finish))
+      case (k_checks); s = quote(trim(cfg%estimate%checks))
       case (k_forcing); s = quote(trim(cfg%gmres%forcing))
       case (k_every); s = int_text(cfg%estimate%every)
       case (k_flux); s = quote(trim(cfg%estimate%flux))

@@ -11,10 +11,10 @@ module twomem_input_keys
              k_cfun, k_linear, k_newton_max_it, k_tol, k_gamma_lin, k_restart, k_gmres_max_it, k_rtol, &
              k_precond, k_gamma_alg, k_enabled, k_output_file, k_fields, k_estimators, k_history, k_xdmf, &
              k_boundary_h, k_initial, k_line_search, k_forcing, k_every, k_flux, k_alg_levels, k_criteria, &
-             k_f1_file, k_f2_file, k_fb_finish
+             k_f1_file, k_f2_file, k_fb_finish, k_checks
    public :: find_group, find_key, group_list, key_list
 
-   integer, parameter :: n_groups = 6, n_keys = 37
+   integer, parameter :: n_groups = 6, n_keys = 38
    character(len=*), parameter :: group_names(n_groups) = [character(len=8) :: &
       'mesh', 'problem', 'newton', 'gmres', 'estimate', 'output']
    !> kind_load: a real number, or a formula (quoted in a file; a bare override that is not a
@@ -28,10 +28,11 @@ module twomem_input_keys
       k_gamma_alg = 20, k_enabled = 21, &
       k_output_file = 22, k_fields = 23, k_estimators = 24, k_history = 25, k_xdmf = 26, &
       k_boundary_h = 27, k_initial = 28, k_line_search = 29, k_forcing = 30, k_every = 31, &
-      k_flux = 32, k_alg_levels = 33, k_criteria = 34, k_f1_file = 35, k_f2_file = 36, k_fb_finish = 37
+      k_flux = 32, k_alg_levels = 33, k_criteria = 34, k_f1_file = 35, k_f2_file = 36, k_fb_finish = 37, &
+      k_checks = 38
    integer, parameter :: key_group(n_keys) = [1, 1, 1, 1, 2, 2, 2, 2, 2, 2, 3, 3, 3, 3, 3, &
                                               4, 4, 4, 4, 5, 5, 6, 6, 6, 6, 6, 1, 3, 3, 4, 5, 5, 5, 5, &
-                                              2, 2, 3]
+                                              2, 2, 3, 5]
    character(len=*), parameter :: key_names(n_keys) = [character(len=12) :: &
       'domain', 'file', 'coarse_h', 'levels', &
       'mu1', 'mu2', 'f1', 'f2', 'g', 'exact', &
@@ -40,7 +41,7 @@ module twomem_input_keys
       'gamma_alg', 'enabled', &
       'file', 'fields', 'estimators', 'history', 'xdmf', 'boundary_h', &
       'initial', 'line_search', 'forcing', 'every', 'flux', 'alg_levels', 'criteria', 'f1_file', 'f2_file', &
-      'fb_finish']
+      'fb_finish', 'checks']
    integer, parameter :: key_kinds(n_keys) = [kind_word, kind_path, kind_real, kind_int, &
       kind_real, kind_real, kind_load, kind_load, kind_real, kind_word, &
       kind_word, kind_word, kind_int, kind_real, kind_real, &
@@ -48,7 +49,7 @@ module twomem_input_keys
       kind_real, kind_logical, &
       kind_path, kind_logical, kind_logical, kind_logical, kind_logical, kind_real, &
       kind_word, kind_word, kind_word, kind_int, kind_word, kind_int, kind_word, kind_path, kind_path, &
-      kind_word]
+      kind_word, kind_word]
 
 contains
 

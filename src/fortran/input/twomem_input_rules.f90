@@ -79,6 +79,7 @@ contains
       call check_word(err, origin, k_flux, cfg%estimate%flux, [character(len=8) :: 'rt1', 'rt0'])
       call check_int(err, origin, k_alg_levels, cfg%estimate%alg_levels, 1, 13)
       call check_word(err, origin, k_criteria, cfg%estimate%criteria, [character(len=8) :: 'global', 'local'])
+      call check_word(err, origin, k_checks, cfg%estimate%checks, [character(len=9) :: 'predicted', 'all'])
    end subroutine validate
 
    !> A load: finite when a number, parsed when a formula (the message gives the column).

@@ -9,8 +9,12 @@
 !> at every vertex, R_lin and the algebraic residual are the same vector, and stopping there
 !> would only hand the rest of this linear solve to the next Newton step (one more
 !> linearization, preconditioner update and GMRES start): GMRES goes on to newton.tol instead.
+!> Which checks of the adaptive method evaluate the estimators is `check_schedule_t`'s choice
+!> (estimate.checks): at 10^6 vertices an evaluation costs as much as three or four Newton
+!> steps, and far from the stop the Newton test cannot hold. A skipped check is stopped by the
+!> inexact method's forcing above, and its row leaves the estimators NaN.
 module twomem_newton_inner
-   use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
+   use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan, ieee_is_finite
    use twomem_base_kinds, only: dp, ip
    use twomem_base_timer, only: wall_time
    use twomem_linalg_gmres, only: gmres_observer_t
@@ -20,7 +24,7 @@ module twomem_newton_inner
    implicit none
    private
 
-   public :: newton_observer_t, inner_observer_t, alg_criterion, lin_criterion
+   public :: newton_observer_t, inner_observer_t, check_schedule_t, alg_criterion, lin_criterion
 
    !> Extension point: fill the error/estimator columns of a history row for iterate x; the
    !> estimator columns only when `estimates` (a row whose estimators no stopping test reads,
@@ -40,6 +44,24 @@ module twomem_newton_inner
       end subroutine observe_interface
    end interface
 
+   !> Whether a check of the adaptive method evaluates the estimators. With `predict` (the
+   !> default, estimate.checks = 'predicted') it is skipped when the last evaluation predicts
+   !> that the Newton test η_lin ≤ γ_lin η_disc fails here: η_lin scaled by how much the
+   !> linearization residual has fallen since, η_disc taken as it was (it moves by a few
+   !> percent between Newton steps, η_lin by orders of magnitude). Judging by the global test
+   !> also serves the local criteria, which imply it. A wrong skip costs one more Newton step,
+   !> a wrong evaluation a whole one, and no stop is ever decided without an evaluation; the
+   !> first check evaluates, and so does any check after an evaluation that failed.
+   type :: check_schedule_t
+      logical :: predict = .false.
+      real(dp) :: gamma_lin = 0.3_dp
+      !> η_lin, η_disc and the relative ‖R_lin‖ of the last evaluated iterate (none yet: −1)
+      real(dp) :: eta_lin = -1, eta_disc = -1, lin_residual = -1
+   contains
+      procedure :: wanted
+      procedure :: remember
+   end type check_schedule_t
+
    !> GMRES's observer inside Newton step `newton_it`.
    type, extends(gmres_observer_t) :: inner_observer_t
       type(nonlinear_residual_t), pointer :: residual => null()
@@ -53,6 +75,8 @@ module twomem_newton_inner
       integer :: linearized = c_function_min
       integer :: newton_it = 0, gmres_before = 0
       real(dp) :: b_norm = 1.0_dp, t0 = 0.0_dp
+      !> the adaptive method's choice of the checks that evaluate the estimators
+      type(check_schedule_t) :: schedule
       !> work: C and its Jacobian at the GMRES iterate (the Newton driver's arrays for them,
       !> which it does not read while GMRES runs)
       real(dp), pointer, contiguous :: c(:) => null(), da(:) => null(), db(:) => null()
@@ -72,6 +96,7 @@ contains
 
       type(history_row_t) :: row
       integer(ip) :: n
+      logical :: estimates
 
       n = size(x, kind=ip)/3
       row = not_computed()
@@ -83,10 +108,13 @@ contains
       row%inner = .true.
       row%step = ieee_value(1.0_dp, ieee_quiet_nan)
       row%active_changed = -1
-      if (associated(self%user)) call self%user%observe(x, row, estimates=.true.)
+      estimates = .true.
+      if (self%adaptive) estimates = self%schedule%wanted(row%lin_residual)
+      if (associated(self%user)) call self%user%observe(x, row, estimates=estimates)
       row%wall_time = wall_time() - self%t0
       call self%history%append(row)
-      if (self%adaptive) then
+      if (self%adaptive .and. estimates) then
+         call self%schedule%remember(row)
          stop = alg_criterion(row, self%gamma_alg, self%local_criteria)
       else
          ! For Newton-min, once GMRES's iterate has the Jacobian's contact set, B − A x and
@@ -94,11 +122,38 @@ contains
          ! deciding the tie. At that tie the linearization residual is all algebraic, and
          ! stopping would leave the next Newton step nothing to do but go on with this very
          ! solve: GMRES goes on to newton.tol instead.
-         stop = self%paper_forcing .and. row%alg_residual <= row%lin_residual*(1 + 1.0e-8_dp)
+         stop = (self%paper_forcing .or. self%adaptive) .and. row%alg_residual <= row%lin_residual*(1 + 1.0e-8_dp)
          if (stop .and. self%finish .and. row%lin_residual > self%newton_tol .and. self%linearized == c_function_min) &
             stop = .not. same_branches(self, x)
       end if
    end subroutine observe_gmres
+
+   !> Whether a check at an iterate of relative linearization residual `lin_residual` evaluates
+   !> the estimators.
+   pure logical function wanted(self, lin_residual)
+      class(check_schedule_t), intent(in) :: self
+      real(dp), intent(in) :: lin_residual
+
+      wanted = .true.
+      if (.not. self%predict .or. .not. self%lin_residual > 0) return
+      ! written so that a NaN anywhere evaluates
+      wanted = .not. self%eta_lin*(lin_residual/self%lin_residual) > self%gamma_lin*self%eta_disc
+   end function wanted
+
+   !> Keep an evaluated row's values for the next predictions; a failed evaluation (NaN
+   !> estimators) forgets the last one, so that the next check evaluates.
+   subroutine remember(self, row)
+      class(check_schedule_t), intent(inout) :: self
+      type(history_row_t), intent(in) :: row
+
+      if (ieee_is_finite(row%eta_lin) .and. ieee_is_finite(row%eta_disc) .and. ieee_is_finite(row%lin_residual)) then
+         self%eta_lin = row%eta_lin
+         self%eta_disc = row%eta_disc
+         self%lin_residual = row%lin_residual
+      else
+         self%lin_residual = -1
+      end if
+   end subroutine remember
 
    !> Whether the min's Jacobian at the GMRES iterate x is the one the Newton step linearized
    !> (the same branch of the min at every vertex), on every rank. An exact comparison: the

@@ -65,6 +65,9 @@ module twomem_newton_solver
       !> adaptive stopping: γ_lin, γ_alg and the local criteria instead of the global ones
       real(dp) :: gamma_lin = 0.3_dp, gamma_alg = 0.3_dp
       logical :: local_criteria = .false.
+      !> adaptive method: evaluate the estimators only at the checks where the last evaluation
+      !> predicts that the Newton test can hold (estimate.checks = 'predicted'; check_schedule_t)
+      logical :: predicted_checks = .true.
       integer :: max_it = 100
       real(dp) :: tol = 1.0e-10_dp
       logical :: line_search = .false.
@@ -219,6 +222,8 @@ contains
       inner%adaptive = adaptive
       inner%local_criteria = options%local_criteria
       inner%gamma_alg = options%gamma_alg
+      inner%schedule%predict = options%predicted_checks
+      inner%schedule%gamma_lin = options%gamma_lin
       inner%newton_tol = options%tol
       inner%t0 = t0
 
@@ -349,6 +354,8 @@ contains
          type(history_row_t), intent(inout) :: row
          logical, intent(in) :: reuse
 
+         logical :: estimates
+
          ! contact where u1 − u2 ≤ λ: for Newton-min exactly the vertices with the a-row
          active = x(1:n) - x(n + 1:2*n) <= x(2*n + 1:)
          row%newton_it = k
@@ -362,7 +369,10 @@ contains
          else if (present(observer)) then
             ! Algorithm 1 reads the estimators from the first step on: at the initial iterate
             ! (at 10^6 vertices, a fifth of the adaptive run's evaluations) no test needs them
-            call observer%observe(x, row, estimates=.not. (adaptive .and. k == 0))
+            estimates = .not. adaptive
+            if (adaptive .and. k > 0) estimates = inner%schedule%wanted(row%lin_residual)
+            call observer%observe(x, row, estimates=estimates)
+            if (adaptive .and. estimates) call inner%schedule%remember(row)
          end if
          row%wall_time = wall_time() - t0
          call result%history%append(row)
