@@ -154,9 +154,9 @@ contains
       call check(err, index(res%status, 'iteration limit') > 0, 'status names the limit: '//res%status)
    end subroutine test_limit
 
-   !> The adaptive method's checks: the first evaluates; a later one only where η_lin, scaled by
-   !> the fall of the linearization residual, would pass η_lin ≤ γ_lin η_disc; an evaluation
-   !> that failed (NaN) makes the next check evaluate; 'all' evaluates every check.
+   !> The adaptive method's checks: the first evaluates; a later one only where its η_lin passes
+   !> γ_lin times the last η_disc; an evaluation that failed (NaN) or a NaN η_lin makes the check
+   !> evaluate; 'all' evaluates every check.
    subroutine test_check_schedule(err)
       type(error_t), allocatable, intent(out) :: err
       type(check_schedule_t) :: schedule
@@ -166,22 +166,21 @@ contains
       schedule%gamma_lin = 0.3_dp
       call check(err, schedule%wanted(1.0_dp), 'the first check evaluates')
       row = not_computed()
-      row%lin_residual = 1.0_dp
       row%eta_lin = 1.0e-2_dp
       row%eta_disc = 1.0e-3_dp
       call schedule%remember(row)
-      ! predicted η_lin at residual ρ: 1e-2 ρ, against 0.3e-3: evaluate below ρ = 0.03
-      call check(err, .not. schedule%wanted(0.5_dp), 'a residual halved cannot pass a test failing by 33x')
-      call check(err, .not. schedule%wanted(0.031_dp), 'just above the predicted pass')
-      call check(err, schedule%wanted(0.029_dp), 'just below the predicted pass')
-      call check(err, schedule%wanted(0.0_dp), 'a zero residual evaluates')
-      row%eta_lin = ieee_nan()
+      call check(err, .not. schedule%wanted(1.0e-2_dp), 'eta_lin 33 times gamma_lin eta_disc is skipped')
+      call check(err, .not. schedule%wanted(3.01e-4_dp), 'just above gamma_lin eta_disc')
+      call check(err, schedule%wanted(2.99e-4_dp), 'just below gamma_lin eta_disc')
+      call check(err, schedule%wanted(0.0_dp), 'a zero eta_lin evaluates')
+      call check(err, schedule%wanted(ieee_nan()), 'an unknown eta_lin evaluates')
+      row%eta_disc = ieee_nan()
       call schedule%remember(row)
-      call check(err, schedule%wanted(0.5_dp), 'after a failed evaluation the next check evaluates')
-      row%eta_lin = 1.0e-2_dp
+      call check(err, schedule%wanted(1.0_dp), 'after a failed evaluation the next check evaluates')
+      row%eta_disc = 1.0e-3_dp
       call schedule%remember(row)
       schedule%predict = .false.
-      call check(err, schedule%wanted(0.5_dp), "estimate.checks = 'all' evaluates every check")
+      call check(err, schedule%wanted(1.0_dp), "estimate.checks = 'all' evaluates every check")
    contains
       real(dp) function ieee_nan()
          use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan

@@ -3,6 +3,7 @@
 !> solution is known, the energy error. It counts and times the estimator evaluations, so that
 !> their cost can be reported next to the solver's.
 module twomem_app_observer
+   use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t
    use twomem_base_timer, only: wall_time
@@ -41,6 +42,7 @@ module twomem_app_observer
       type(error_t), allocatable :: err
    contains
       procedure :: observe
+      procedure :: linearization_estimate
       procedure :: estimate
       procedure, private :: refresh
    end type run_observer_t
@@ -82,6 +84,22 @@ contains
          self%error_time = self%error_time + (wall_time() - t0)
       end if
    end subroutine observe
+
+   !> η_lin alone at x (estimator_t%linearization_estimate: no flux), timed with the
+   !> evaluations but not counted as one; NaN when the run computes no estimators or one failed.
+   function linearization_estimate(self, x) result(eta_lin)
+      class(run_observer_t), intent(inout) :: self
+      real(dp), intent(in) :: x(:)
+      real(dp) :: eta_lin
+
+      real(dp) :: t0
+
+      eta_lin = ieee_value(1.0_dp, ieee_quiet_nan)
+      if (.not. self%with_estimates .or. allocated(self%err)) return
+      t0 = wall_time()
+      eta_lin = self%estimator%linearization_estimate(self%hierarchy, self%p, x)
+      self%estimator_time = self%estimator_time + (wall_time() - t0)
+   end function linearization_estimate
 
    !> Every estimator at x with its per-triangle fields: one timed evaluation, or the previous one
    !> if it saw this very x (with its element pass run again for the fields it left out).

@@ -40,6 +40,7 @@ module twomem_estimate_estimators
    use twomem_estimate_coloring, only: coloring_t
    use twomem_estimate_ghosts, only: ghost_cells_t
    use twomem_estimate_patch_classes, only: patch_table_t
+   use twomem_estimate_iterate_parts, only: iterate_parts, iterate_sums
    implicit none
    private
 
@@ -95,6 +96,7 @@ module twomem_estimate_estimators
       procedure :: init
       procedure :: evaluate
       procedure :: element_fields
+      procedure :: linearization_estimate
    end type estimator_t
 
 contains
@@ -286,6 +288,29 @@ contains
       call element_pass(self, hierarchy, data, est, with_fields)
    end subroutine evaluate
 
+   !> η_lin = η_nonc,1 + η_nonc,2 + η_nonc,3^{1/2} of iterate x alone. It needs no flux, only one
+   !> pass over the triangles with the element pass's own expressions (iterate_parts), so it
+   !> equals a whole evaluation's η_lin to round-off at about a fiftieth of its cost: the
+   !> adaptive method weighs it against the last η_disc to decide whether a check is worth an
+   !> evaluation. It reads x directly (no nodal copies), so the last evaluation's workspaces,
+   !> which `element_fields` may still read, stay untouched. Collective.
+   function linearization_estimate(self, hierarchy, p, x) result(eta_lin)
+      class(estimator_t), intent(in) :: self
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
+      type(discrete_problem_t), intent(in) :: p
+      real(dp), intent(in) :: x(:)
+      real(dp) :: eta_lin
+
+      real(dp) :: sums(3), nonc1, nonc2, nonc3
+
+      sums = iterate_sums(hierarchy%meshes(hierarchy%levels), p, x, self%c_omega, self%mu)
+      call self%comm%sum_in_place(sums)
+      nonc1 = sqrt(sums(1))
+      nonc2 = sqrt(sums(2))
+      nonc3 = 2*self%c_omega*sqrt(sums(3))*nonc1
+      eta_lin = nonc1 + nonc2 + sqrt(nonc3)
+   end function linearization_estimate
+
    !> The per-triangle fields of `est`, the last evaluation (made without them): its fluxes and
    !> nodal fields are still held here, so only the element pass runs again (about a tenth of an
    !> evaluation), with the same totals. Collective.
@@ -401,9 +426,7 @@ contains
       real(dp) :: c_disc(self%space%n_flux), c_alg(self%space%n_flux)
       !> K's barycentre in each ancestor's scaled coordinates and the ratio of their scales
       real(dp) :: shift(2, size(levels)), kappa(size(levels))
-      real(dp) :: pos_lw, pos_ll, neg_lw, neg_ll, grad_s(2, 2), hat(2, 3), inv_ratio_sq
-      !> s_h at K's vertices: the nodewise projection onto u1 ≥ u2 (the mean where u1 < u2)
-      real(dp) :: s(3, 2)
+      real(dp) :: pos_ll, inv_ratio_sq
       !> f ∓ λ_h at the 7 points of the degree-5 rule (RT0 only)
       real(dp) :: osc_values(2, 7)
       !> one triangle's parts: η_disc,K,α, η_alg,K,α, η_F,K,α, η_osc,K,α; η_C,K, η_nonc,1,K, η_nonc,2,K
@@ -441,8 +464,8 @@ contains
       !$omp shared(self, hierarchy, data, u, lambda, grad_u, sigma, levels, est, finest, generations, nt_own) &
       !$omp shared(n_blocks, partial, fields) &
       !$omp private(b, t, anc, k, j, alpha, v, frame, level_frames, x, w, sq, f, lam_x, osc_mean, osc_sq, ratio, class) &
-      !$omp private(c_disc, c_alg, shift, kappa, ancestors, osc_w, pos_lw, pos_ll, neg_lw, neg_ll, grad_s, osc_values) &
-      !$omp private(hat, s, inv_ratio_sq, disc_k, alg_k, flux_k, osc_k, contact_k, nonc1_k, nonc2_k) &
+      !$omp private(c_disc, c_alg, shift, kappa, ancestors, osc_w, pos_ll, osc_values) &
+      !$omp private(inv_ratio_sq, disc_k, alg_k, flux_k, osc_k, contact_k, nonc1_k, nonc2_k) &
       !$omp firstprivate(frame_anc) schedule(static)
       do b = 1, n_blocks
          partial(:, b) = 0.0_dp
@@ -520,34 +543,8 @@ contains
                osc_k = 0.0_dp
             end if
 
-            ! most triangles lie where λ_h ≥ 0 or λ_h ≤ 0 throughout: the other part is then
-            ! exactly zero (the clipped polygon has l = 0 at all its points), without clipping
-            if (all(lambda(v) <= 0.0_dp)) then
-               pos_lw = 0.0_dp
-               pos_ll = 0.0_dp
-            else
-               call sign_split(frame%vertices, lambda(v), u(v, 1) - u(v, 2), pos_lw, pos_ll)
-            end if
-            if (all(lambda(v) >= 0.0_dp)) then
-               neg_lw = 0.0_dp
-               neg_ll = 0.0_dp
-            else
-               call sign_split(frame%vertices, -lambda(v), u(v, 1) - u(v, 2), neg_lw, neg_ll)
-            end if
-            contact_k = 2*pos_lw
-            nonc2_k = self%c_omega*sqrt(neg_ll)
-            s = u(v, :)
-            do k = 1, 3
-               if (u(v(k), 1) < u(v(k), 2)) then
-                  s(k, 1) = 0.5_dp*(u(v(k), 1) + u(v(k), 2))
-                  s(k, 2) = s(k, 1)
-               end if
-            end do
-            hat = p1_gradients(hierarchy%meshes(finest), t)
-            do alpha = 1, 2
-               grad_s(:, alpha) = matmul(hat, s(:, alpha)) - grad_u(:, t, alpha)
-            end do
-            nonc1_k = sqrt(frame%area*(self%mu(1)*sum(grad_s(:, 1)**2) + self%mu(2)*sum(grad_s(:, 2)**2)))
+            call iterate_parts(hierarchy%meshes(finest), t, self%c_omega, self%mu, u(v, :), lambda(v), &
+                               grad_u(:, t, :), contact_k, nonc1_k, nonc2_k, pos_ll)
             partial(:, b) = partial(:, b) + [sum((flux_k + osc_k)**2), sum(flux_k**2), sum(osc_k**2), contact_k, &
                                              nonc1_k**2, nonc2_k**2, sum((disc_k + osc_k)**2), sum(alg_k**2), pos_ll]
             if (fields) then
@@ -632,49 +629,6 @@ contains
          f(8) = f(8) + kappa**2*c(8)
       end if
    end subroutine add_in_child_basis
-
-   !> Exact ∫_{l>0} l w and ∫_{l>0} l² over a triangle for linear l and w given at its vertices:
-   !> clip at l = 0 and integrate the quadratics with the edge-midpoint rule on a fan.
-   pure subroutine sign_split(p, l, w, int_lw, int_ll)
-      real(dp), intent(in) :: p(2, 3), l(3), w(3)
-      real(dp), intent(out) :: int_lw, int_ll
-
-      real(dp) :: pts(2, 4), lv(4), wv(4), s, area, lm, wm
-      integer :: i, j, np, k, e
-      integer, parameter :: ends(2, 3) = reshape([0, 1, 1, 2, 2, 0], [2, 3])
-      integer :: fan(0:2)
-
-      np = 0
-      do i = 1, 3
-         j = modulo(i, 3) + 1
-         if (l(i) >= 0.0_dp) then
-            np = np + 1
-            pts(:, np) = p(:, i)
-            lv(np) = l(i)
-            wv(np) = w(i)
-         end if
-         if ((l(i) > 0.0_dp .and. l(j) < 0.0_dp) .or. (l(i) < 0.0_dp .and. l(j) > 0.0_dp)) then
-            s = l(i)/(l(i) - l(j))
-            np = np + 1
-            pts(:, np) = p(:, i) + s*(p(:, j) - p(:, i))
-            lv(np) = 0.0_dp
-            wv(np) = w(i) + s*(w(j) - w(i))
-         end if
-      end do
-      int_lw = 0.0_dp
-      int_ll = 0.0_dp
-      do k = 2, np - 1
-         area = 0.5_dp*abs((pts(1, k) - pts(1, 1))*(pts(2, k + 1) - pts(2, 1)) - &
-                           (pts(1, k + 1) - pts(1, 1))*(pts(2, k) - pts(2, 1)))
-         fan = [1, k, k + 1]
-         do e = 1, 3
-            lm = 0.5_dp*(lv(fan(ends(1, e))) + lv(fan(ends(2, e))))
-            wm = 0.5_dp*(wv(fan(ends(1, e))) + wv(fan(ends(2, e))))
-            int_lw = int_lw + area/3*lm*wm
-            int_ll = int_ll + area/3*lm**2
-         end do
-      end do
-   end subroutine sign_split
 
    !> The local stopping criteria (64) of the paper: (64a) η_alg,ω_a,α ≤ min_{K ⊂ ω_a} γ_alg
    !> max(η_disc,K,α, η_lin,K) on every vertex patch and membrane; (64b) η_lin,K ≤ γ_lin min_α

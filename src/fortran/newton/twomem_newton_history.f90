@@ -86,6 +86,7 @@ contains
       self%n = self%n + 1
       self%rows(self%n) = row
    end subroutine append
+
    !> One line per Newton step on standard output (README, *Running a case*).
    subroutine print_progress(row)
       type(history_row_t), intent(in) :: row
@@ -93,8 +94,13 @@ contains
       character(len=96) :: err_text
 
       err_text = ''
-      if (.not. ieee_is_nan(row%eta_total)) write (err_text, '("  eta ",es9.3," (disc ",es9.3,", lin ",es9.3, &
-           &", alg ",es9.3,")")') row%eta_total, row%eta_disc, row%eta_lin, row%eta_alg
+      if (.not. ieee_is_nan(row%eta_total)) then
+         write (err_text, '("  eta ",es9.3," (disc ",es9.3,", lin ",es9.3,", alg ",es9.3,")")') row%eta_total, &
+            row%eta_disc, row%eta_lin, row%eta_alg
+      else if (.not. ieee_is_nan(row%eta_lin)) then
+         ! an adaptive check that skipped the evaluation (estimate.checks = 'predicted')
+         write (err_text, '("  eta_lin ",es9.3," (no evaluation)")') row%eta_lin
+      end if
       if (.not. ieee_is_nan(row%energy_error)) write (err_text, '(a,"  error ",es9.3)') trim(err_text), row%energy_error
       write (output_unit, '("newton ",i4,"  gmres ",i6,"  contact ",i8," (changed ",i7,")  lin-res ",es9.3, &
            &"  alg-res ",es9.3,"  step ",f5.3,a,"  ",f9.2," s")') row%newton_it, row%gmres_it, row%active, &

@@ -28,10 +28,13 @@ module twomem_newton_inner
 
    !> Extension point: fill the error/estimator columns of a history row for iterate x; the
    !> estimator columns only when `estimates` (a row whose estimators no stopping test reads,
-   !> such as the adaptive method's initial iterate, is spared their cost).
+   !> such as the adaptive method's initial iterate, is spared their cost). An observer that
+   !> can compute η_lin alone, much more cheaply than a whole evaluation, says so through
+   !> `linearization_estimate` (NaN: it cannot, and every check of the adaptive method evaluates).
    type, abstract :: newton_observer_t
    contains
       procedure(observe_interface), deferred :: observe
+      procedure :: linearization_estimate => no_linearization_estimate
    end type newton_observer_t
 
    abstract interface
@@ -45,19 +48,21 @@ module twomem_newton_inner
    end interface
 
    !> Whether a check of the adaptive method evaluates the estimators. With `predict` (the
-   !> default, estimate.checks = 'predicted') it is skipped when the last evaluation predicts
-   !> that the Newton test η_lin ≤ γ_lin η_disc fails here: η_lin scaled by how much the
-   !> linearization residual has fallen since, η_disc taken as it was (it moves by a few
-   !> percent between Newton steps, η_lin by orders of magnitude). Judging by the global test
-   !> also serves the local criteria, which imply it. A wrong skip costs one more Newton step,
-   !> a wrong evaluation a whole one, and no stop is ever decided without an evaluation; the
-   !> first check evaluates, and so does any check after an evaluation that failed.
+   !> default, estimate.checks = 'predicted') a check first computes η_lin alone (the
+   !> observer's cheap pass: it needs no flux) and evaluates only if the Newton test
+   !> η_lin ≤ γ_lin η_disc can hold with the last evaluation's η_disc, which moves by a few
+   !> percent between Newton steps while η_lin moves by orders of magnitude. A skipped check's
+   !> row keeps that exact η_lin. Judging by the global test also serves the local criteria,
+   !> which imply it. A wrong skip costs one more Newton step, a wrong evaluation a whole one,
+   !> and no stop is ever decided without an evaluation; the first check evaluates, and so does
+   !> any check after an evaluation that failed.
    type :: check_schedule_t
       logical :: predict = .false.
       real(dp) :: gamma_lin = 0.3_dp
-      !> η_lin, η_disc and the relative ‖R_lin‖ of the last evaluated iterate (none yet: −1)
-      real(dp) :: eta_lin = -1, eta_disc = -1, lin_residual = -1
+      !> η_disc of the last evaluation (none yet, or it failed: −1)
+      real(dp) :: eta_disc = -1
    contains
+      procedure :: decide
       procedure :: wanted
       procedure :: remember
    end type check_schedule_t
@@ -109,7 +114,7 @@ contains
       row%step = ieee_value(1.0_dp, ieee_quiet_nan)
       row%active_changed = -1
       estimates = .true.
-      if (self%adaptive) estimates = self%schedule%wanted(row%lin_residual)
+      if (self%adaptive .and. associated(self%user)) estimates = self%schedule%decide(self%user, x, row)
       if (associated(self%user)) call self%user%observe(x, row, estimates=estimates)
       row%wall_time = wall_time() - self%t0
       call self%history%append(row)
@@ -128,32 +133,53 @@ contains
       end if
    end subroutine observe_gmres
 
-   !> Whether a check at an iterate of relative linearization residual `lin_residual` evaluates
-   !> the estimators.
-   pure logical function wanted(self, lin_residual)
+   !> Whether the check at iterate x evaluates the estimators (collective: η_lin and η_disc are
+   !> the same on every rank); a skipped check's row gets its η_lin.
+   logical function decide(self, user, x, row) result(evaluates)
       class(check_schedule_t), intent(in) :: self
-      real(dp), intent(in) :: lin_residual
+      class(newton_observer_t), intent(inout) :: user
+      real(dp), intent(in) :: x(:)
+      type(history_row_t), intent(inout) :: row
+
+      real(dp) :: eta_lin
+
+      evaluates = .true.
+      if (.not. self%predict .or. .not. self%eta_disc >= 0) return
+      eta_lin = user%linearization_estimate(x)
+      evaluates = self%wanted(eta_lin)
+      if (.not. evaluates) row%eta_lin = eta_lin
+   end function decide
+
+   !> Whether an iterate whose η_lin is `eta_lin` is worth an evaluation: the Newton test can
+   !> hold with the last η_disc (always, without one or without a prediction).
+   pure logical function wanted(self, eta_lin)
+      class(check_schedule_t), intent(in) :: self
+      real(dp), intent(in) :: eta_lin
 
       wanted = .true.
-      if (.not. self%predict .or. .not. self%lin_residual > 0) return
-      ! written so that a NaN anywhere evaluates
-      wanted = .not. self%eta_lin*(lin_residual/self%lin_residual) > self%gamma_lin*self%eta_disc
+      if (.not. self%predict .or. .not. self%eta_disc >= 0) return
+      ! written so that a NaN evaluates
+      wanted = .not. eta_lin > self%gamma_lin*self%eta_disc
    end function wanted
 
-   !> Keep an evaluated row's values for the next predictions; a failed evaluation (NaN
-   !> estimators) forgets the last one, so that the next check evaluates.
+   !> Keep an evaluated row's η_disc for the next checks; a failed evaluation (NaN) forgets the
+   !> last one, so that the next check evaluates.
    subroutine remember(self, row)
       class(check_schedule_t), intent(inout) :: self
       type(history_row_t), intent(in) :: row
 
-      if (ieee_is_finite(row%eta_lin) .and. ieee_is_finite(row%eta_disc) .and. ieee_is_finite(row%lin_residual)) then
-         self%eta_lin = row%eta_lin
-         self%eta_disc = row%eta_disc
-         self%lin_residual = row%lin_residual
-      else
-         self%lin_residual = -1
-      end if
+      self%eta_disc = -1
+      if (ieee_is_finite(row%eta_disc)) self%eta_disc = row%eta_disc
    end subroutine remember
+
+   !> The default: no η_lin without a whole evaluation.
+   function no_linearization_estimate(self, x) result(eta_lin)
+      class(newton_observer_t), intent(inout) :: self
+      real(dp), intent(in) :: x(:)
+      real(dp) :: eta_lin
+
+      eta_lin = ieee_value(1.0_dp, ieee_quiet_nan)
+   end function no_linearization_estimate
 
    !> Whether the min's Jacobian at the GMRES iterate x is the one the Newton step linearized
    !> (the same branch of the min at every vertex), on every rank. An exact comparison: the

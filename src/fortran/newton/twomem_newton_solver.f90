@@ -370,7 +370,7 @@ contains
             ! Algorithm 1 reads the estimators from the first step on: at the initial iterate
             ! (at 10^6 vertices, a fifth of the adaptive run's evaluations) no test needs them
             estimates = .not. adaptive
-            if (adaptive .and. k > 0) estimates = inner%schedule%wanted(row%lin_residual)
+            if (adaptive .and. k > 0) estimates = inner%schedule%decide(observer, x, row)
             call observer%observe(x, row, estimates=estimates)
             if (adaptive .and. estimates) call inner%schedule%remember(row)
          end if
