@@ -543,8 +543,8 @@ contains
                osc_k = 0.0_dp
             end if
 
-            call iterate_parts(hierarchy%meshes(finest), t, self%c_omega, self%mu, u(v, :), lambda(v), &
-                               grad_u(:, t, :), contact_k, nonc1_k, nonc2_k, pos_ll)
+            call iterate_parts(frame, p1_gradients(hierarchy%meshes(finest), t), self%c_omega, self%mu, u(v, :), &
+                               lambda(v), grad_u(:, t, :), contact_k, nonc1_k, nonc2_k, pos_ll)
             partial(:, b) = partial(:, b) + [sum((flux_k + osc_k)**2), sum(flux_k**2), sum(osc_k**2), contact_k, &
                                              nonc1_k**2, nonc2_k**2, sum((disc_k + osc_k)**2), sum(alg_k**2), pos_ll]
             if (fields) then

@@ -19,22 +19,20 @@ module twomem_estimate_iterate_parts
 
 contains
 
-   !> The parts of triangle t that depend on the iterate alone, no flux: η_C,K = 2(λ⁺, u1 − u2)_K,
-   !> η_nonc,1,K = |||s_h − u_h|||_K, η_nonc,2,K = C‖λ⁻‖_K and ‖λ⁺‖²_K, from u_α (uv(:, α)) and
-   !> λ_h (lam) at its vertices and ∇u_α on it (grad_u(:, α)).
-   pure subroutine iterate_parts(mesh, t, c_omega, mu, uv, lam, grad_u, contact_k, nonc1_k, nonc2_k, pos_ll)
-      type(mesh_t), intent(in) :: mesh
-      integer(ip), intent(in) :: t
-      real(dp), intent(in) :: c_omega, mu(2), uv(3, 2), lam(3), grad_u(2, 2)
+   !> The parts of a triangle that depend on the iterate alone, no flux: η_C,K = 2(λ⁺, u1 − u2)_K,
+   !> η_nonc,1,K = |||s_h − u_h|||_K, η_nonc,2,K = C‖λ⁻‖_K and ‖λ⁺‖²_K, from its frame, the
+   !> gradients of its barycentric functions (hat), u_α (uv(:, α)) and λ_h (lam) at its vertices
+   !> and ∇u_α on it (grad_u(:, α)).
+   pure subroutine iterate_parts(frame, hat, c_omega, mu, uv, lam, grad_u, contact_k, nonc1_k, nonc2_k, pos_ll)
+      type(rt_frame_t), intent(in) :: frame
+      real(dp), intent(in) :: hat(2, 3), c_omega, mu(2), uv(3, 2), lam(3), grad_u(2, 2)
       real(dp), intent(out) :: contact_k, nonc1_k, nonc2_k, pos_ll
 
-      type(rt_frame_t) :: frame
-      real(dp) :: pos_lw, neg_lw, neg_ll, grad_s(2, 2), hat(2, 3)
+      real(dp) :: pos_lw, neg_lw, neg_ll, grad_s(2, 2)
       !> s_h at K's vertices: the nodewise projection onto u1 ≥ u2 (the mean where u1 < u2)
       real(dp) :: s(3, 2)
       integer :: k, alpha
 
-      frame = frame_of(mesh%vertices, mesh%triangles(:, t))
       ! most triangles lie where λ_h ≥ 0 or λ_h ≤ 0 throughout: the other part is then
       ! exactly zero (the clipped polygon has l = 0 at all its points), without clipping
       if (all(lam <= 0.0_dp)) then
@@ -58,7 +56,6 @@ contains
             s(k, 2) = s(k, 1)
          end if
       end do
-      hat = p1_gradients(mesh, t)
       do alpha = 1, 2
          grad_s(:, alpha) = matmul(hat, s(:, alpha)) - grad_u(:, alpha)
       end do
@@ -77,6 +74,7 @@ contains
 
       integer(ip), parameter :: block = 1024
       real(dp), allocatable :: partial(:, :)
+      type(rt_frame_t) :: frame
       real(dp) :: uv(3, 2), lam(3), grad_u(2, 2), hat(2, 3), contact_k, nonc1_k, nonc2_k, pos_ll
       integer(ip) :: t, b, n_blocks, n, i
       integer :: k, alpha
@@ -85,7 +83,7 @@ contains
       n_blocks = (mesh%nt_owned + block - 1)/block
       allocate (partial(3, n_blocks))
       !$omp parallel do default(none) shared(mesh, p, x, c_omega, mu, n, n_blocks, partial) &
-      !$omp private(b, t, k, i, alpha, uv, lam, grad_u, hat, contact_k, nonc1_k, nonc2_k, pos_ll) schedule(static)
+      !$omp private(b, t, k, i, alpha, frame, uv, lam, grad_u, hat, contact_k, nonc1_k, nonc2_k, pos_ll) schedule(static)
       do b = 1, n_blocks
          partial(:, b) = 0.0_dp
          do t = (b - 1)*block + 1, min(b*block, mesh%nt_owned)
@@ -104,7 +102,8 @@ contains
             do alpha = 1, 2
                grad_u(:, alpha) = matmul(hat, uv(:, alpha))
             end do
-            call iterate_parts(mesh, t, c_omega, mu, uv, lam, grad_u, contact_k, nonc1_k, nonc2_k, pos_ll)
+            frame = frame_of(mesh%vertices, mesh%triangles(:, t))
+            call iterate_parts(frame, hat, c_omega, mu, uv, lam, grad_u, contact_k, nonc1_k, nonc2_k, pos_ll)
             partial(:, b) = partial(:, b) + [nonc1_k**2, nonc2_k**2, pos_ll]
          end do
       end do
