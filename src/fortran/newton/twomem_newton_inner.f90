@@ -14,7 +14,7 @@
 !> steps, and far from the stop the Newton test cannot hold. A skipped check is stopped by the
 !> inexact method's forcing above, and its row leaves the estimators NaN.
 module twomem_newton_inner
-   use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan, ieee_is_finite
+   use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan, ieee_is_finite, ieee_is_nan
    use twomem_base_kinds, only: dp, ip
    use twomem_base_timer, only: wall_time
    use twomem_linalg_gmres, only: gmres_observer_t
@@ -144,7 +144,7 @@ contains
       real(dp) :: eta_lin
 
       evaluates = .true.
-      if (.not. self%predict .or. .not. self%eta_disc >= 0) return
+      if (.not. self%predict .or. self%eta_disc < 0) return
       eta_lin = user%linearization_estimate(x)
       evaluates = self%wanted(eta_lin)
       if (.not. evaluates) row%eta_lin = eta_lin
@@ -157,9 +157,8 @@ contains
       real(dp), intent(in) :: eta_lin
 
       wanted = .true.
-      if (.not. self%predict .or. .not. self%eta_disc >= 0) return
-      ! written so that a NaN evaluates
-      wanted = .not. eta_lin > self%gamma_lin*self%eta_disc
+      if (.not. self%predict .or. self%eta_disc < 0 .or. ieee_is_nan(eta_lin)) return
+      wanted = eta_lin <= self%gamma_lin*self%eta_disc
    end function wanted
 
    !> Keep an evaluated row's η_disc for the next checks; a failed evaluation (NaN) forgets the
@@ -204,6 +203,9 @@ contains
 
       if (local) then
          ok = row%local_alg_ok
+      else if (ieee_is_nan(row%eta_alg) .or. ieee_is_nan(row%eta_disc) .or. ieee_is_nan(row%eta_lin)) then
+         ! not evaluated (and no comparison with a NaN, which traps in the debug build)
+         ok = .false.
       else
          ok = row%eta_alg <= gamma_alg*max(row%eta_disc, row%eta_lin)
       end if
@@ -217,6 +219,8 @@ contains
 
       if (local) then
          ok = row%local_lin_ok
+      else if (ieee_is_nan(row%eta_disc) .or. ieee_is_nan(row%eta_lin)) then
+         ok = .false.
       else
          ok = row%eta_lin <= gamma_lin*row%eta_disc
       end if
