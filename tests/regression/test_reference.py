@@ -25,6 +25,9 @@ full Newton step began to take GMRES's iterate itself: the final result then reu
 evaluation instead of repeating it for an iterate that differed by round-off; then to 2, with
 the estimator columns of their history row 0 set to NaN, and nothing else, when the adaptive
 method stopped evaluating the estimators at the initial iterate, where no test reads them.
+The adaptive references' history row 1 then got NaN η_alg and η, and nothing else (edited in
+place), when the adaptive method began to leave out the algebraic flux at a check whose η_lin
+exceeds γ_lin η_disc (estimate.checks = 'predicted', the default): Newton cannot stop there.
 The GMRES references (`gmres`, `gmres_mg`) were regenerated, and the adaptive one's coarse-level
 counts lowered (36 -> 35 GMRES iterations, 4 -> 3 Newton steps), when the default forcing became
 'finish' (the paper's test, except that GMRES goes on to newton.tol once its iterate takes the

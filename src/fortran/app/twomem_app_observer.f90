@@ -43,6 +43,7 @@ module twomem_app_observer
    contains
       procedure :: observe
       procedure :: linearization_estimate
+      procedure :: discretization_estimate
       procedure :: estimate
       procedure, private :: refresh
    end type run_observer_t
@@ -101,6 +102,20 @@ contains
       self%estimator_time = self%estimator_time + (wall_time() - t0)
    end function linearization_estimate
 
+   !> η_disc at x without the algebraic flux (estimator_t%evaluate with algebraic = .false.):
+   !> an evaluation, counted and timed, which a later `observe` of the same x completes; NaN
+   !> when the run computes no estimators or the evaluation failed.
+   function discretization_estimate(self, x) result(eta_disc)
+      class(run_observer_t), intent(inout) :: self
+      real(dp), intent(in) :: x(:)
+      real(dp) :: eta_disc
+
+      eta_disc = ieee_value(1.0_dp, ieee_quiet_nan)
+      if (.not. self%with_estimates .or. allocated(self%err)) return
+      call self%refresh(x, algebraic=.false.)
+      if (.not. allocated(self%err)) eta_disc = self%last%disc
+   end function discretization_estimate
+
    !> Every estimator at x with its per-triangle fields: one timed evaluation, or the previous one
    !> if it saw this very x (with its element pass run again for the fields it left out).
    subroutine estimate(self, x, est)
@@ -122,27 +137,37 @@ contains
 
    !> self%last at x, evaluated into the arrays of the previous evaluation (no new mesh-sized
    !> allocations in the Newton loop), unless it already is at x (on every rank: the
-   !> evaluation is collective, so the ranks decide together). Per-triangle fields when the
-   !> local criteria need them, or `fields`.
-   subroutine refresh(self, x, fields)
+   !> evaluation is collective, so the ranks decide together); completed with the algebraic
+   !> flux if it was left out and `algebraic` (default) asks for it. Per-triangle fields when
+   !> the local criteria need them, or `fields`.
+   subroutine refresh(self, x, fields, algebraic)
       class(run_observer_t), intent(inout) :: self
       real(dp), intent(in) :: x(:)
-      logical, intent(in), optional :: fields
+      logical, intent(in), optional :: fields, algebraic
 
       real(dp) :: t0
-      logical :: with_fields
+      logical :: with_fields, with_alg, same
 
-      if (self%p%halo%comm%any_true(.not. allocated(self%last_x))) then
-         if (allocated(self%last_x)) deallocate (self%last_x)
-      else if (.not. self%p%halo%comm%any_true(.not. all(self%last_x == x))) then
-         return
-      end if
-      t0 = wall_time()
+      with_alg = .true.
+      if (present(algebraic)) with_alg = algebraic
       with_fields = self%local_criteria
       if (present(fields)) with_fields = with_fields .or. fields
-      call self%estimator%evaluate(self%hierarchy, self%data, self%p, x, self%last, self%err, fields=with_fields)
+      if (self%p%halo%comm%any_true(.not. allocated(self%last_x))) then
+         if (allocated(self%last_x)) deallocate (self%last_x)
+         same = .false.
+      else
+         same = .not. self%p%halo%comm%any_true(.not. all(self%last_x == x))
+      end if
+      if (same .and. (self%last%complete .or. .not. with_alg)) return
+      t0 = wall_time()
+      if (same) then
+         call self%estimator%complete(self%hierarchy, self%data, self%last, self%err, with_fields)
+      else
+         call self%estimator%evaluate(self%hierarchy, self%data, self%p, x, self%last, self%err, fields=with_fields, &
+                                      algebraic=with_alg)
+         self%evaluations = self%evaluations + 1
+      end if
       self%estimator_time = self%estimator_time + (wall_time() - t0)
-      self%evaluations = self%evaluations + 1
       if (allocated(self%err)) then
          if (allocated(self%last_x)) deallocate (self%last_x)
          return

@@ -22,6 +22,7 @@
 !> take the same decisions. The per-triangle values of the local criteria are copied to the
 !> ghost triangles too, so that a vertex's patch test sees its whole patch.
 module twomem_estimate_estimators
+   use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_io
    use twomem_base_comm, only: comm_t
@@ -52,6 +53,9 @@ module twomem_estimate_estimators
 
    !> One evaluation: global values and the per-triangle fields of `/estimators`.
    type :: estimates_t
+      !> .false. after an evaluation without the algebraic flux (`evaluate` with algebraic =
+      !> .false.): disc, lin and the parts they are made of hold, alg, total, eta_1 and flux are NaN
+      logical :: complete = .true.
       !> the components of Cor. 5.6 and the bound (41)
       real(dp) :: disc = 0, lin = 0, alg = 0, total = 0
       !> the parts: η_1, ‖η_F‖, ‖η_osc‖, Σ η_C, η_nonc,1..3
@@ -96,6 +100,7 @@ module twomem_estimate_estimators
       procedure :: init
       procedure :: evaluate
       procedure :: element_fields
+      procedure :: complete
       procedure :: linearization_estimate
    end type estimator_t
 
@@ -235,8 +240,11 @@ contains
    !> per-triangle values: right on the rank's own triangles, and on the ghost ones for the
    !> arrays of the local criteria (disc_k, alg_k, lin_k); the other arrays are zero there.
    !> Without, only the totals (what the global stopping tests read), and no per-triangle array
-   !> is held: `element_fields` adds them later for this same iterate.
-   subroutine evaluate(self, hierarchy, data, p, x, est, err, fields)
+   !> is held: `element_fields` adds them later for this same iterate. With algebraic = .false.
+   !> the algebraic flux, about half of an evaluation, is left out: est then holds η_disc and
+   !> η_lin (with their parts) but no η_alg nor bound, and no fields; `complete` adds the rest
+   !> for this same iterate.
+   subroutine evaluate(self, hierarchy, data, p, x, est, err, fields, algebraic)
       class(estimator_t), intent(inout) :: self
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       class(problem_data_t), intent(in) :: data
@@ -245,14 +253,16 @@ contains
       !> its per-triangle arrays are reused when they have the mesh's size
       type(estimates_t), intent(inout) :: est
       type(error_t), allocatable, intent(out) :: err
-      logical, intent(in), optional :: fields
+      logical, intent(in), optional :: fields, algebraic
 
       integer(ip) :: n
       integer :: alpha
-      logical :: ok, with_fields
+      logical :: ok, with_fields, with_alg
 
-      with_fields = .true.
-      if (present(fields)) with_fields = fields
+      with_alg = .true.
+      if (present(algebraic)) with_alg = algebraic
+      with_fields = with_alg
+      if (present(fields)) with_fields = fields .and. with_alg
       n = p%n
       if (.not. self%has_halo) then
          self%halo = p%halo
@@ -281,12 +291,29 @@ contains
             call make_error(err, exit_io, 'discretization flux', 'a patch system is singular (degenerate triangles?)')
             return
          end if
-         call self%alg%compute(self%shapes, hierarchy, residual, r, self%single, self%refined, err)
-         call self%comm%agree(err)
-         if (allocated(err)) return
       end associate
-      call element_pass(self, hierarchy, data, est, with_fields)
+      if (with_alg) then
+         call self%complete(hierarchy, data, est, err, with_fields)
+      else
+         call element_pass(self, hierarchy, data, est, .false., .false.)
+      end if
    end subroutine evaluate
+
+   !> The algebraic flux and every estimator for the iterate of the last evaluation, which left
+   !> it out (or to be recomputed from its residual): see `evaluate`. Collective.
+   subroutine complete(self, hierarchy, data, est, err, fields)
+      class(estimator_t), intent(inout) :: self
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
+      class(problem_data_t), intent(in) :: data
+      type(estimates_t), intent(inout) :: est
+      type(error_t), allocatable, intent(out) :: err
+      logical, intent(in) :: fields
+
+      call self%alg%compute(self%shapes, hierarchy, self%residual, self%r, self%single, self%refined, err)
+      call self%comm%agree(err)
+      if (allocated(err)) return
+      call element_pass(self, hierarchy, data, est, fields, .true.)
+   end subroutine complete
 
    !> η_lin = η_nonc,1 + η_nonc,2 + η_nonc,3^{1/2} of iterate x alone. It needs no flux, only one
    !> pass over the triangles with the element pass's own expressions (iterate_parts), so it
@@ -320,27 +347,35 @@ contains
       class(problem_data_t), intent(in) :: data
       type(estimates_t), intent(inout) :: est
 
-      call element_pass(self, hierarchy, data, est, .true.)
+      call element_pass(self, hierarchy, data, est, .true., .true.)
    end subroutine element_fields
 
    !> The element estimators from the fluxes and nodal fields of the last evaluation, their
-   !> totals over the ranks and, with `fields`, the per-triangle arrays.
-   subroutine element_pass(self, hierarchy, data, est, fields)
+   !> totals over the ranks and, with `fields`, the per-triangle arrays; without `algebraic`
+   !> (and then without fields), the algebraic flux is taken as absent and only what does not
+   !> depend on it is kept.
+   subroutine element_pass(self, hierarchy, data, est, fields, algebraic)
       type(estimator_t), intent(inout) :: self
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       class(problem_data_t), intent(in) :: data
       type(estimates_t), intent(inout) :: est
-      logical, intent(in) :: fields
+      logical, intent(in) :: fields, algebraic
 
-      real(dp) :: positive_norm, lin_factor, sums(n_sums)
+      real(dp) :: positive_norm, lin_factor, sums(n_sums), nan
 
       if (fields) then
          call est%ensure(hierarchy%meshes(hierarchy%levels)%nt)
       else
          call est%drop_fields()
       end if
-      call element_estimators(self, hierarchy, data, self%u, self%lambda, self%grad_u, self%sigma, &
-                              self%alg%levels, est, sums)
+      if (algebraic) then
+         call element_estimators(self, hierarchy, data, self%u, self%lambda, self%grad_u, self%sigma, &
+                                 self%alg%levels, est, sums)
+      else
+         ! no level of algebraic flux: the disc, contact and nonconformity sums are the same
+         call element_estimators(self, hierarchy, data, self%u, self%lambda, self%grad_u, self%sigma, &
+                                 self%alg%levels(1:0), est, sums)
+      end if
       ! the rank's own triangles, summed over the ranks
       call self%comm%sum_in_place(sums)
       positive_norm = sqrt(sums(9))
@@ -355,6 +390,14 @@ contains
       est%disc = sqrt(sums(7)) + sqrt(abs(est%contact))
       est%lin = est%nonc1 + est%nonc2 + sqrt(est%nonc3)
       est%alg = sqrt(sums(8))
+      est%complete = algebraic
+      if (.not. algebraic) then
+         nan = ieee_value(1.0_dp, ieee_quiet_nan)
+         est%alg = nan
+         est%total = nan
+         est%eta_1 = nan
+         est%flux = nan
+      end if
       if (.not. fields) return
       est%nonc3_k = 2*self%c_omega*positive_norm*est%nonc1_k
       ! (65a): the local linearization estimator whose criterion implies the global one

@@ -97,8 +97,11 @@ contains
       if (.not. ieee_is_nan(row%eta_total)) then
          write (err_text, '("  eta ",es9.3," (disc ",es9.3,", lin ",es9.3,", alg ",es9.3,")")') row%eta_total, &
             row%eta_disc, row%eta_lin, row%eta_alg
+      else if (.not. ieee_is_nan(row%eta_disc)) then
+         ! an adaptive check that saw the Newton test fail before the algebraic flux
+         write (err_text, '("  eta_lin ",es9.3,", eta_disc ",es9.3," (no algebraic part)")') row%eta_lin, row%eta_disc
       else if (.not. ieee_is_nan(row%eta_lin)) then
-         ! an adaptive check that skipped the evaluation (estimate.checks = 'predicted')
+         ! an adaptive check that saw it fail with the last η_disc
          write (err_text, '("  eta_lin ",es9.3," (no evaluation)")') row%eta_lin
       end if
       if (.not. ieee_is_nan(row%energy_error)) write (err_text, '(a,"  error ",es9.3)') trim(err_text), row%energy_error

@@ -30,11 +30,14 @@ module twomem_newton_inner
    !> estimator columns only when `estimates` (a row whose estimators no stopping test reads,
    !> such as the adaptive method's initial iterate, is spared their cost). An observer that
    !> can compute η_lin alone, much more cheaply than a whole evaluation, says so through
-   !> `linearization_estimate` (NaN: it cannot, and every check of the adaptive method evaluates).
+   !> `linearization_estimate`, and one that can compute η_disc without the algebraic part
+   !> through `discretization_estimate` (NaN: it cannot, and the adaptive method evaluates
+   !> everything).
    type, abstract :: newton_observer_t
    contains
       procedure(observe_interface), deferred :: observe
-      procedure :: linearization_estimate => no_linearization_estimate
+      procedure :: linearization_estimate => no_partial_estimate
+      procedure :: discretization_estimate => no_partial_estimate
    end type newton_observer_t
 
    abstract interface
@@ -48,14 +51,17 @@ module twomem_newton_inner
    end interface
 
    !> Whether a check of the adaptive method evaluates the estimators. With `predict` (the
-   !> default, estimate.checks = 'predicted') a check first computes η_lin alone (the
-   !> observer's cheap pass: it needs no flux) and evaluates only if the Newton test
-   !> η_lin ≤ γ_lin η_disc can hold with the last evaluation's η_disc, which moves by a few
-   !> percent between Newton steps while η_lin moves by orders of magnitude. A skipped check's
-   !> row keeps that exact η_lin. Judging by the global test also serves the local criteria,
-   !> which imply it. A wrong skip costs one more Newton step, a wrong evaluation a whole one,
-   !> and no stop is ever decided without an evaluation; the first check evaluates, and so does
-   !> any check after an evaluation that failed.
+   !> default, estimate.checks = 'predicted') the Newton test η_lin ≤ γ_lin η_disc decides, in
+   !> three stages of growing cost: η_lin alone (a pass over the triangles, no flux); if the
+   !> test can hold with the last known η_disc (which moves by a few percent between Newton
+   !> steps while η_lin moves by orders of magnitude), η_disc at this iterate (the
+   !> discretization flux, about half of an evaluation); and if the test holds with it, the
+   !> rest (the algebraic flux, η_alg, the bound). A check that stops before the last stage
+   !> keeps in its row what it computed. The first check has no η_disc to go by, and neither
+   !> has a check after an evaluation that failed: they start at the second stage. Judging by
+   !> the global test also serves the local criteria, which imply it. Only the first stage
+   !> predicts: a wrong skip costs one more Newton step, and no stop is ever decided without a
+   !> whole evaluation.
    type :: check_schedule_t
       logical :: predict = .false.
       real(dp) :: gamma_lin = 0.3_dp
@@ -133,21 +139,34 @@ contains
       end if
    end subroutine observe_gmres
 
-   !> Whether the check at iterate x evaluates the estimators (collective: η_lin and η_disc are
-   !> the same on every rank); a skipped check's row gets its η_lin.
+   !> Whether the check at iterate x evaluates the estimators (collective: the estimators are
+   !> the same on every rank); a check that does not keeps η_lin, and η_disc if it computed it,
+   !> in its row.
    logical function decide(self, user, x, row) result(evaluates)
-      class(check_schedule_t), intent(in) :: self
+      class(check_schedule_t), intent(inout) :: self
       class(newton_observer_t), intent(inout) :: user
       real(dp), intent(in) :: x(:)
       type(history_row_t), intent(inout) :: row
 
-      real(dp) :: eta_lin
+      real(dp) :: eta_lin, eta_disc
 
       evaluates = .true.
-      if (.not. self%predict .or. self%eta_disc < 0) return
+      if (.not. self%predict) return
       eta_lin = user%linearization_estimate(x)
-      evaluates = self%wanted(eta_lin)
-      if (.not. evaluates) row%eta_lin = eta_lin
+      if (ieee_is_nan(eta_lin)) return
+      if (.not. self%wanted(eta_lin)) then
+         row%eta_lin = eta_lin
+         evaluates = .false.
+         return
+      end if
+      eta_disc = user%discretization_estimate(x)
+      if (ieee_is_nan(eta_disc)) return
+      self%eta_disc = eta_disc
+      if (eta_lin > self%gamma_lin*eta_disc) then
+         row%eta_lin = eta_lin
+         row%eta_disc = eta_disc
+         evaluates = .false.
+      end if
    end function decide
 
    !> Whether an iterate whose η_lin is `eta_lin` is worth an evaluation: the Newton test can
@@ -171,14 +190,14 @@ contains
       if (ieee_is_finite(row%eta_disc)) self%eta_disc = row%eta_disc
    end subroutine remember
 
-   !> The default: no η_lin without a whole evaluation.
-   function no_linearization_estimate(self, x) result(eta_lin)
+   !> The default: no part of the estimators without a whole evaluation.
+   function no_partial_estimate(self, x) result(eta)
       class(newton_observer_t), intent(inout) :: self
       real(dp), intent(in) :: x(:)
-      real(dp) :: eta_lin
+      real(dp) :: eta
 
-      eta_lin = ieee_value(1.0_dp, ieee_quiet_nan)
-   end function no_linearization_estimate
+      eta = ieee_value(1.0_dp, ieee_quiet_nan)
+   end function no_partial_estimate
 
    !> Whether the min's Jacobian at the GMRES iterate x is the one the Newton step linearized
    !> (the same branch of the min at every vertex), on every rank. An exact comparison: the
