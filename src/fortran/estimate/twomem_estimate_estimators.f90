@@ -469,7 +469,7 @@ contains
       real(dp) :: c_disc(self%space%n_flux), c_alg(self%space%n_flux)
       !> K's barycentre in each ancestor's scaled coordinates and the ratio of their scales
       real(dp) :: shift(2, size(levels)), kappa(size(levels))
-      real(dp) :: pos_ll, inv_ratio_sq
+      real(dp) :: pos_ll, inv_ratio_sq, uv(3, 2), lam(3), grad_k(2, 2)
       !> f ∓ λ_h at the 7 points of the degree-5 rule (RT0 only)
       real(dp) :: osc_values(2, 7)
       !> one triangle's parts: η_disc,K,α, η_alg,K,α, η_F,K,α, η_osc,K,α; η_C,K, η_nonc,1,K, η_nonc,2,K
@@ -508,7 +508,7 @@ contains
       !$omp shared(n_blocks, partial, fields) &
       !$omp private(b, t, anc, k, j, alpha, v, frame, level_frames, x, w, sq, f, lam_x, osc_mean, osc_sq, ratio, class) &
       !$omp private(c_disc, c_alg, shift, kappa, ancestors, osc_w, pos_ll, osc_values) &
-      !$omp private(inv_ratio_sq, disc_k, alg_k, flux_k, osc_k, contact_k, nonc1_k, nonc2_k) &
+      !$omp private(inv_ratio_sq, disc_k, alg_k, flux_k, osc_k, contact_k, nonc1_k, nonc2_k, uv, lam, grad_k) &
       !$omp firstprivate(frame_anc) schedule(static)
       do b = 1, n_blocks
          partial(:, b) = 0.0_dp
@@ -586,8 +586,14 @@ contains
                osc_k = 0.0_dp
             end if
 
-            call iterate_parts(frame, p1_gradients(hierarchy%meshes(finest), t), self%c_omega, self%mu, u(v, :), &
-                               lambda(v), grad_u(:, t, :), contact_k, nonc1_k, nonc2_k, pos_ll)
+            ! contiguous copies: sections and vector subscripts as arguments cost a temporary each
+            do k = 1, 3
+               uv(k, :) = u(v(k), :)
+               lam(k) = lambda(v(k))
+            end do
+            grad_k = grad_u(:, t, :)
+            call iterate_parts(frame, p1_gradients(hierarchy%meshes(finest), t), self%c_omega, self%mu, uv, lam, &
+                               grad_k, contact_k, nonc1_k, nonc2_k, pos_ll)
             partial(:, b) = partial(:, b) + [sum((flux_k + osc_k)**2), sum(flux_k**2), sum(osc_k**2), contact_k, &
                                              nonc1_k**2, nonc2_k**2, sum((disc_k + osc_k)**2), sum(alg_k**2), pos_ll]
             if (fields) then
