@@ -133,8 +133,8 @@ contains
    !> as soon as the algebraic residual is below the linearization residual took 6 GMRES
    !> iterations on the finest of 1.1e6 vertices instead of 13 with ν = 3, in as many Newton
    !> steps); Fischer–Burmeister keeps 3 (its inexact steps then wandered between contact sets:
-   !> 12 Newton steps instead of 6 there), and so does the adaptive method, whose every check
-   !> is an evaluation of the estimators.
+   !> 12 Newton steps instead of 6 there), and so does the adaptive method, whose checks may each be
+   !> an evaluation of the estimators.
    pure integer function automatic_every(linear, cfun, precond) result(every)
       integer, intent(in) :: linear, cfun, precond
 
