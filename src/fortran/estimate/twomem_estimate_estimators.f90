@@ -41,7 +41,7 @@ module twomem_estimate_estimators
    use twomem_estimate_coloring, only: coloring_t
    use twomem_estimate_ghosts, only: ghost_cells_t
    use twomem_estimate_patch_classes, only: patch_table_t
-   use twomem_estimate_iterate_parts, only: iterate_parts, iterate_sums
+   use twomem_estimate_iterate_parts, only: iterate_parts, iterate_sums, nonconformity
    implicit none
    private
 
@@ -332,10 +332,7 @@ contains
 
       sums = iterate_sums(hierarchy%meshes(hierarchy%levels), p, x, self%c_omega, self%mu)
       call self%comm%sum_in_place(sums)
-      nonc1 = sqrt(sums(1))
-      nonc2 = sqrt(sums(2))
-      nonc3 = 2*self%c_omega*sqrt(sums(3))*nonc1
-      eta_lin = nonc1 + nonc2 + sqrt(nonc3)
+      call nonconformity(sums(1), sums(2), sums(3), self%c_omega, nonc1, nonc2, nonc3, eta_lin)
    end function linearization_estimate
 
    !> The per-triangle fields of `est`, the last evaluation (made without them): its fluxes and
@@ -383,12 +380,9 @@ contains
       est%flux = sqrt(sums(2))
       est%osc = sqrt(sums(3))
       est%contact = sums(4)
-      est%nonc1 = sqrt(sums(5))
-      est%nonc2 = sqrt(sums(6))
-      est%nonc3 = 2*self%c_omega*positive_norm*est%nonc1
+      call nonconformity(sums(5), sums(6), sums(9), self%c_omega, est%nonc1, est%nonc2, est%nonc3, est%lin)
       est%total = sqrt(max(0.0_dp, (est%eta_1 + est%nonc1 + est%nonc2)**2 + est%nonc3 + est%contact))
       est%disc = sqrt(sums(7)) + sqrt(abs(est%contact))
-      est%lin = est%nonc1 + est%nonc2 + sqrt(est%nonc3)
       est%alg = sqrt(sums(8))
       est%complete = algebraic
       if (.not. algebraic) then

@@ -15,7 +15,7 @@ module twomem_estimate_iterate_parts
    implicit none
    private
 
-   public :: iterate_parts, iterate_sums
+   public :: iterate_parts, iterate_sums, nonconformity
 
 contains
 
@@ -113,6 +113,19 @@ contains
          sums = sums + partial(:, b)
       end do
    end function iterate_sums
+
+   !> The global η_nonc,1, η_nonc,2, η_nonc,3 from Σ η_nonc,1,K², Σ η_nonc,2,K² and ‖λ⁺‖² (summed
+   !> over the ranks), c_omega = C; η_lin = η_nonc,1 + η_nonc,2 + η_nonc,3^{1/2}. One place for
+   !> both the element pass and the η_lin pass, so that their η_lin agree by construction.
+   pure subroutine nonconformity(nonc1_sq, nonc2_sq, positive_sq, c_omega, nonc1, nonc2, nonc3, eta_lin)
+      real(dp), intent(in) :: nonc1_sq, nonc2_sq, positive_sq, c_omega
+      real(dp), intent(out) :: nonc1, nonc2, nonc3, eta_lin
+
+      nonc1 = sqrt(nonc1_sq)
+      nonc2 = sqrt(nonc2_sq)
+      nonc3 = 2*c_omega*sqrt(positive_sq)*nonc1
+      eta_lin = nonc1 + nonc2 + sqrt(nonc3)
+   end subroutine nonconformity
 
    !> Exact ∫_{l>0} l w and ∫_{l>0} l² over a triangle for linear l and w given at its vertices:
    !> clip at l = 0 and integrate the quadratics with the edge-midpoint rule on a fan.
