@@ -77,8 +77,8 @@ module twomem_input_case
       integer :: alg_levels = 3
       !> adaptive stopping: 'global' (paper eq. (63)) or 'local' (eq. (64), implies the global)
       character(len=config_len) :: criteria = 'global'
-      !> which of the adaptive method's checks evaluate the estimators: 'predicted' (those where
-      !> the last evaluation predicts that Newton's stop can hold) or 'all' (the paper)
+      !> how much of the estimators the adaptive method's checks compute: 'predicted' (η_lin
+      !> first, then η_disc and the rest only while Newton's test can hold) or 'all' (the paper)
       character(len=config_len) :: checks = 'predicted'
    end type estimate_config_t
 

@@ -65,8 +65,8 @@ module twomem_newton_solver
       !> adaptive stopping: γ_lin, γ_alg and the local criteria instead of the global ones
       real(dp) :: gamma_lin = 0.3_dp, gamma_alg = 0.3_dp
       logical :: local_criteria = .false.
-      !> adaptive method: evaluate the estimators only at the checks where the last evaluation
-      !> predicts that the Newton test can hold (estimate.checks = 'predicted'; check_schedule_t)
+      !> adaptive method: a check computes η_lin first, then η_disc and then the rest only while
+      !> the Newton test can still hold (estimate.checks = 'predicted'; check_schedule_t)
       logical :: predicted_checks = .true.
       integer :: max_it = 100
       real(dp) :: tol = 1.0e-10_dp
