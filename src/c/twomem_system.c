@@ -6,6 +6,9 @@
 #define _POSIX_C_SOURCE 200809L
 
 #include <errno.h>
+#ifdef __GLIBC__
+#include <malloc.h>
+#endif
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -97,6 +100,22 @@ int twomem_sys_exists(const char *path)
 void twomem_sys_exit(int code) { exit(code); }
 
 int twomem_sys_getpid(void) { return (int)getpid(); }
+
+/* Keep freed memory in the process for the next allocation. glibc serves blocks above its
+ * mmap threshold (at most 32 MiB) with fresh mappings and unmaps them on free, and returns the
+ * heap's free top to the kernel: a run that allocates and frees mesh-sized arrays again and
+ * again (a Newton step's vectors, an evaluation's workspaces, the output's gathered copies)
+ * then has the kernel zero the same amount of memory each time, which this machine's kernel
+ * does at 0.4-2.2 s per GiB. With no mmapped blocks and no trimming, a freed block is reused
+ * and the peak is unchanged (measured: the whole adaptive run at 10^6 vertices, 1 s less
+ * kernel time, peak within 0.3%). Other C libraries keep their own policy. */
+void twomem_sys_keep_freed_memory(void)
+{
+#ifdef __GLIBC__
+    mallopt(M_MMAP_MAX, 0);
+    mallopt(M_TRIM_THRESHOLD, -1);
+#endif
+}
 
 /* Peak resident memory in KiB: VmHWM of /proc/self/status, which belongs to this process
  * alone. getrusage's ru_maxrss is the fallback; it survives exec, so a twomem started from a

@@ -6,7 +6,7 @@
 program twomem_main
    use, intrinsic :: iso_fortran_env, only: output_unit, error_unit
    use twomem_base_errors, only: error_t, make_error, exit_ok, exit_bad_input
-   use twomem_base_system, only: exit_program, install_guards
+   use twomem_base_system, only: exit_program, install_guards, keep_freed_memory
    use twomem_base_version, only: twomem_version
    use twomem_input_config, only: config_t, string_t, load_config
    use twomem_app_run, only: run_case, check_case
@@ -20,6 +20,7 @@ program twomem_main
    character(len=:), allocatable :: command, case_file
    integer :: n_args, i, exit_code
 
+   call keep_freed_memory()
    call comm_start(comm)
    ! after MPI's start, so that these handlers, not the MPI library's, see SIGTERM and SIGINT
    call install_guards(comm%is_root())

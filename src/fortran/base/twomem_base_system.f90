@@ -15,7 +15,7 @@ module twomem_base_system
    private
 
    public :: make_directories, parent_directory, base_name, rename_file, remove_file, file_exists, is_directory
-   public :: process_id, peak_memory_kib, c_text, exit_program
+   public :: process_id, peak_memory_kib, keep_freed_memory, c_text, exit_program
    public :: memory_allowed_bytes, install_guards, register_temporary, unregister_temporary
 
    integer, parameter :: msg_len = 1024
@@ -64,6 +64,9 @@ module twomem_base_system
       integer(c_int64_t) function c_peak_rss_kib() bind(C, name='twomem_sys_peak_rss_kib')
          import :: c_int64_t
       end function c_peak_rss_kib
+
+      subroutine c_keep_freed_memory() bind(C, name='twomem_sys_keep_freed_memory')
+      end subroutine c_keep_freed_memory
 
       integer(c_int64_t) function c_memory_allowed(which, cap) bind(C, name='twomem_sys_memory_allowed')
          import :: c_int64_t, c_char, c_size_t
@@ -154,6 +157,13 @@ contains
    integer(i8) function peak_memory_kib()
       peak_memory_kib = int(c_peak_rss_kib(), i8)
    end function peak_memory_kib
+
+   !> Reuse freed memory instead of handing it back to the kernel, which zeroes it again on the
+   !> next allocation (src/c/twomem_system.c says when and why); call before the first large
+   !> allocation.
+   subroutine keep_freed_memory()
+      call c_keep_freed_memory()
+   end subroutine keep_freed_memory
 
    !> How many more bytes this process may allocate (the least of available memory, ulimit -v
    !> and -d, the cgroup limit; see src/c/twomem_system.c) and which limit decided; -1 if
