@@ -161,12 +161,13 @@ contains
       real(dp), intent(in) :: p(2, 3)
       real(dp), intent(out) :: g(:, :, :)
 
-      real(dp) :: u(3)
+      real(dp) :: x(2, max_points)
       integer :: q
 
       do q = 1, rule%n
-         call data%exact(matmul(p, rule%bary(:, q)), u, g(:, :, q))
+         x(:, q) = matmul(p, rule%bary(:, q))
       end do
+      call data%exact_gradients_at(x(:, 1:rule%n), g(:, :, 1:rule%n))
    end subroutine exact_gradients
 
    !> rule_moments from the exact gradients g(:, α, q) at the rule's points.
@@ -233,15 +234,14 @@ contains
       type(quadrature_t), intent(in) :: rule
       real(dp), intent(in) :: gh(2, 2), p(2, 3), area
 
-      real(dp) :: x(2), u(3), gx(2, 2)
+      real(dp) :: gx(2, 2, max_points)
       integer :: q
 
+      call exact_gradients(data, rule, p, gx)
       s = 0.0_dp
       do q = 1, rule%n
-         x = matmul(p, rule%bary(:, q))
-         call data%exact(x, u, gx)
-         s = s + rule%weights(q)*(data%mu1*sum((gx(:, 1) - gh(:, 1))**2) + &
-                                  data%mu2*sum((gx(:, 2) - gh(:, 2))**2))
+         s = s + rule%weights(q)*(data%mu1*sum((gx(:, 1, q) - gh(:, 1))**2) + &
+                                  data%mu2*sum((gx(:, 2, q) - gh(:, 2))**2))
       end do
       s = area*s
    end function rule_integral
