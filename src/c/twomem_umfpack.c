@@ -20,8 +20,11 @@ typedef struct {
   double info[UMFPACK_INFO];
 } twomem_umf_t;
 
-/* Analyse the pattern (n, row_ptr, col: 1-based CSR). On success *handle owns copies. */
-int twomem_umf_analyse(int n, const int *row_ptr, const int *col, const double *val, void **handle) {
+/* Analyse the pattern (n, row_ptr, col: 1-based CSR) with a nested-dissection (METIS) ordering,
+ * or UMFPACK's minimum-degree choice (AMD/COLAMD) when minimum_degree is non-zero. On success
+ * *handle owns copies. */
+int twomem_umf_analyse(int n, const int *row_ptr, const int *col, const double *val, int minimum_degree,
+                       void **handle) {
   *handle = NULL;
   twomem_umf_t *h = calloc(1, sizeof *h);
   if (!h) return UMFPACK_ERROR_out_of_memory;
@@ -41,7 +44,7 @@ int twomem_umf_analyse(int n, const int *row_ptr, const int *col, const double *
   /* Nested dissection suits 2D finite-element graphs: on the radial disk case with 4 levels
    * (111k unknowns, 27 Newton steps) METIS ordering took the run from 88 s to 28 s against
    * UMFPACK's default AMD/COLAMD choice, with less memory (measured 2026-11-22). */
-  h->control[UMFPACK_ORDERING] = UMFPACK_ORDERING_METIS;
+  h->control[UMFPACK_ORDERING] = minimum_degree ? UMFPACK_ORDERING_AMD : UMFPACK_ORDERING_METIS;
   int status = umfpack_di_symbolic(n, n, h->ap, h->ai, val, &h->symbolic, h->control, h->info);
   if (status != UMFPACK_OK) {
     free(h->ap);

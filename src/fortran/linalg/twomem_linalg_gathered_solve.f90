@@ -48,16 +48,19 @@ module twomem_linalg_gathered_solve
 contains
 
    !> The unknowns: key(i) of local unknown i, owned(i) if this rank owns it (each key is owned
-   !> by exactly one rank). Collective.
-   subroutine init(self, comm, key, owned)
+   !> by exactly one rank), and the fill-reducing ordering of rank 0's factorization
+   !> (twomem_linalg_umfpack; nested dissection if absent). Collective.
+   subroutine init(self, comm, key, owned, ordering)
       class(gathered_solver_t), intent(out) :: self
       type(comm_t), intent(in) :: comm
       integer(ip), intent(in) :: key(:)
       logical, intent(in) :: owned(:)
+      integer, intent(in), optional :: ordering
 
       integer(ip), allocatable :: mine(:)
       integer(ip) :: k
 
+      if (present(ordering)) call self%direct%set_ordering(ordering)
       self%comm = comm
       self%global = key
       self%owned = owned

@@ -10,14 +10,23 @@ module twomem_linalg_umfpack
    implicit none
    private
 
-   public :: umfpack_solver_t
+   public :: umfpack_solver_t, ordering_nested_dissection, ordering_minimum_degree
+
+   !> Fill-reducing orderings. Nested dissection (METIS) is the default: on the Newton systems,
+   !> refactorized at every step, its smaller factors won (see src/c/twomem_umfpack.c). A matrix
+   !> factorized once for a run may prefer minimum degree, whose analysis costs less than METIS's.
+   enum, bind(c)
+      enumerator :: ordering_nested_dissection = 0, ordering_minimum_degree
+   end enum
 
    type :: umfpack_solver_t
       private
       type(c_ptr) :: handle = c_null_ptr
       integer(ip) :: n = 0
       integer(ip) :: nnz = 0
+      integer :: ordering = ordering_nested_dissection
    contains
+      procedure :: set_ordering
       procedure :: factor
       procedure :: solve
       procedure :: rcond
@@ -26,11 +35,12 @@ module twomem_linalg_umfpack
    end type umfpack_solver_t
 
    interface
-      integer(c_int) function twomem_umf_analyse(n, row_ptr, col, val, handle) bind(C)
+      integer(c_int) function twomem_umf_analyse(n, row_ptr, col, val, minimum_degree, handle) bind(C)
          import :: c_int, c_double, c_ptr
          integer(c_int), value :: n
          integer(c_int), intent(in) :: row_ptr(*), col(*)
          real(c_double), intent(in) :: val(*)
+         integer(c_int), value :: minimum_degree
          type(c_ptr), intent(out) :: handle
       end function twomem_umf_analyse
 
@@ -60,6 +70,14 @@ module twomem_linalg_umfpack
 
 contains
 
+   !> The ordering of the next symbolic analysis (one of the ordering_* values).
+   subroutine set_ordering(self, ordering)
+      class(umfpack_solver_t), intent(inout) :: self
+      integer, intent(in) :: ordering
+
+      self%ordering = ordering
+   end subroutine set_ordering
+
    !> Factorize `a`. The symbolic analysis is redone only when the pattern size changed; callers
    !> that change a pattern in place with the same size must call `free` first.
    subroutine factor(self, a, err)
@@ -71,7 +89,8 @@ contains
 
       if (c_associated(self%handle) .and. (self%n /= a%n .or. self%nnz /= a%nnz())) call self%free()
       if (.not. c_associated(self%handle)) then
-         status = twomem_umf_analyse(int(a%n, c_int), a%row_ptr, a%col, a%val, self%handle)
+         status = twomem_umf_analyse(int(a%n, c_int), a%row_ptr, a%col, a%val, &
+                                     merge(1_c_int, 0_c_int, self%ordering == ordering_minimum_degree), self%handle)
          if (status /= 0) then
             call make_error(err, exit_io, 'UMFPACK', 'symbolic analysis failed: '//status_text(status))
             return
