@@ -40,7 +40,8 @@ module twomem_estimate_alg_flux
    use twomem_estimate_raviart_thomas, only: rt_space_t
    use twomem_estimate_shapes, only: shape_classes_t, triangle_class, n_p2
    use twomem_estimate_coloring, only: coloring_t
-   use twomem_estimate_patch, only: solve_patch, solve_condensed_factored, inner_edge, edge_free, edge_neumann
+   use twomem_estimate_patch, only: solve_patch, solve_condensed_factored, inner_edge, on_opposite_edge, edge_free, &
+                                    edge_neumann
    use twomem_estimate_patch_classes, only: patch_table_t, patch_order, edge_signs
    implicit none
    private
@@ -165,7 +166,6 @@ contains
 
       integer :: j, first
       logical :: ok
-      integer(ip) :: no_parents(2, 0)
 
       call coarse_representer(self, hierarchy, residual, err)
       if (allocated(err)) return
@@ -176,15 +176,14 @@ contains
             if (j == self%base) then
                ! a single mesh: patches and triangles of T_J
                call level_patches(self%space, shapes, single, hierarchy%meshes(j), hierarchy%meshes(j), j, self%colors(j), &
-                                  .true., self%grad_rho, self%p2(j), self%p2(j), r, lev%sigma, ok, no_parents)
+                                  .true., self%grad_rho, self%p2(j), self%p2(j), r, lev%sigma, ok, .false.)
             else if (j == first) then
                call level_patches(self%space, shapes, refined, hierarchy%meshes(j - 1), hierarchy%meshes(j), j, &
-                                  self%colors(j), .true., self%grad_rho, self%p2(j), self%p2(j), r, lev%sigma, ok, &
-                                  hierarchy%maps(j)%vertex_parents)
+                                  self%colors(j), .true., self%grad_rho, self%p2(j), self%p2(j), r, lev%sigma, ok, .true.)
             else
                call level_patches(self%space, shapes, refined, hierarchy%meshes(j - 1), hierarchy%meshes(j), j, &
                                   self%colors(j), .false., self%grad_rho, self%p2(j - 1), self%p2(j), r, lev%sigma, ok, &
-                                  hierarchy%maps(j)%vertex_parents)
+                                  .true.)
             end if
          end associate
          if (.not. ok) then
@@ -294,11 +293,11 @@ contains
    end subroutine project_p2
 
    !> The patch problems of one level: patches of the vertices of `coarse` (coloured by
-   !> `colors`), triangles of `fine`, level `level` of the hierarchy (its red refinement, or the
-   !> same mesh when `parents` is empty). `first`: the data are r ψ_a − ∇ρ·∇ψ_a (grad_rho on the
+   !> `colors`), triangles of `fine`, level `level` of the hierarchy (its red refinement if
+   !> `refined`, else the same mesh). `first`: the data are r ψ_a − ∇ρ·∇ψ_a (grad_rho on the
    !> coarse triangles), otherwise (I − Π_coarse)(r ψ_a).
    subroutine level_patches(space, shapes, table, coarse, fine, level, colors, first, grad_rho, p2_coarse, p2_fine, r, &
-                            sigma, ok, parents)
+                            sigma, ok, refined)
       type(rt_space_t), intent(in) :: space
       type(shape_classes_t), intent(in) :: shapes
       type(patch_table_t), intent(in) :: table
@@ -312,17 +311,16 @@ contains
       real(dp), intent(in) :: r(:, :, :)
       real(dp), intent(inout) :: sigma(:, :, :)
       logical, intent(out) :: ok
-      integer(ip), intent(in) :: parents(:, :)
+      logical, intent(in) :: refined
 
       integer(ip) :: a, ib, m
       integer :: c
-      logical :: patch_ok, refined
+      logical :: patch_ok
 
-      refined = size(parents, 2) > 0
       ok = .true.
       !$omp parallel default(none) &
       !$omp shared(space, shapes, table, coarse, fine, level, colors, first, grad_rho, p2_coarse, p2_fine, r, sigma) &
-      !$omp shared(parents, refined) &
+      !$omp shared(refined) &
       !$omp private(a, ib, m, c, patch_ok) reduction(.and.:ok)
       !$omp workshare
       sigma = 0.0_dp
@@ -334,10 +332,10 @@ contains
                a = colors%vertices(m)
                if (refined) then
                   call coarse_patch(space, shapes, table, coarse, fine, level, a, 4, first, grad_rho, p2_coarse, p2_fine, &
-                                    r, sigma, patch_ok, parents)
+                                    r, sigma, patch_ok)
                else
                   call coarse_patch(space, shapes, table, coarse, fine, level, a, 1, first, grad_rho, p2_coarse, p2_fine, &
-                                    r, sigma, patch_ok, parents)
+                                    r, sigma, patch_ok)
                end if
                ok = ok .and. patch_ok
             end do
@@ -350,7 +348,7 @@ contains
    !> One patch of level_patches; an interior vertex's patch goes with its signature in `table`
    !> (triangles in the signature's order, its edges and factor), one on ∂Ω the general way.
    subroutine coarse_patch(space, shapes, table, coarse, fine, level, a, n_children, first, grad_rho, p2_coarse, p2_fine, &
-                           r, sigma, ok, parents)
+                           r, sigma, ok)
       type(rt_space_t), intent(in) :: space
       type(shape_classes_t), intent(in) :: shapes
       type(patch_table_t), intent(in) :: table
@@ -365,8 +363,6 @@ contains
       real(dp), intent(in) :: r(:, :, :)
       real(dp), intent(inout) :: sigma(:, :, :)
       logical, intent(out) :: ok
-      !> vertex_parents of the refinement (unused for a single mesh)
-      integer(ip), intent(in) :: parents(:, :)
 
       integer, parameter :: max_inner_per_triangle = 9
       integer :: n_coarse, ne, k, kc, c, m, i, alpha, local_a, n_inner, n_blocks
@@ -441,12 +437,7 @@ contains
             do m = 1, 3
                if (id > 0) exit
                e = fine%triangle_edges(m, child)
-               ! on the coarse edge opposite a: neither end point descends from a
-               if (n_children == 4) then
-                  opposite = all(parents(:, fine%edges(1, e)) /= a) .and. all(parents(:, fine%edges(2, e)) /= a)
-               else
-                  opposite = fine%edges(1, e) /= a .and. fine%edges(2, e) /= a
-               end if
+               opposite = on_opposite_edge(n_children == 4, local_a, c, m)
                if (fine%boundary_edge(e)) then
                   links(m, ne) = merge(edge_neumann, edge_free, opposite .and. .not. coarse%boundary_vertex(a))
                else if (opposite) then

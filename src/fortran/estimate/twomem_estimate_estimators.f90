@@ -171,18 +171,16 @@ contains
       type(error_t), allocatable, intent(out) :: err
 
       integer :: j, finest
-      integer(ip) :: no_parents(2, 0)
 
       finest = hierarchy%levels
       call self%single%init(.false., finest)
-      call self%single%add_mesh(self%space, hierarchy%meshes(finest), hierarchy%meshes(finest), finest, no_parents)
+      call self%single%add_mesh(self%space, hierarchy%meshes(finest), hierarchy%meshes(finest), finest)
       call self%single%finish(self%space, self%shapes, err)
       if (allocated(err)) return
       call self%refined%init(.true., finest)
       if (self%alg%base < finest) then
          do j = self%alg%first(), finest
-            call self%refined%add_mesh(self%space, hierarchy%meshes(j - 1), hierarchy%meshes(j), j - 1, &
-                                       hierarchy%maps(j)%vertex_parents)
+            call self%refined%add_mesh(self%space, hierarchy%meshes(j - 1), hierarchy%meshes(j), j - 1)
          end do
       end if
       call self%refined%finish(self%space, self%shapes, err)

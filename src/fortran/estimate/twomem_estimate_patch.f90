@@ -24,7 +24,7 @@ module twomem_estimate_patch
    implicit none
    private
 
-   public :: solve_patch, inner_edge, edge_free, edge_neumann
+   public :: solve_patch, inner_edge, on_opposite_edge, edge_free, edge_neumann
    public :: patch_factor_t, condensed_factor, solve_condensed_factored, max_theta
 
    !> the largest multiplier system of a factorized patch (larger ones take the general path),
@@ -57,6 +57,22 @@ module twomem_estimate_patch
    integer, parameter :: edge_free = 0, edge_neumann = -1
 
 contains
+
+   !> Whether edge m of a patch triangle lies on the edge opposite the patch vertex, which is local
+   !> vertex `corner` of the patch triangle (refined: of its coarse parent, the triangle being the
+   !> parent's child c, 4 the middle one). By refine_red's numbering alone, without reading the
+   !> mesh: edge m of every triangle is opposite its vertex m, and corner child c has as its edge
+   !> m /= c the half at corner c of the coarse edge opposite corner m.
+   pure logical function on_opposite_edge(refined, corner, c, m)
+      logical, intent(in) :: refined
+      integer, intent(in) :: corner, c, m
+
+      if (refined) then
+         on_opposite_edge = c /= 4 .and. c /= corner .and. m == corner
+      else
+         on_opposite_edge = m == corner
+      end if
+   end function on_opposite_edge
 
    !> i: the patch's number of mesh edge e, numbering edges in order of first appearance; inner
    !> holds the edges numbered so far (n_inner of them).

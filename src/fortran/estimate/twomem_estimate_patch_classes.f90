@@ -19,7 +19,8 @@ module twomem_estimate_patch_classes
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_estimate_raviart_thomas, only: rt_space_t
    use twomem_estimate_shapes, only: shape_classes_t, triangle_class
-   use twomem_estimate_patch, only: patch_factor_t, condensed_factor, inner_edge, edge_free, edge_neumann, max_theta
+   use twomem_estimate_patch, only: patch_factor_t, condensed_factor, inner_edge, on_opposite_edge, edge_free, edge_neumann, &
+                                    max_theta
    implicit none
    private
 
@@ -116,16 +117,15 @@ contains
    end subroutine edge_signs
 
    !> Signatures of the patches of the interior vertices of `coarse` (level `level`): on its own
-   !> triangles (`single`) or, for `refined`, on their children in `fine` (vertex_parents
-   !> `parents` of the refinement). New signatures are factorized at `finish`. The keys of a
-   !> chunk of vertices are built in parallel, then looked up in vertex order, so that the
-   !> numbering of the signatures does not depend on the threads.
-   subroutine add_mesh(self, space, coarse, fine, level, parents)
+   !> triangles (`single`, with fine = coarse) or, for `refined`, on their children in `fine`.
+   !> New signatures are factorized at `finish`. The keys of a chunk of vertices are built in
+   !> parallel, then looked up in vertex order, so that the numbering of the signatures does not
+   !> depend on the threads.
+   subroutine add_mesh(self, space, coarse, fine, level)
       class(patch_table_t), intent(inout) :: self
       type(rt_space_t), intent(in) :: space
       type(mesh_t), intent(in) :: coarse, fine
       integer, intent(in) :: level
-      integer(ip), intent(in) :: parents(:, :)
 
       integer(ip), parameter :: chunk = 2048
       integer(ip) :: first, a, k
@@ -146,13 +146,13 @@ contains
       ! on a rank's piece of a distributed mesh, the patches outside its subdomain are not whole
       inside = coarse%in_subdomain()
       do first = 1, coarse%nv, chunk
-         !$omp parallel do default(none) shared(self, space, coarse, fine, level, parents, inside, keys, lengths, hashes) &
+         !$omp parallel do default(none) shared(self, space, coarse, fine, level, inside, keys, lengths, hashes) &
          !$omp shared(first) private(k, a) schedule(dynamic, 64)
          do k = 1, min(chunk, coarse%nv - first + 1)
             a = first + k - 1
             lengths(k) = 0
             if (coarse%boundary_vertex(a) .or. .not. inside(a)) cycle
-            call patch_key(space, coarse, fine, level, parents, self%refined, a, keys(:, k), lengths(k))
+            call patch_key(space, coarse, fine, level, self%refined, a, keys(:, k), lengths(k))
             if (lengths(k) > 0) hashes(k) = key_hash(keys(1:lengths(k), k))
          end do
          !$omp end parallel do
@@ -167,19 +167,18 @@ contains
    !> indices of a in the coarse triangles, then per patch triangle its class, zero-flux edge,
    !> edge links and relative trace signs. length = 0: the patch takes the general path (too
    !> many triangles or multipliers for the fixed-size factors).
-   pure subroutine patch_key(space, coarse, fine, level, parents, refined, a, key, length)
+   pure subroutine patch_key(space, coarse, fine, level, refined, a, key, length)
       type(rt_space_t), intent(in) :: space
       type(mesh_t), intent(in) :: coarse, fine
       integer, intent(in) :: level
-      integer(ip), intent(in) :: parents(:, :), a
+      integer(ip), intent(in) :: a
       logical, intent(in) :: refined
       integer, intent(out) :: key(:), length
 
       integer :: n_coarse, n_children, ne, kc, c, m, k, i, n_inner, n_theta, l, child_level, nt
-      integer(ip) :: order(max_patch), inner(9*max_patch), t, child, e
+      integer(ip) :: order(max_patch), inner(9*max_patch), t, child
       integer :: classes(max_patch), neumann(max_patch), links(3, max_patch), local(max_patch)
       real(dp) :: signs(6, max_patch), o(2*9*max_patch), ratio
-      logical :: opposite
 
       length = 0
       n_children = merge(4, 1, refined)
@@ -208,19 +207,12 @@ contains
             call triangle_class(child_level, child, classes(ne), ratio)
             call edge_signs(nt, fine%triangles(:, child), signs(:, ne))
             do m = 1, 3
-               e = fine%triangle_edges(m, child)
-               ! on the coarse edge opposite a: neither end point descends from a
-               if (refined) then
-                  opposite = all(parents(:, fine%edges(1, e)) /= a) .and. all(parents(:, fine%edges(2, e)) /= a)
-               else
-                  opposite = fine%edges(1, e) /= a .and. fine%edges(2, e) /= a
-               end if
-               if (opposite) then
+               ! every other edge has an end point at a or inside a coarse edge at a, so it is
+               ! not on ∂Ω (a is not): no free edges
+               if (on_opposite_edge(refined, local(kc), c, m)) then
                   links(m, ne) = edge_neumann
-               else if (fine%boundary_edge(e)) then
-                  links(m, ne) = edge_free
                else
-                  call inner_edge(inner, n_inner, e, links(m, ne))
+                  call inner_edge(inner, n_inner, fine%triangle_edges(m, child), links(m, ne))
                end if
             end do
             neumann(ne) = findloc(links(:, ne), edge_neumann, dim=1)
