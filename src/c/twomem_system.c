@@ -109,8 +109,8 @@ int twomem_sys_getpid(void) { return (int)getpid(); }
  * at 0.4-2.2 s per GiB. With no mmapped blocks and no trimming, a freed block is reused.
  * Measured (median of paired runs): the whole adaptive run at 10^6 vertices about 1 s less in
  * the kernel and 11% faster, peak within 1%; a Newton-min run at 4.5 10^6 vertices 28 -> 21-23 s
- * (no mmapped blocks alone: 27-32 s). The price is on small runs: the default case peaks 8%
- * higher (10 MiB). Other C libraries keep their own policy. */
+ * (no mmapped blocks alone: 27-32 s). The price is on small runs: the default case peaks 7%
+ * higher (9 MiB). Other C libraries keep their own policy. */
 void twomem_sys_keep_freed_memory(void)
 {
 #ifdef __GLIBC__
