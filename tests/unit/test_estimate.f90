@@ -21,7 +21,6 @@ module test_estimate
    use twomem_estimate_coloring, only: coloring_t
    use twomem_estimate_alg_flux, only: algebraic_flux_t, level_flux_t
    use twomem_estimate_patch_classes, only: patch_table_t
-   use twomem_estimate_patch, only: on_opposite_edge
    use twomem_estimate_estimators, only: estimator_t, estimates_t, poincare_constant
    use twomem_testing, only: unittest_t, new_unittest, check, check_close, error_t
    use test_refinement, only: square_hierarchy
@@ -57,44 +56,8 @@ contains
                new_unittest('nonconforming_iterate', test_nonconforming), &
                new_unittest('poincare_constant', test_poincare), &
                new_unittest('local_criteria', test_local_criteria), &
-               new_unittest('block_colouring', test_block_colouring), &
-               new_unittest('opposite_edges_by_numbering', test_opposite_edges)]
+               new_unittest('block_colouring', test_block_colouring)]
    end subroutine collect_estimate
-
-   !> on_opposite_edge, which reads refine_red's numbering, against the geometry it stands for:
-   !> an edge lies on the (coarse) edge opposite a patch vertex a when neither of its end points
-   !> is, or (refined) descends from, a; for every corner of every triangle of two levels.
-   subroutine test_opposite_edges(err)
-      type(error_t), allocatable, intent(out) :: err
-      type(mesh_hierarchy_t) :: h
-      integer(ip) :: t, a, e, child
-      integer :: corner, c, m
-      logical :: geometric
-
-      call square_hierarchy(2, h, err)
-      if (allocated(err)) return
-      associate (coarse => h%meshes(1), fine => h%meshes(2), parents => h%maps(2)%vertex_parents)
-         do t = 1, coarse%nt
-            do corner = 1, 3
-               a = coarse%triangles(corner, t)
-               do m = 1, 3
-                  e = coarse%triangle_edges(m, t)
-                  geometric = all(coarse%edges(:, e) /= a)
-                  call check(err, on_opposite_edge(.false., corner, 1, m) .eqv. geometric, 'edge opposite a vertex')
-               end do
-               do c = 1, 4
-                  child = 4*(t - 1) + c
-                  do m = 1, 3
-                     e = fine%triangle_edges(m, child)
-                     geometric = all(parents(:, fine%edges(1, e)) /= a) .and. all(parents(:, fine%edges(2, e)) /= a)
-                     call check(err, on_opposite_edge(.true., corner, c, m) .eqv. geometric, &
-                                'child edge on the coarse edge opposite a vertex')
-                  end do
-               end do
-            end do
-         end do
-      end associate
-   end subroutine test_opposite_edges
 
    !> Green's formula per basis function, (∇·φ_i, q) + (φ_i, ∇q) = ⟨φ_i·n, q⟩_∂K, for q = 1 and
    !> (RT1) q = ξ1, ξ2, whose edge traces are written in the trace basis {1, t}: it ties the

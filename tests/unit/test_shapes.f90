@@ -13,6 +13,7 @@ module test_shapes
    use twomem_fem_quadrature, only: quadrature_t, triangle_rule
    use twomem_estimate_raviart_thomas, only: rt_space_t
    use twomem_estimate_shapes, only: shape_classes_t, triangle_class, n_p2
+   use twomem_estimate_patch, only: on_opposite_edge
    use twomem_testing, only: unittest_t, new_unittest, check, error_t
    implicit none
    private
@@ -30,7 +31,8 @@ contains
       tests = [new_unittest('monomial_integrals_scaled_and_reflected', test_mono_psi_q), &
                new_unittest('divergence_space_projection', test_div_proj), &
                new_unittest('p2_projection_from_children', test_children), &
-               new_unittest('patch_data_on_children', test_children_patch_data)]
+               new_unittest('patch_data_on_children', test_children_patch_data), &
+               new_unittest('opposite_edges_by_numbering', test_opposite_edges)]
    end subroutine collect_shapes
 
    !> ∫_K m_j ψ_i q_k on every triangle K of levels 0..2 against its class's mono_psi_q / ρ², for
@@ -245,6 +247,41 @@ contains
    ! ---- fixtures and direct integrals ----
 
    !> A disk refined twice: its coarse triangles are irregular, no two of them alike.
+   !> on_opposite_edge, which reads refine_red's numbering, against the geometry it stands for:
+   !> an edge lies on the (coarse) edge opposite a patch vertex a when neither of its end points
+   !> is, or (refined) descends from, a; for every corner of every triangle of the disk's levels 1 and 2.
+   subroutine test_opposite_edges(err)
+      type(error_t), allocatable, intent(out) :: err
+      type(mesh_hierarchy_t) :: h
+      integer(ip) :: t, a, e, child
+      integer :: corner, c, m
+      logical :: geometric
+
+      call refined_disk(h, err)
+      if (allocated(err)) return
+      associate (coarse => h%meshes(1), fine => h%meshes(2), parents => h%maps(2)%vertex_parents)
+         do t = 1, coarse%nt
+            do corner = 1, 3
+               a = coarse%triangles(corner, t)
+               do m = 1, 3
+                  e = coarse%triangle_edges(m, t)
+                  geometric = all(coarse%edges(:, e) /= a)
+                  call check(err, on_opposite_edge(.false., corner, 1, m) .eqv. geometric, 'edge opposite a vertex')
+               end do
+               do c = 1, 4
+                  child = 4*(t - 1) + c
+                  do m = 1, 3
+                     e = fine%triangle_edges(m, child)
+                     geometric = all(parents(:, fine%edges(1, e)) /= a) .and. all(parents(:, fine%edges(2, e)) /= a)
+                     call check(err, on_opposite_edge(.true., corner, c, m) .eqv. geometric, &
+                                'child edge on the coarse edge opposite a vertex')
+                  end do
+               end do
+            end do
+         end do
+      end associate
+   end subroutine test_opposite_edges
+
    subroutine refined_disk(h, err)
       type(mesh_hierarchy_t), intent(out) :: h
       type(error_t), allocatable, intent(out) :: err
