@@ -4,8 +4,9 @@
 !> at several mesh sizes; truncation (fixed unknowns never move); the elimination without coarsening
 !> against UMFPACK on the assembled Newton matrix; the partial rebuild of the w-block hierarchy for
 !> a new Newton step against a whole rebuild and against a plain full product; the hierarchy
-!> assembled in one pass against pattern then values; and GMRES iteration counts with the
-!> preconditioner for both C-functions as the mesh is refined.
+!> assembled in one pass against pattern then values; the preconditioner released and rebuilt
+!> against itself before the release and against one built for that step alone; and GMRES
+!> iteration counts with the preconditioner for both C-functions as the mesh is refined.
 module test_multigrid
    use twomem_base_kinds, only: dp, ip, i8
    use twomem_linalg_csr, only: csr_t
@@ -40,6 +41,7 @@ contains
                new_unittest('elimination_without_coarsening_is_exact', test_elimination_exact), &
                new_unittest('partial_rebuild_matches_full_rebuild', test_partial_rebuild), &
                new_unittest('assembled_hierarchy_matches_refresh', test_assembled_hierarchy), &
+               new_unittest('released_preconditioner_rebuilds_the_same', test_release), &
                new_unittest('gmres_with_multigrid_iterations_bounded', test_gmres_iterations)]
    end subroutine collect_multigrid
 
@@ -520,6 +522,65 @@ contains
       end do
       call check(err, identical, 'patterns, values and smoothers agree bit for bit')
    end subroutine test_assembled_hierarchy
+
+   !> A release frees the hierarchies and the w-block operator; the preconditioner applied
+   !> afterwards (GMRES going on) rebuilds them for the same Newton step and gives the bits of
+   !> before, and one released and then given the next step's rows gives the bits of one built
+   !> for that step from scratch (no trace of the steps before the release).
+   subroutine test_release(err)
+      type(error_t), allocatable, intent(out) :: err
+      integer, parameter :: levels = 3
+      type(mesh_hierarchy_t) :: h
+      type(discrete_problem_t), target :: p
+      type(constant_data_t) :: data
+      type(multigrid_transfer_t), target :: transfer
+      type(elimination_preconditioner_t) :: prec, fresh
+      type(multigrid_options_t) :: options
+      real(dp), allocatable :: da(:, :), db(:, :), r(:), z_before(:), z_after(:), z_fresh(:)
+      integer(i8) :: state
+      integer :: step
+
+      call square_hierarchy(levels, h, err)
+      if (allocated(err)) return
+      data%mu1 = 1.0_dp
+      data%mu2 = 4.0_dp
+      call p%init(h%meshes(levels), data, err)
+      if (allocated(err)) return
+      call transfer%init(interior_prolongations(h, levels), err)
+      if (allocated(err)) return
+      allocate (da(p%n, 3), db(p%n, 3), r(3*p%n), z_before(3*p%n), z_after(3*p%n), z_fresh(3*p%n))
+      do step = 1, 3
+         call made_up_step(h, p, levels, step, da(:, step), db(:, step))
+      end do
+      state = 17_i8
+      call fill_random(state, r)
+      call prec%init(p, transfer, levels, options, err)
+      if (allocated(err)) return
+      do step = 1, 2
+         call prec%set_linearization(da(:, step), db(:, step), err)
+         if (allocated(err)) return
+      end do
+      call prec%apply(r, z_before)
+      call prec%release()
+      call check(err, .not. allocated(prec%w_mg%levels) .and. .not. allocated(prec%s_mg%levels) .and. &
+                 .not. allocated(prec%w_matrix%val) .and. .not. allocated(prec%shift), &
+                 'the release frees the hierarchies, the w-block operator and the row data')
+      call prec%apply(r, z_after)
+      call check(err, all(z_after == z_before), 'applied after a release: the bits of before')
+      ! (err is intent(out) in what follows: a failed check ends the test here)
+      if (allocated(err)) return
+      call prec%release()
+      call prec%set_linearization(da(:, 3), db(:, 3), err)
+      if (allocated(err)) return
+      call prec%apply(r, z_after)
+      call fresh%init(p, transfer, levels, options, err)
+      if (allocated(err)) return
+      call fresh%set_linearization(da(:, 3), db(:, 3), err)
+      if (allocated(err)) return
+      call fresh%apply(r, z_fresh)
+      call check(err, all(z_after == z_fresh), 'the next step after a release: the bits of a preconditioner built for it')
+      call check(err, any(z_fresh /= z_before), 'the two steps differ (the comparison can fail)')
+   end subroutine test_release
 
    subroutine test_gmres_iterations(err)
       type(error_t), allocatable, intent(out) :: err

@@ -15,7 +15,7 @@ module twomem_base_system
    private
 
    public :: make_directories, parent_directory, base_name, rename_file, remove_file, file_exists, is_directory
-   public :: process_id, peak_memory_kib, keep_freed_memory, c_text, exit_program
+   public :: process_id, peak_memory_kib, keep_freed_memory, return_freed_memory, c_text, exit_program
    public :: memory_allowed_bytes, install_guards, register_temporary, unregister_temporary
 
    integer, parameter :: msg_len = 1024
@@ -67,6 +67,9 @@ module twomem_base_system
 
       subroutine c_keep_freed_memory() bind(C, name='twomem_sys_keep_freed_memory')
       end subroutine c_keep_freed_memory
+
+      subroutine c_return_freed_memory() bind(C, name='twomem_sys_return_freed_memory')
+      end subroutine c_return_freed_memory
 
       integer(c_int64_t) function c_memory_allowed(which, cap) bind(C, name='twomem_sys_memory_allowed')
          import :: c_int64_t, c_char, c_size_t
@@ -164,6 +167,12 @@ contains
    subroutine keep_freed_memory()
       call c_keep_freed_memory()
    end subroutine keep_freed_memory
+
+   !> Give the heap's free pages back to the kernel at once (src/c/twomem_system.c): after
+   !> freeing a large structure whose memory the next allocations cannot reuse as it lies.
+   subroutine return_freed_memory()
+      call c_return_freed_memory()
+   end subroutine return_freed_memory
 
    !> How many more bytes this process may allocate (the least of available memory, ulimit -v
    !> and -d, the cgroup limit; see src/c/twomem_system.c) and which limit decided; -1 if

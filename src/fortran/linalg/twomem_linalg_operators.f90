@@ -26,6 +26,9 @@ module twomem_linalg_operators
       procedure(preconditioner_setup), deferred :: setup
       !> z = M⁻¹ r; inout because a preconditioner may keep its work vectors (multigrid)
       procedure(preconditioner_apply), deferred :: apply
+      !> give back the memory that the next setup or apply can rebuild, before a phase that
+      !> needs the memory more than the preconditioner needs its time (the default keeps all)
+      procedure :: release => keep_everything
    end type preconditioner_t
 
    type, abstract :: inner_product_t
@@ -117,6 +120,10 @@ contains
 
       call self%a%matvec(x, y)
    end subroutine csr_apply
+
+   subroutine keep_everything(self)
+      class(preconditioner_t), intent(inout) :: self
+   end subroutine keep_everything
 
    subroutine identity_setup(self, a, err)
       class(identity_preconditioner_t), intent(inout) :: self

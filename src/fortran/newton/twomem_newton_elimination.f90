@@ -24,6 +24,7 @@
 module twomem_newton_elimination
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_io
+   use twomem_base_system, only: return_freed_memory
    use twomem_linalg_csr, only: csr_t
    use twomem_linalg_halo, only: halo_t
    use twomem_linalg_operators, only: preconditioner_t
@@ -40,6 +41,15 @@ module twomem_newton_elimination
    real(dp), parameter :: fixed_ratio = 1.0e12_dp
 
    type, extends(preconditioner_t) :: elimination_preconditioner_t
+      !> what `init` was given, kept to rebuild after `release` (the caller keeps the problem and
+      !> the transfers alive anyway)
+      type(discrete_problem_t), pointer :: p => null()
+      type(multigrid_transfer_t), pointer :: transfer => null()
+      integer :: top = 0
+      type(multigrid_options_t) :: options
+      !> `release` has dropped everything but a and b: the next set_linearization or apply
+      !> rebuilds
+      logical :: released = .false.
       integer(ip) :: n = 0
       real(dp) :: mu1 = 1, mu2 = 1, c_mu = 2
       real(dp), allocatable :: mass(:)
@@ -80,6 +90,7 @@ module twomem_newton_elimination
       procedure :: setup
       procedure :: set_linearization
       procedure :: apply
+      procedure :: release
       procedure :: failed
    end type elimination_preconditioner_t
 
@@ -97,6 +108,10 @@ contains
 
       integer(ip) :: n, i
 
+      self%p => p
+      self%transfer => transfer
+      self%top = top
+      self%options = options
       n = p%n
       self%n = n
       self%mu1 = p%mu1
@@ -163,6 +178,10 @@ contains
       integer(ip) :: i
       logical :: fixed, changed, zero_row
 
+      if (self%released) then
+         call restart(self, err)
+         if (allocated(err)) return
+      end if
       changed = .not. self%built
       zero_row = .false.
       !$omp parallel do default(none) shared(self, da, db) private(i, fixed) reduction(.or.:changed, zero_row) &
@@ -251,7 +270,24 @@ contains
       real(dp), intent(out) :: z(:)
 
       integer(ip) :: n
+      real(dp), allocatable :: a(:), b(:)
+      type(error_t), allocatable :: err
 
+      if (self%released) then
+         ! GMRES goes on after a release: the same preconditioner again (a and b are this
+         ! Newton step's rows)
+         call move_alloc(self%a, a)
+         call move_alloc(self%b, b)
+         call restart(self, err)
+         if (.not. allocated(err)) call self%set_linearization(a, b, err)
+         if (allocated(err)) then
+            ! init and set_linearization took the same data before: only a failed allocation
+            ! gets here, and a zero correction makes GMRES report stagnation
+            z = 0.0_dp
+            self%released = .true.
+            return
+         end if
+      end if
       n = self%n
       ! S, w and S's right-hand side in z's thirds, which back_substitute overwrites row by row
       associate (s => z(1:n), w => z(n + 1:2*n), rhs_s => z(2*n + 1:3*n))
@@ -400,6 +436,67 @@ contains
       end do
       !$omp end parallel do
    end subroutine back_substitute
+
+   !> Keep only what a rebuild needs (the problem, the transfers and the C-function rows a, b of
+   !> the current Newton step): the hierarchies, the w-block operator and the rows' flags and
+   !> work vectors go, about 0.4 KiB per vertex. The next set_linearization or apply builds
+   !> them again as init and set_linearization do, which gives the bits of the hierarchy
+   !> updated step by step (test_partial_rebuild): a release changes the memory, not the
+   !> iterates. It costs a rebuild when the preconditioner is applied again.
+   subroutine release(self)
+      class(elimination_preconditioner_t), intent(inout) :: self
+
+      type(discrete_problem_t), pointer :: p
+      type(multigrid_transfer_t), pointer :: transfer
+      integer :: top
+      type(multigrid_options_t) :: options
+      real(dp), allocatable :: a(:), b(:)
+
+      if (self%released .or. .not. associated(self%p)) return
+      p => self%p
+      transfer => self%transfer
+      top = self%top
+      options = self%options
+      call move_alloc(self%a, a)
+      call move_alloc(self%b, b)
+      ! explicitly: gfortran 12 leaves a plain multigrid_t component's levels allocated when
+      ! its owner is reset (see the type)
+      call self%s_mg%free()
+      call self%w_mg%free()
+      call reset(self)
+      self%p => p
+      self%transfer => transfer
+      self%top = top
+      self%options = options
+      call move_alloc(a, self%a)
+      call move_alloc(b, self%b)
+      self%released = .true.
+      ! the next large arrays (the algebraic flux's) do not fit the holes left here
+      call return_freed_memory()
+   end subroutine release
+
+   !> Every component deallocated or back to its default.
+   subroutine reset(self)
+      type(elimination_preconditioner_t), intent(out) :: self
+   end subroutine reset
+
+   !> After `release`: the preconditioner of `init` again (the hierarchies of K, nothing fixed).
+   !> Collective.
+   subroutine restart(self, err)
+      type(elimination_preconditioner_t), intent(inout) :: self
+      type(error_t), allocatable, intent(out) :: err
+
+      type(discrete_problem_t), pointer :: p
+      type(multigrid_transfer_t), pointer :: transfer
+      integer :: top
+      type(multigrid_options_t) :: options
+
+      p => self%p
+      transfer => self%transfer
+      top = self%top
+      options = self%options
+      call self%init(p, transfer, top, options, err)
+   end subroutine restart
 
    !> A coarse solve failed after its factorization had succeeded (the cycles then return 0).
    logical function failed(self)
