@@ -153,6 +153,29 @@ def test_predicted_checks_skip_only_where_newton_cannot_stop(cfun):
     assert s["energy_error"] == pytest.approx(s_all["energy_error"], rel=0.05)
 
 
+def test_gmres_goes_on_after_a_predicted_last_evaluation():
+    """A whole evaluation that the Newton test predicts to be the last releases the multigrid
+    hierarchies first (twomem_newton_inner); with a strict γ_alg its algebraic test fails there,
+    GMRES goes on with the hierarchies rebuilt, and the run still ends on the direct method's
+    solution."""
+    common = ("problem.exact=bbbv", "mesh.levels=2")
+    strict = solve("release-strict", *common, "newton.linear=adaptive", "estimate.gamma_alg=1e-6")
+    direct = solve("release-direct", *common, "newton.linear=direct")
+    h = history(strict)
+    whole_inner = np.flatnonzero((h["inner"] == 1) & np.isfinite(h["eta_alg"]))
+    failed = [row for row in whole_inner
+              if h["eta_alg"][row] > 1e-6 * max(h["eta_disc"][row], h["eta_lin"][row])]
+    assert failed, "no whole evaluation failed the algebraic test: the rebuild went untested"
+    # GMRES went on in the same Newton step after it
+    assert any(h["newton_it"][row + 1] == h["newton_it"][row] and h["gmres_it"][row + 1] > h["gmres_it"][row]
+               for row in failed)
+    with h5py.File(strict, "r") as f, h5py.File(direct, "r") as g:
+        assert f.attrs["status"] == "converged"
+        for name in ("u1", "u2"):
+            u, v = f["solution"][name][()], g["solution"][name][()]
+            assert np.max(np.abs(u - v)) <= 1e-8 * np.max(np.abs(v)), name
+
+
 def test_local_criteria_imply_the_global_ones():
     path = solve("adaptive-local", "problem.exact=bbbv", "mesh.levels=1", "newton.linear=adaptive",
                  "estimate.criteria=local", "newton.max_it=200")

@@ -12,12 +12,16 @@
 !> Which checks of the adaptive method evaluate the estimators is `check_schedule_t`'s choice
 !> (estimate.checks): at 10^6 vertices an evaluation costs as much as three or four Newton
 !> steps, and far from the stop the Newton test cannot hold. A skipped check is stopped by the
-!> inexact method's forcing above, and its row leaves the estimators NaN.
+!> inexact method's forcing above, and its row leaves the estimators NaN. A whole evaluation
+!> that the schedule expects to end the run first releases the preconditioner's memory (the
+!> multigrid hierarchies): the evaluation's algebraic flux needs about as much, and the peak
+!> of the run is where both would meet. Should GMRES go on, its next application rebuilds them.
 module twomem_newton_inner
    use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan, ieee_is_finite, ieee_is_nan
    use twomem_base_kinds, only: dp, ip
    use twomem_base_timer, only: wall_time
    use twomem_linalg_gmres, only: gmres_observer_t
+   use twomem_linalg_operators, only: preconditioner_t
    use twomem_newton_cfun, only: c_function_min, cfun_eval
    use twomem_newton_residual, only: nonlinear_residual_t
    use twomem_newton_history, only: history_t, history_row_t, not_computed
@@ -88,6 +92,9 @@ module twomem_newton_inner
       real(dp) :: b_norm = 1.0_dp, t0 = 0.0_dp
       !> the adaptive method's choice of the checks that evaluate the estimators
       type(check_schedule_t) :: schedule
+      !> the running solve's preconditioner: an evaluation expected to end the run takes its
+      !> memory (`release`; applied again, it rebuilds)
+      class(preconditioner_t), pointer :: prec => null()
       !> work: C and its Jacobian at the GMRES iterate (the Newton driver's arrays for them,
       !> which it does not read while GMRES runs)
       real(dp), pointer, contiguous :: c(:) => null(), da(:) => null(), db(:) => null()
@@ -120,7 +127,7 @@ contains
       row%step = ieee_value(1.0_dp, ieee_quiet_nan)
       row%active_changed = -1
       estimates = .true.
-      if (self%adaptive .and. associated(self%user)) estimates = self%schedule%decide(self%user, x, row)
+      if (self%adaptive .and. associated(self%user)) estimates = self%schedule%decide(self%user, x, row, self%prec)
       if (associated(self%user)) call self%user%observe(x, row, estimates=estimates)
       row%wall_time = wall_time() - self%t0
       call self%history%append(row)
@@ -141,12 +148,14 @@ contains
 
    !> Whether the check at iterate x evaluates the estimators (collective: the estimators are
    !> the same on every rank); a check that does not keeps η_lin, and η_disc if it computed it,
-   !> in its row.
-   logical function decide(self, user, x, row) result(evaluates)
+   !> in its row. `prec` (may be null), the running solve's preconditioner, is released before
+   !> a whole evaluation that the Newton test predicts to be the last.
+   logical function decide(self, user, x, row, prec) result(evaluates)
       class(check_schedule_t), intent(inout) :: self
       class(newton_observer_t), intent(inout) :: user
       real(dp), intent(in) :: x(:)
       type(history_row_t), intent(inout) :: row
+      class(preconditioner_t), pointer, intent(in) :: prec
 
       real(dp) :: eta_lin, eta_disc
 
@@ -166,6 +175,10 @@ contains
          row%eta_lin = eta_lin
          row%eta_disc = eta_disc
          evaluates = .false.
+      else if (associated(prec)) then
+         ! the Newton test holds here: unless the algebraic test fails, this evaluation ends the
+         ! run, and its algebraic flux need not meet the preconditioner's hierarchies in memory
+         call prec%release()
       end if
    end function decide
 

@@ -162,7 +162,7 @@ contains
 
       type(newton_system_t), target :: sys
       type(nonlinear_residual_t), target :: residual
-      type(linear_step_t) :: solver
+      type(linear_step_t), target :: solver
       type(line_search_t) :: search
       type(multigrid_transfer_t), target :: no_transfer
       type(active_set_watch_t) :: watch
@@ -226,6 +226,7 @@ contains
       inner%schedule%gamma_lin = options%gamma_lin
       inner%newton_tol = options%tol
       inner%t0 = t0
+      if (allocated(solver%prec)) inner%prec => solver%prec
 
       k = 0
       active_set_step = .false.
@@ -370,7 +371,7 @@ contains
             ! Algorithm 1 reads the estimators from the first step on: at the initial iterate
             ! (at 10^6 vertices, a fifth of the adaptive run's evaluations) no test needs them
             estimates = .not. adaptive
-            if (adaptive .and. k > 0) estimates = inner%schedule%decide(observer, x, row)
+            if (adaptive .and. k > 0) estimates = inner%schedule%decide(observer, x, row, inner%prec)
             call observer%observe(x, row, estimates=estimates)
             if (adaptive .and. estimates) call inner%schedule%remember(row)
          end if
