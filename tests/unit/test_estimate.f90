@@ -623,6 +623,7 @@ contains
 
       type(mesh_t) :: coarse
       type(newton_options_t) :: options
+      real(dp), allocatable :: x0(:)
 
       call make_problem(exact, 1.0_dp, 2.0_dp, -1.0_dp, 3.0_dp, 0.05_dp, data, err)
       if (allocated(err)) return
@@ -634,7 +635,8 @@ contains
       if (allocated(err)) return
       options%verbose = .false.
       options%linear = method_direct
-      call newton_solve(p, options, [spread(p%g, 1, p%n), spread(0.0_dp, 1, 2*p%n)], res, err)
+      x0 = [spread(p%g, 1, p%n), spread(0.0_dp, 1, 2*p%n)]
+      call newton_solve(p, options, x0, res, err)
       if (.not. allocated(err)) call check(err, res%converged, 'Newton did not converge: '//res%status)
    end subroutine solved_disk
 

@@ -108,12 +108,14 @@ contains
 
       type(mesh_hierarchy_t) :: h
       type(newton_options_t) :: opt
+      real(dp), allocatable :: x0(:)
 
       call square_problem(levels, h, p, err)
       if (allocated(err)) return
       opt%verbose = .false.
       opt%max_it = max_it
-      call newton_solve(p, opt, [spread(p%g, 1, p%n), spread(0.0_dp, 1, 2*p%n)], res, err)
+      x0 = [spread(p%g, 1, p%n), spread(0.0_dp, 1, 2*p%n)]
+      call newton_solve(p, opt, x0, res, err)
    end subroutine solve_square
 
    subroutine test_discrete_equations(err)

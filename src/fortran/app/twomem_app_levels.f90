@@ -61,8 +61,8 @@ contains
       call build_transfer(comm, hierarchy, bottom, options, transfer, err)
       if (allocated(err)) return
       if (trim(cfg%newton%initial) /= 'nested' .or. finest == bottom) then
-         call newton_solve(p, options, [spread(data%g, 1, p%n), spread(0.0_dp, 1, 2*p%n)], newton, err, observer, &
-                           transfer, finest - bottom)
+         x0 = [spread(data%g, 1, p%n), spread(0.0_dp, 1, 2*p%n)]
+         call newton_solve(p, options, x0, newton, err, observer, transfer, finest - bottom)
          return
       end if
       if (bottom > 0 .and. comm%is_root()) write (output_unit, '("nested: levels 0..",i0,&
@@ -90,11 +90,11 @@ contains
             call clock%switch(phase_solve)
             if (allocated(err)) return
             if (l == bottom) then
-               call newton_solve(pl, quiet, [spread(data%g, 1, pl%n), spread(0.0_dp, 1, 2*pl%n)], step, err, &
-                                 transfer=transfer, level=l - bottom)
+               x0 = [spread(data%g, 1, pl%n), spread(0.0_dp, 1, 2*pl%n)]
             else
-               call newton_solve(pl, quiet, interior_values(pl, fine), step, err, transfer=transfer, level=l - bottom)
+               x0 = interior_values(pl, fine)
             end if
+            call newton_solve(pl, quiet, x0, step, err, transfer=transfer, level=l - bottom)
             if (allocated(err)) return
             coarse%newton_iterations = coarse%newton_iterations + step%iterations
             coarse%gmres_iterations = coarse%gmres_iterations + step%linear_iterations

@@ -147,13 +147,15 @@ contains
       end if
    end function automatic_every
 
-   !> Newton for problem p from x0. `transfer` (the prolongations of the hierarchy whose level
+   !> Newton for problem p from x0, which it takes over (x0 is unallocated on return; at 10^6
+   !> vertices the finest level's start is 23 MiB that would otherwise sit beside the iterate
+   !> through the whole solve). `transfer` (the prolongations of the hierarchy whose level
    !> `level` is p's mesh; default: its finest) serves the multigrid preconditioner. Collective:
    !> in a distributed run every rank calls it with its piece of the problem.
    subroutine newton_solve(p, options, x0, result, err, observer, transfer, level)
       type(discrete_problem_t), target, intent(in) :: p
       type(newton_options_t), intent(in) :: options
-      real(dp), intent(in) :: x0(:)
+      real(dp), allocatable, intent(inout) :: x0(:)
       type(newton_result_t), target, intent(out) :: result
       type(error_t), allocatable, intent(out) :: err
       class(newton_observer_t), intent(inout), target, optional :: observer
@@ -177,6 +179,7 @@ contains
       character(len=:), allocatable :: why
       logical :: adaptive, active_set_step, settled, nearly_settled
 
+      call move_alloc(x0, x)
       n = p%n
       adaptive = options%linear == method_adaptive
       if (adaptive .and. .not. present(observer)) then
@@ -200,7 +203,6 @@ contains
       if (allocated(err)) return
       allocate (c(n), da(n), db(n), b(3*n), x_new(3*n), active(n), previous(n))
       call watch%init(options%max_it)
-      x = x0
       t0 = wall_time()
       ! before the first linearization no vertex is in contact
       previous = .false.
@@ -305,7 +307,7 @@ contains
          previous = active
       end do
 
-      result%x = x
+      call move_alloc(x, result%x)
       result%iterations = k
       result%converged = why == 'converged'
       if (.not. result%converged) why = why//solver%failure_note()
