@@ -15,7 +15,7 @@ module test_estimate
    use twomem_linalg_dense, only: cholesky_factor
    use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_solve, method_direct
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, make_frame, edge_gauss
-   use twomem_estimate_lifting, only: algebraic_residuals, residual_lifting
+   use twomem_estimate_lifting, only: algebraic_residuals, nodal_algebraic_residuals, residual_lifting
    use twomem_estimate_disc_flux, only: discretization_flux, load_moments_t
    use twomem_estimate_shapes, only: shape_classes_t
    use twomem_estimate_coloring, only: coloring_t
@@ -133,14 +133,16 @@ contains
    end subroutine test_rt_mass
 
    !> algebraic_residuals is F_1 − μ1 S X1 + D X3 and F_2 − μ2 S X2 − D X3 (S X and D = |ω_a|/3
-   !> assembled here triangle by triangle); its lifting satisfies (r, ψ_a) = R(a) at interior
+   !> assembled here triangle by triangle), and nodal_algebraic_residuals its bits at the interior
+   !> vertices and zero elsewhere; the lifting satisfies (r, ψ_a) = R(a) at interior
    !> vertices (exact P1 mass matrix |K|/12 (1 + δ_ij)) and vanishes at boundary vertices.
    subroutine test_lifting(err)
       type(error_t), allocatable, intent(out) :: err
       type(mesh_hierarchy_t) :: h
       type(poly_data_t) :: data
       type(discrete_problem_t) :: p
-      real(dp), allocatable :: x(:), r1(:), r2(:), sx(:, :), d(:), u(:, :), expected(:), r(:, :), moment(:)
+      real(dp), allocatable :: x(:), r1(:), r2(:), sx(:, :), d(:), u(:, :), expected(:), r(:, :), moment(:), &
+                               nodal(:, :)
       integer(ip) :: n, t, v(3), i
       integer :: alpha
 
@@ -167,6 +169,11 @@ contains
          call check(err, maxval(abs(r1 - expected)) <= 1.0e-13_dp*maxval(abs(expected)), 'R_1')
          expected = p%f2 - p%mu2*sx(p%interior, 2) - d(p%interior)*x(2*n + 1:)
          call check(err, maxval(abs(r2 - expected)) <= 1.0e-13_dp*maxval(abs(expected)), 'R_2')
+         ! (filled first: the boundary zeros must be written, not found)
+         allocate (nodal(mesh%nv, 2), source=1.0_dp)
+         call nodal_algebraic_residuals(p, x, nodal)
+         call check(err, all(nodal(:, 1) == p%to_nodal(r1, 0.0_dp)) .and. all(nodal(:, 2) == p%to_nodal(r2, 0.0_dp)), &
+                    'nodal R_α: the bits of R_α at the interior vertices, zero at the others')
 
          call residual_lifting(mesh, p%to_nodal(r1, 0.0_dp), r)
          moment = 0.0_dp

@@ -34,9 +34,11 @@ module twomem_app_observer
       type(exact_energy_t) :: exact_energy
       !> time spent in estimator evaluations and in exact-error evaluations
       real(dp) :: estimator_time = 0.0_dp, error_time = 0.0_dp
-      !> the last evaluation and its iterate: the final result reuses it when Newton ended there
-      real(dp), allocatable :: last_x(:)
+      !> the last evaluation, which the final result reuses when Newton ended at its iterate;
+      !> `held`: the estimator's workspaces hold that evaluation (they also hold its iterate,
+      !> `estimator_t%holds`, so no copy of it is kept here)
       type(estimates_t) :: last
+      logical :: held = .false.
       !> the first failure of an evaluation (its estimators stay NaN, which no stopping test
       !> accepts); the run reports it after Newton
       type(error_t), allocatable :: err
@@ -45,6 +47,7 @@ module twomem_app_observer
       procedure :: linearization_estimate
       procedure :: discretization_estimate
       procedure :: estimate
+      procedure :: free_workspaces
       procedure, private :: refresh
    end type run_observer_t
 
@@ -112,7 +115,9 @@ contains
    end function discretization_estimate
 
    !> Every estimator at x with its per-triangle fields: one timed evaluation, or the previous one
-   !> if it saw this very x (with its element pass run again for the fields it left out).
+   !> if it saw this very x (with its element pass run again for the fields it left out). The
+   !> fields are handed over: the observer keeps the global values only (a later `estimate` of
+   !> the same x runs the element pass again).
    subroutine estimate(self, x, est)
       class(run_observer_t), intent(inout) :: self
       real(dp), intent(in) :: x(:)
@@ -127,8 +132,17 @@ contains
          call self%estimator%element_fields(self%hierarchy, self%data, self%last)
          self%estimator_time = self%estimator_time + (wall_time() - t0)
       end if
-      est = self%last
+      call self%last%hand_over(est)
    end subroutine estimate
+
+   !> After the run's last evaluation: the estimator's workspaces go (`last` keeps its values),
+   !> and the next check evaluates afresh.
+   subroutine free_workspaces(self)
+      class(run_observer_t), intent(inout) :: self
+
+      if (associated(self%estimator)) call self%estimator%free_workspaces()
+      self%held = .false.
+   end subroutine free_workspaces
 
    !> self%last at x, evaluated into the arrays of the previous evaluation (no new mesh-sized
    !> allocations in the Newton loop), unless it already is at x (on every rank: the
@@ -147,12 +161,7 @@ contains
       if (present(algebraic)) with_alg = algebraic
       with_fields = self%local_criteria
       if (present(fields)) with_fields = with_fields .or. fields
-      if (self%p%halo%comm%any_true(.not. allocated(self%last_x))) then
-         if (allocated(self%last_x)) deallocate (self%last_x)
-         same = .false.
-      else
-         same = .not. self%p%halo%comm%any_true(.not. all(self%last_x == x))
-      end if
+      same = .not. self%p%halo%comm%any_true(.not. (self%held .and. self%estimator%holds(self%p, x)))
       if (same .and. (self%last%complete .or. .not. with_alg)) return
       t0 = wall_time()
       if (same) then
@@ -163,10 +172,6 @@ contains
          self%evaluations = self%evaluations + 1
       end if
       self%estimator_time = self%estimator_time + (wall_time() - t0)
-      if (allocated(self%err)) then
-         if (allocated(self%last_x)) deallocate (self%last_x)
-         return
-      end if
-      self%last_x = x
+      self%held = .not. allocated(self%err)
    end subroutine refresh
 end module twomem_app_observer

@@ -10,7 +10,7 @@ module twomem_app_run
    use twomem_base_kinds, only: dp, ip, i8
    use twomem_base_errors, only: error_t, make_error, exit_ok, exit_not_converged, exit_bad_input, exit_io
    use twomem_base_system, only: make_directories, parent_directory, peak_memory_kib, process_id, remove_file, &
-      is_directory, register_temporary, unregister_temporary
+      is_directory, register_temporary, unregister_temporary, return_freed_memory
    use twomem_base_phases, only: phase_clock_t, phase_mesh, phase_assembly, phase_solve, phase_estimators, &
       phase_error, phase_output
    use twomem_base_comm, only: comm_t
@@ -138,6 +138,9 @@ contains
          exit_code = err%code
          return
       end if
+      ! the solver's memory, free now, would otherwise stay beside the result's per-triangle
+      ! fields, which it does not fit as it lies
+      call return_freed_memory()
 
       call fill_record(cfg, comm, hierarchy, data, p, newton, coarse, need_estimates, observer, clock, rec, err)
       call comm%agree(err)
@@ -236,6 +239,9 @@ contains
             call move_alloc(observer%err, err)
             return
          end if
+         ! the output needs the memory of the evaluations' workspaces more than they are needed
+         call observer%free_workspaces()
+         call return_freed_memory()
          rec%eta_total = final%total
          rec%eta_disc = final%disc
          rec%eta_lin = final%lin

@@ -89,13 +89,14 @@ module twomem_estimate_alg_flux
       procedure :: init
       procedure :: compute
       procedure :: first
+      procedure :: free_levels
    end type algebraic_flux_t
 
 contains
 
    !> Use the last `n_meshes` meshes of the hierarchy (all when fewer); factorize the coarse
-   !> Laplacian, colour the patch meshes, allocate the level parts. With `comm`, the hierarchy
-   !> is this rank's piece of a distributed one (collective).
+   !> Laplacian, colour the patch meshes (the level parts are allocated by the first `compute`).
+   !> With `comm`, the hierarchy is this rank's piece of a distributed one (collective).
    subroutine init(self, space, hierarchy, data, n_meshes, err, comm)
       class(algebraic_flux_t), intent(out) :: self
       type(rt_space_t), intent(in) :: space
@@ -121,9 +122,6 @@ contains
          ! the patches of level j live on the vertices of level j − 1 (of J itself for one mesh)
          call self%colors(j)%init(hierarchy%meshes(merge(j, j - 1, j == self%base)))
          self%levels(j - first + 1)%level = j
-         allocate (self%levels(j - first + 1)%sigma(space%n_flux, hierarchy%meshes(j)%nt, 2))
-         ! on T_J itself r is P1: its P2 projection is r, never stored
-         if (j < self%finest) allocate (self%p2(j)%c(n_p2, hierarchy%meshes(j)%nt, 2))
       end do
       allocate (self%grad_rho(2, hierarchy%meshes(self%base)%nt, 2))
       associate (base_mesh => hierarchy%meshes(self%base), fine_mesh => hierarchy%meshes(self%finest))
@@ -170,6 +168,15 @@ contains
       call coarse_representer(self, hierarchy, residual, err)
       if (allocated(err)) return
       first = self%first()
+      ! at the first computation: the solver may have released its memory for them by then
+      ! (twomem_newton_inner), and a run that never needs the algebraic flux never holds them
+      do j = first, self%finest
+         if (.not. allocated(self%levels(j - first + 1)%sigma)) &
+            allocate (self%levels(j - first + 1)%sigma(self%space%n_flux, hierarchy%meshes(j)%nt, 2))
+         ! on T_J itself r is P1: its P2 projection is r, never stored
+         if (j < self%finest .and. .not. allocated(self%p2(j)%c)) &
+            allocate (self%p2(j)%c(n_p2, hierarchy%meshes(j)%nt, 2))
+      end do
       call project_p2(shapes, hierarchy, first, r, self%p2)
       do j = first, self%finest
          associate (lev => self%levels(j - first + 1))
@@ -192,6 +199,24 @@ contains
          end if
       end do
    end subroutine compute
+
+   !> The level parts and P2 fields go (the next `compute` allocates them again).
+   subroutine free_levels(self)
+      class(algebraic_flux_t), intent(inout) :: self
+
+      integer :: i, j
+
+      if (allocated(self%levels)) then
+         do i = 1, size(self%levels)
+            if (allocated(self%levels(i)%sigma)) deallocate (self%levels(i)%sigma)
+         end do
+      end if
+      if (allocated(self%p2)) then
+         do j = lbound(self%p2, 1), ubound(self%p2, 1)
+            if (allocated(self%p2(j)%c)) deallocate (self%p2(j)%c)
+         end do
+      end if
+   end subroutine free_levels
 
    !> The first level with patch problems: b + 1, or J for a single mesh.
    pure integer function first(self)

@@ -34,7 +34,7 @@ module twomem_estimate_estimators
    use twomem_linalg_dense, only: lu_factor, lu_solve
    use twomem_linalg_halo, only: halo_t
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, frame_of
-   use twomem_estimate_lifting, only: algebraic_residuals, residual_lifting
+   use twomem_estimate_lifting, only: nodal_algebraic_residuals, residual_lifting
    use twomem_estimate_disc_flux, only: discretization_flux, load_moments_t
    use twomem_estimate_alg_flux, only: algebraic_flux_t, level_flux_t
    use twomem_estimate_shapes, only: shape_classes_t, triangle_class
@@ -70,6 +70,7 @@ module twomem_estimate_estimators
       procedure :: has_fields
       procedure :: ensure
       procedure :: drop_fields
+      procedure :: hand_over
    end type estimates_t
 
    type :: estimator_t
@@ -85,10 +86,10 @@ module twomem_estimate_estimators
       !> (f_α ψ_i, q_k)_K and, for RT1, (h_K/π)‖f_α − Π_1 f_α‖_K (data only, fixed on the mesh)
       type(load_moments_t) :: loads
       real(dp), allocatable :: osc_data(:, :)
-      !> workspaces of `evaluate`, kept between evaluations: σ_disc (n_flux, nt, 2), nodal u and
-      !> residuals (nv, 2) and λ_h, ∇u_α and the residual lifting per triangle
+      !> workspaces of `evaluate`, kept between evaluations (allocated by the first, freed by
+      !> `free_workspaces`): σ_disc (n_flux, nt, 2), nodal u and residuals (nv, 2) and λ_h, ∇u_α
+      !> and the residual lifting per triangle
       real(dp), allocatable :: sigma(:, :, :), u(:, :), residual(:, :), lambda(:), grad_u(:, :, :), r(:, :, :)
-      real(dp), allocatable :: r1(:), r2(:)
       real(dp) :: mu(2) = 1, c_omega = 1
       !> the ranks (one by default), the copies to the ghost triangles, and a copy of the
       !> discrete problem's halo for the residual's products
@@ -102,6 +103,8 @@ module twomem_estimate_estimators
       procedure :: element_fields
       procedure :: complete
       procedure :: linearization_estimate
+      procedure :: free_workspaces
+      procedure :: holds
    end type estimator_t
 
 contains
@@ -157,9 +160,6 @@ contains
          if (allocated(err)) return
          call patch_tables(self, hierarchy, err)
          call self%comm%agree(err)
-         if (allocated(err)) return
-         allocate (self%sigma(self%space%n_flux, mesh%nt, 2), self%u(mesh%nv, 2), self%residual(mesh%nv, 2), &
-                   self%lambda(mesh%nv), self%grad_u(2, mesh%nt, 2), self%r(3, mesh%nt, 2))
       end associate
    end subroutine init
 
@@ -266,16 +266,18 @@ contains
          self%halo = p%halo
          self%has_halo = .true.
       end if
+      associate (mesh => hierarchy%meshes(hierarchy%levels))
+         if (.not. allocated(self%sigma)) &
+            allocate (self%sigma(self%space%n_flux, mesh%nt, 2), self%u(mesh%nv, 2), self%residual(mesh%nv, 2), &
+                      self%lambda(mesh%nv), self%grad_u(2, mesh%nt, 2), self%r(3, mesh%nt, 2))
+      end associate
       associate (mesh => hierarchy%meshes(hierarchy%levels), u => self%u, lambda => self%lambda, &
                  residual => self%residual, grad_u => self%grad_u, r => self%r)
          call scatter(p, x(1:n), p%g, u(:, 1))
          call scatter(p, x(n + 1:2*n), 0.0_dp, u(:, 2))
          call scatter(p, x(2*n + 1:3*n), 0.0_dp, lambda)
          call gradients(mesh, u, grad_u)
-         if (.not. allocated(self%r1)) allocate (self%r1(n), self%r2(n))
-         call algebraic_residuals(p, x, self%r1, self%r2, self%halo)
-         call scatter(p, self%r1, 0.0_dp, residual(:, 1))
-         call scatter(p, self%r2, 0.0_dp, residual(:, 2))
+         call nodal_algebraic_residuals(p, x, residual, self%halo)
          do alpha = 1, 2
             call residual_lifting(mesh, residual(:, alpha), r(:, :, alpha))
             ! a ghost triangle may have vertices outside this rank's unknowns: its owner's values
@@ -312,6 +314,41 @@ contains
       if (allocated(err)) return
       call element_pass(self, hierarchy, data, est, fields, .true.)
    end subroutine complete
+
+   !> The workspaces of the evaluations (about 0.8 KiB per vertex with RT1: σ_disc, the algebraic
+   !> flux's level parts, ∇u_α and the lifting per triangle, nodal copies) go, for a phase that
+   !> needs the memory after the last evaluation (the output); the next `evaluate` allocates
+   !> them again. `complete` and `element_fields` need the workspaces of their evaluation: a
+   !> caller that frees them evaluates afresh.
+   subroutine free_workspaces(self)
+      class(estimator_t), intent(inout) :: self
+
+      if (allocated(self%sigma)) deallocate (self%sigma, self%u, self%residual, self%lambda, self%grad_u, self%r)
+      call self%alg%free_levels()
+   end subroutine free_workspaces
+
+   !> Whether the workspaces' nodal copies are those of iterate x (this rank's unknowns), as after
+   !> an evaluation of x: the test by which a caller reuses an evaluation without keeping a copy
+   !> of its iterate (an evaluation that failed may have left them so: the caller knows).
+   logical function holds(self, p, x)
+      class(estimator_t), intent(in) :: self
+      type(discrete_problem_t), intent(in) :: p
+      real(dp), intent(in) :: x(:)
+
+      integer(ip) :: i, n
+
+      holds = allocated(self%u)
+      if (.not. holds) return
+      n = p%n
+      do i = 1, n
+         associate (a => p%interior(i))
+            if (self%u(a, 1) /= x(i) .or. self%u(a, 2) /= x(n + i) .or. self%lambda(a) /= x(2*n + i)) then
+               holds = .false.
+               return
+            end if
+         end associate
+      end do
+   end function holds
 
    !> η_lin = η_nonc,1 + η_nonc,2 + η_nonc,3^{1/2} of iterate x alone. It needs no flux, only one
    !> pass over the triangles with the element pass's own expressions (iterate_parts), so it
@@ -729,6 +766,33 @@ contains
       if (allocated(self%lin_k)) deallocate (self%disc_k, self%alg_k, self%flux_k, self%osc_k, self%contact_k, &
                                              self%nonc1_k, self%nonc2_k, self%nonc3_k, self%lin_k)
    end subroutine drop_fields
+
+   !> `to` gets this evaluation with its per-triangle arrays moved, not copied (13 numbers per
+   !> triangle, the largest part of it): `self` keeps the global values only.
+   subroutine hand_over(self, to)
+      class(estimates_t), intent(inout) :: self
+      type(estimates_t), intent(out) :: to
+
+      type(estimates_t) :: fields
+
+      call move_fields(self, fields)
+      to = self
+      call move_fields(fields, to)
+   end subroutine hand_over
+
+   subroutine move_fields(from, to)
+      type(estimates_t), intent(inout) :: from, to
+
+      call move_alloc(from%disc_k, to%disc_k)
+      call move_alloc(from%alg_k, to%alg_k)
+      call move_alloc(from%flux_k, to%flux_k)
+      call move_alloc(from%osc_k, to%osc_k)
+      call move_alloc(from%contact_k, to%contact_k)
+      call move_alloc(from%nonc1_k, to%nonc1_k)
+      call move_alloc(from%nonc2_k, to%nonc2_k)
+      call move_alloc(from%nonc3_k, to%nonc3_k)
+      call move_alloc(from%lin_k, to%lin_k)
+   end subroutine move_fields
 
    !> Per-triangle arrays for nt triangles, kept when they are already of that size.
    subroutine ensure(self, nt)

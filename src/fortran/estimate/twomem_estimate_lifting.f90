@@ -11,7 +11,7 @@ module twomem_estimate_lifting
    implicit none
    private
 
-   public :: algebraic_residuals, residual_lifting
+   public :: algebraic_residuals, nodal_algebraic_residuals, residual_lifting
 
 contains
 
@@ -36,6 +36,41 @@ contains
       if (present(halo)) call halo%add(r2)
       r2 = p%f2 - p%mu2*r2 - p%mass*x(2*n + 1:3*n)
    end subroutine algebraic_residuals
+
+   !> algebraic_residuals as nodal fields: residual(:, α) = R_α at the vertices of the unknowns,
+   !> zero at the others (nv values per column), with the same bits. No work vector: S X_α goes
+   !> into the first n entries of column α, and unknown i then moves to its vertex interior(i),
+   !> from the last down (interior increases, interior(i) ≥ i: no unknown below i reads it).
+   subroutine nodal_algebraic_residuals(p, x, residual, halo)
+      type(discrete_problem_t), intent(in) :: p
+      real(dp), intent(in) :: x(:)
+      real(dp), intent(out) :: residual(:, :)
+      type(halo_t), intent(inout), optional :: halo
+
+      integer(ip) :: n, i, previous
+      integer :: alpha
+
+      n = p%n
+      do alpha = 1, 2
+         call p%stiffness%matvec(x((alpha - 1)*n + 1:alpha*n), residual(1:n, alpha))
+         if (present(halo)) call halo%add(residual(1:n, alpha))
+         if (alpha == 1) then
+            do i = n, 1, -1
+               residual(p%interior(i), 1) = p%f1(i) - p%mu1*residual(i, 1) + p%mass(i)*x(2*n + i)
+            end do
+         else
+            do i = n, 1, -1
+               residual(p%interior(i), 2) = p%f2(i) - p%mu2*residual(i, 2) - p%mass(i)*x(2*n + i)
+            end do
+         end if
+         previous = 0
+         do i = 1, n
+            residual(previous + 1:p%interior(i) - 1, alpha) = 0.0_dp
+            previous = p%interior(i)
+         end do
+         residual(previous + 1:, alpha) = 0.0_dp
+      end do
+   end subroutine nodal_algebraic_residuals
 
    !> r(:, t) = values of r at the three vertices of triangle t, from nodal residuals
    !> (zero at boundary vertices).
