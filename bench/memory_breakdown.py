@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 #: (group, patterns): an allocation belongs to the first group with a pattern in the innermost
 #: "routine < caller" pair of its stack that any group claims (see `classify`)
 GROUPS = [
-    ("estimator evaluation: σ_disc, ∇u_α and residual lifting per triangle, nodal fields, last iterate",
+    ("estimator evaluation: σ_disc, ∇u_α and residual lifting per triangle, nodal fields",
      ["estimate_estimators_MOD_init <", "estimate_estimators_MOD_evaluate", "app_observer_MOD_refresh <"]),
     ("algebraic flux: σ on its meshes, P2 projections, coarse problem and factorization",
      ["estimate_alg_flux_MOD_init"]),
@@ -39,7 +39,7 @@ GROUPS = [
      ["newton_elimination", "linalg_multigrid", "coarsen <", "linalg_chebyshev", "linalg_galerkin",
       "linalg_csr_MOD_transposed"]),
     ("GMRES: Krylov basis and current iterate", ["linalg_gmres"]),
-    ("Newton: iterate, right-hand side, C-function rows, system, residual, initial guess",
+    ("Newton: iterate, right-hand side, C-function rows, system, residual",
      ["newton_solver_MOD_newton_solve <", "newton_system", "newton_residual", "app_levels_MOD_solve_levels <"]),
     ("discrete problem: stiffness, loads, mass", ["fem_discrete_MOD_discrete_init < app_"]),
     ("exact error: cached exact part, per-step values", ["fem_error", "app_observer_MOD_observe <"]),
