@@ -359,6 +359,26 @@ contains
       end do
    end subroutine test_elimination_exact
 
+   !> The membranes μ1 = 1, μ2 = 4 on the square refined `levels` times, with the transfers of
+   !> its hierarchy.
+   subroutine membranes_on_square(levels, h, p, transfer, err)
+      integer, intent(in) :: levels
+      type(mesh_hierarchy_t), intent(out) :: h
+      type(discrete_problem_t), intent(out) :: p
+      type(multigrid_transfer_t), intent(out) :: transfer
+      type(error_t), allocatable, intent(out) :: err
+
+      type(constant_data_t) :: data
+
+      call square_hierarchy(levels, h, err)
+      if (allocated(err)) return
+      data%mu1 = 1.0_dp
+      data%mu2 = 4.0_dp
+      call p%init(h%meshes(levels), data, err)
+      if (allocated(err)) return
+      call transfer%init(interior_prolongations(h, levels), err)
+   end subroutine membranes_on_square
+
    !> C-function rows for step `step` of a made-up Newton iteration on the square: Fischer–
    !> Burmeister rows whose contact region (x < x_contact) grows from step to step, shifts that
    !> change only in the upper part (y > 0.3), and exactly fixed rows (b = 0) at every 13th (step
@@ -394,7 +414,6 @@ contains
       integer, parameter :: levels = 4
       type(mesh_hierarchy_t) :: h
       type(discrete_problem_t), target :: p
-      type(constant_data_t) :: data
       type(multigrid_transfer_t), target :: transfer
       type(elimination_preconditioner_t) :: updated
       type(multigrid_t) :: whole, plain
@@ -408,13 +427,7 @@ contains
       type(csr_t) :: expected
       integer(ip) :: i
 
-      call square_hierarchy(levels, h, err)
-      if (allocated(err)) return
-      data%mu1 = 1.0_dp
-      data%mu2 = 4.0_dp
-      call p%init(h%meshes(levels), data, err)
-      if (allocated(err)) return
-      call transfer%init(interior_prolongations(h, levels), err)
+      call membranes_on_square(levels, h, p, transfer, err)
       if (allocated(err)) return
       allocate (da(p%n, 5), db(p%n, 5))
       call made_up_step(h, p, levels, 1, da(:, 1), db(:, 1))
@@ -532,7 +545,6 @@ contains
       integer, parameter :: levels = 3
       type(mesh_hierarchy_t) :: h
       type(discrete_problem_t), target :: p
-      type(constant_data_t) :: data
       type(multigrid_transfer_t), target :: transfer
       type(elimination_preconditioner_t) :: prec, fresh
       type(multigrid_options_t) :: options
@@ -540,13 +552,7 @@ contains
       integer(i8) :: state
       integer :: step
 
-      call square_hierarchy(levels, h, err)
-      if (allocated(err)) return
-      data%mu1 = 1.0_dp
-      data%mu2 = 4.0_dp
-      call p%init(h%meshes(levels), data, err)
-      if (allocated(err)) return
-      call transfer%init(interior_prolongations(h, levels), err)
+      call membranes_on_square(levels, h, p, transfer, err)
       if (allocated(err)) return
       allocate (da(p%n, 3), db(p%n, 3), r(3*p%n), z_before(3*p%n), z_after(3*p%n), z_fresh(3*p%n))
       do step = 1, 3
