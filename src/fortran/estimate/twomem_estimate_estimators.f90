@@ -34,7 +34,7 @@ module twomem_estimate_estimators
    use twomem_linalg_dense, only: lu_factor, lu_solve
    use twomem_linalg_halo, only: halo_t
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, frame_of
-   use twomem_estimate_lifting, only: nodal_algebraic_residuals, residual_lifting
+   use twomem_estimate_lifting, only: algebraic_residuals, residual_lifting
    use twomem_estimate_disc_flux, only: discretization_flux, load_moments_t
    use twomem_estimate_alg_flux, only: algebraic_flux_t, level_flux_t
    use twomem_estimate_shapes, only: shape_classes_t, triangle_class
@@ -256,7 +256,7 @@ contains
          call scatter(p, x(n + 1:2*n), 0.0_dp, u(:, 2))
          call scatter(p, x(2*n + 1:3*n), 0.0_dp, lambda)
          call gradients(mesh, u, grad_u)
-         call nodal_algebraic_residuals(p, x, residual, self%halo)
+         call algebraic_residuals(p, x, residual, self%halo)
          do alpha = 1, 2
             call residual_lifting(mesh, residual(:, alpha), r(:, :, alpha))
             ! a ghost triangle may have vertices outside this rank's unknowns: its owner's values

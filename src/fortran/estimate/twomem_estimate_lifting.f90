@@ -11,37 +11,18 @@ module twomem_estimate_lifting
    implicit none
    private
 
-   public :: algebraic_residuals, nodal_algebraic_residuals, residual_lifting
+   public :: algebraic_residuals, residual_lifting
 
 contains
 
-   !> R_1 = F_1 − μ1 S X1 + D X3 and R_2 = F_2 − μ2 S X2 − D X3 at the interior vertices. On a
+   !> R_1 = F_1 − μ1 S X1 + D X3 and R_2 = F_2 − μ2 S X2 − D X3 as nodal fields: residual(:, α)
+   !> = R_α at the vertices of the unknowns, zero at the others (nv values per column). On a
    !> rank's piece of a distributed problem, `halo` (a copy of p%halo) sums the ranks' parts of
    !> S X_α at shared vertices (F_α and D hold full values already), so every local unknown gets
-   !> the full residual.
-   subroutine algebraic_residuals(p, x, r1, r2, halo)
-      type(discrete_problem_t), intent(in) :: p
-      real(dp), intent(in) :: x(:)
-      real(dp), intent(out) :: r1(:), r2(:)
-      type(halo_t), intent(inout), optional :: halo
-
-      integer(ip) :: n
-
-      ! S X_α into r_α first: no work vector of the mesh's size
-      n = p%n
-      call p%stiffness%matvec(x(1:n), r1)
-      if (present(halo)) call halo%add(r1)
-      r1 = p%f1 - p%mu1*r1 + p%mass*x(2*n + 1:3*n)
-      call p%stiffness%matvec(x(n + 1:2*n), r2)
-      if (present(halo)) call halo%add(r2)
-      r2 = p%f2 - p%mu2*r2 - p%mass*x(2*n + 1:3*n)
-   end subroutine algebraic_residuals
-
-   !> algebraic_residuals as nodal fields: residual(:, α) = R_α at the vertices of the unknowns,
-   !> zero at the others (nv values per column), with the same bits. No work vector: S X_α goes
-   !> into the first n entries of column α, and unknown i then moves to its vertex interior(i),
-   !> from the last down (interior increases, interior(i) ≥ i: no unknown below i reads it).
-   subroutine nodal_algebraic_residuals(p, x, residual, halo)
+   !> the full residual. No work vector: S X_α goes into the first n entries of column α, and
+   !> unknown i then moves to its vertex interior(i), from the last down (interior increases,
+   !> interior(i) ≥ i: no unknown below i reads it).
+   subroutine algebraic_residuals(p, x, residual, halo)
       type(discrete_problem_t), intent(in) :: p
       real(dp), intent(in) :: x(:)
       real(dp), intent(out) :: residual(:, :)
@@ -70,7 +51,7 @@ contains
          end do
          residual(previous + 1:, alpha) = 0.0_dp
       end do
-   end subroutine nodal_algebraic_residuals
+   end subroutine algebraic_residuals
 
    !> r(:, t) = values of r at the three vertices of triangle t, from nodal residuals
    !> (zero at boundary vertices).
