@@ -40,13 +40,17 @@ module twomem_newton_elimination
    !> never sees a penalty-sized entry.
    real(dp), parameter :: fixed_ratio = 1.0e12_dp
 
-   type, extends(preconditioner_t) :: elimination_preconditioner_t
-      !> what `init` was given, kept to rebuild after `release` (the caller keeps the problem and
-      !> the transfers alive anyway)
+   !> What `init` was given, kept to rebuild after `release` (the caller keeps the problem and
+   !> the transfers alive anyway).
+   type :: build_args_t
       type(discrete_problem_t), pointer :: p => null()
       type(multigrid_transfer_t), pointer :: transfer => null()
       integer :: top = 0
       type(multigrid_options_t) :: options
+   end type build_args_t
+
+   type, extends(preconditioner_t) :: elimination_preconditioner_t
+      type(build_args_t) :: args
       !> `release` has dropped everything but a and b: the next set_linearization or apply
       !> rebuilds
       logical :: released = .false.
@@ -108,10 +112,7 @@ contains
 
       integer(ip) :: n, i
 
-      self%p => p
-      self%transfer => transfer
-      self%top = top
-      self%options = options
+      self%args = build_args_t(p, transfer, top, options)
       n = p%n
       self%n = n
       self%mu1 = p%mu1
@@ -270,21 +271,15 @@ contains
       real(dp), intent(out) :: z(:)
 
       integer(ip) :: n
-      real(dp), allocatable :: a(:), b(:)
       type(error_t), allocatable :: err
 
       if (self%released) then
-         ! GMRES goes on after a release: the same preconditioner again (a and b are this
-         ! Newton step's rows)
-         call move_alloc(self%a, a)
-         call move_alloc(self%b, b)
-         call restart(self, err)
-         if (.not. allocated(err)) call self%set_linearization(a, b, err)
+         ! GMRES goes on after a release: the same preconditioner again
+         call rebuild(self, err)
          if (allocated(err)) then
             ! init and set_linearization took the same data before: only a failed allocation
             ! gets here, and a zero correction makes GMRES report stagnation
             z = 0.0_dp
-            self%released = .true.
             return
          end if
       end if
@@ -446,17 +441,11 @@ contains
    subroutine release(self)
       class(elimination_preconditioner_t), intent(inout) :: self
 
-      type(discrete_problem_t), pointer :: p
-      type(multigrid_transfer_t), pointer :: transfer
-      integer :: top
-      type(multigrid_options_t) :: options
+      type(build_args_t) :: args
       real(dp), allocatable :: a(:), b(:)
 
-      if (self%released .or. .not. associated(self%p)) return
-      p => self%p
-      transfer => self%transfer
-      top = self%top
-      options = self%options
+      if (self%released .or. .not. associated(self%args%p)) return
+      args = self%args
       call move_alloc(self%a, a)
       call move_alloc(self%b, b)
       ! explicitly: gfortran 12 leaves a plain multigrid_t component's levels allocated when
@@ -464,10 +453,7 @@ contains
       call self%s_mg%free()
       call self%w_mg%free()
       call reset(self)
-      self%p => p
-      self%transfer => transfer
-      self%top = top
-      self%options = options
+      self%args = args
       call move_alloc(a, self%a)
       call move_alloc(b, self%b)
       self%released = .true.
@@ -486,17 +472,30 @@ contains
       type(elimination_preconditioner_t), intent(inout) :: self
       type(error_t), allocatable, intent(out) :: err
 
-      type(discrete_problem_t), pointer :: p
-      type(multigrid_transfer_t), pointer :: transfer
-      integer :: top
-      type(multigrid_options_t) :: options
+      type(build_args_t) :: args
 
-      p => self%p
-      transfer => self%transfer
-      top = self%top
-      options = self%options
-      call self%init(p, transfer, top, options, err)
+      args = self%args
+      call self%init(args%p, args%transfer, args%top, args%options, err)
    end subroutine restart
+
+   !> After `release`: the preconditioner of the released Newton step (its rows a, b) again. A
+   !> failure leaves it released, with those rows, for the next attempt. Collective.
+   subroutine rebuild(self, err)
+      type(elimination_preconditioner_t), intent(inout) :: self
+      type(error_t), allocatable, intent(out) :: err
+
+      real(dp), allocatable :: a(:), b(:)
+
+      call move_alloc(self%a, a)
+      call move_alloc(self%b, b)
+      call restart(self, err)
+      if (.not. allocated(err)) call self%set_linearization(a, b, err)
+      if (allocated(err)) then
+         call move_alloc(a, self%a)
+         call move_alloc(b, self%b)
+         self%released = .true.
+      end if
+   end subroutine rebuild
 
    !> A coarse solve failed after its factorization had succeeded (the cycles then return 0).
    logical function failed(self)
