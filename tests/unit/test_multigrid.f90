@@ -23,7 +23,7 @@ module test_multigrid
    use twomem_newton_system, only: newton_system_t, newton_operator_t
    use twomem_newton_elimination, only: elimination_preconditioner_t
    use twomem_testing, only: unittest_t, new_unittest, check, check_close, error_t
-   use test_refinement, only: square_hierarchy
+   use test_refinement, only: square_hierarchy, square_problem
    implicit none
    private
 
@@ -293,16 +293,11 @@ contains
       type(newton_system_t), intent(inout) :: sys
       type(error_t), allocatable, intent(out) :: err
 
-      type(constant_data_t) :: data
       real(dp), allocatable :: da(:), db(:)
       logical, allocatable :: active(:)
       integer(ip) :: i
 
-      call square_hierarchy(levels, h, err)
-      if (allocated(err)) return
-      data%mu1 = 1.0_dp
-      data%mu2 = 4.0_dp
-      call p%init(h%meshes(levels), data, err)
+      call square_problem(levels, h, p, err, mu2=4.0_dp)
       if (allocated(err)) return
       call sys%init(p, .true.)
       allocate (active(p%n), da(p%n), db(p%n))
@@ -368,13 +363,7 @@ contains
       type(multigrid_transfer_t), intent(out) :: transfer
       type(error_t), allocatable, intent(out) :: err
 
-      type(constant_data_t) :: data
-
-      call square_hierarchy(levels, h, err)
-      if (allocated(err)) return
-      data%mu1 = 1.0_dp
-      data%mu2 = 4.0_dp
-      call p%init(h%meshes(levels), data, err)
+      call square_problem(levels, h, p, err, mu2=4.0_dp)
       if (allocated(err)) return
       call transfer%init(interior_prolongations(h, levels), err)
    end subroutine membranes_on_square

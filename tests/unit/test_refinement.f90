@@ -40,13 +40,14 @@ contains
    end subroutine square_hierarchy
 
    !> The discrete problem on the square refined `levels` times, with constant data and
-   !> unequal tensions (μ2 = 2μ1), so the two membrane blocks differ: the fixture of the Newton
-   !> and preconditioner suites.
-   subroutine square_problem(levels, h, p, err)
+   !> unequal tensions (μ1 = 1, μ2 = 2 unless given), so the two membrane blocks differ: the
+   !> fixture of the Newton, preconditioner and multigrid suites.
+   subroutine square_problem(levels, h, p, err, mu2)
       integer, intent(in) :: levels
       type(mesh_hierarchy_t), intent(out) :: h
       type(discrete_problem_t), intent(out) :: p
       type(error_t), allocatable, intent(out) :: err
+      real(dp), intent(in), optional :: mu2
 
       type(constant_data_t) :: data
 
@@ -54,6 +55,7 @@ contains
       if (allocated(err)) return
       data%mu1 = 1.0_dp
       data%mu2 = 2.0_dp
+      if (present(mu2)) data%mu2 = mu2
       call p%init(h%meshes(levels), data, err)
    end subroutine square_problem
 

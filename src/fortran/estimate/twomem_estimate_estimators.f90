@@ -245,11 +245,7 @@ contains
          self%halo = p%halo
          self%has_halo = .true.
       end if
-      associate (mesh => hierarchy%meshes(hierarchy%levels))
-         if (.not. allocated(self%sigma)) &
-            allocate (self%sigma(self%space%n_flux, mesh%nt, 2), self%u(mesh%nv, 2), self%residual(mesh%nv, 2), &
-                      self%lambda(mesh%nv), self%grad_u(2, mesh%nt, 2), self%r(3, mesh%nt, 2))
-      end associate
+      if (.not. allocated(self%sigma)) call allocate_workspaces(self, hierarchy%meshes(hierarchy%levels))
       associate (mesh => hierarchy%meshes(hierarchy%levels), u => self%u, lambda => self%lambda, &
                  residual => self%residual, grad_u => self%grad_u, r => self%r)
          call scatter(p, x(1:n), p%g, u(:, 1))
@@ -293,6 +289,15 @@ contains
       if (allocated(err)) return
       call element_pass(self, hierarchy, data, est, fields, .true.)
    end subroutine complete
+
+   !> The workspaces of `evaluate` on the finest mesh (the algebraic flux allocates its own).
+   subroutine allocate_workspaces(self, mesh)
+      type(estimator_t), intent(inout) :: self
+      type(mesh_t), intent(in) :: mesh
+
+      allocate (self%sigma(self%space%n_flux, mesh%nt, 2), self%u(mesh%nv, 2), self%residual(mesh%nv, 2), &
+                self%lambda(mesh%nv), self%grad_u(2, mesh%nt, 2), self%r(3, mesh%nt, 2))
+   end subroutine allocate_workspaces
 
    !> The workspaces of the evaluations (about 0.8 KiB per vertex with RT1: σ_disc, the algebraic
    !> flux's level parts, ∇u_α and the lifting per triangle, nodal copies) go, for a phase that
