@@ -118,9 +118,12 @@ contains
 
    !> Signatures of the patches of the interior vertices of `coarse` (level `level`): on its own
    !> triangles (`single`, with fine = coarse) or, for `refined`, on their children in `fine`.
-   !> New signatures are factorized at `finish`. The keys of a chunk of vertices are built in
-   !> parallel, then looked up in vertex order, so that the numbering of the signatures does not
-   !> depend on the threads.
+   !> New signatures are factorized at `finish`. The vertices go in the order of their first
+   !> patch triangle: red refinement numbers triangles along its tree, so consecutive patches
+   !> in that order share their triangles' data in cache (key building waits on memory, not on
+   !> arithmetic: in vertex order it took 0.35 s at 10^6 vertices). The keys of a chunk are built
+   !> and looked up among the known signatures in parallel; the new ones are then numbered in
+   !> that order, so that the numbering does not depend on the threads.
    subroutine add_mesh(self, space, coarse, fine, level)
       class(patch_table_t), intent(inout) :: self
       type(rt_space_t), intent(in) :: space
@@ -128,11 +131,11 @@ contains
       integer, intent(in) :: level
 
       integer(ip), parameter :: chunk = 2048
-      integer(ip) :: first, a, k
+      integer(ip) :: first, a, k, n
       integer :: width, n_coarse, n_children
-      integer, allocatable :: keys(:, :), lengths(:)
+      integer, allocatable :: keys(:, :), lengths(:), ids(:)
       integer(i8), allocatable :: hashes(:)
-      logical, allocatable :: inside(:)
+      integer(ip), allocatable :: order(:)
 
       ! the longest key of this mesh (the buffer is set-up's peak on small meshes): ne, the local
       ! indices of the coarse triangles, and per triangle its class, zero-flux edge, three links
@@ -140,28 +143,56 @@ contains
       n_children = merge(4, 1, self%refined)
       n_coarse = min(int(maxval(coarse%patch_ptr(2:) - coarse%patch_ptr(:coarse%nv))), max_patch/n_children)
       width = 1 + n_coarse + n_children*n_coarse*(5 + 3*space%n_trace)
-      allocate (keys(width, chunk), lengths(chunk), hashes(chunk))
+      allocate (keys(width, chunk), lengths(chunk), hashes(chunk), ids(chunk))
       allocate (self%levels(level)%id(coarse%nv))
       self%levels(level)%id = 0
-      ! on a rank's piece of a distributed mesh, the patches outside its subdomain are not whole
-      inside = coarse%in_subdomain()
-      do first = 1, coarse%nv, chunk
-         !$omp parallel do default(none) shared(self, space, coarse, fine, level, inside, keys, lengths, hashes) &
-         !$omp shared(first) private(k, a) schedule(dynamic, 64)
-         do k = 1, min(chunk, coarse%nv - first + 1)
-            a = first + k - 1
-            lengths(k) = 0
-            if (coarse%boundary_vertex(a) .or. .not. inside(a)) cycle
-            call patch_key(space, coarse, fine, level, self%refined, a, keys(:, k), lengths(k))
-            if (lengths(k) > 0) hashes(k) = key_hash(keys(1:lengths(k), k))
+      order = interior_by_first_triangle(coarse)
+      n = size(order, kind=ip)
+      do first = 1, n, chunk
+         !$omp parallel do default(none) shared(self, space, coarse, fine, level, order, keys, lengths, hashes, ids) &
+         !$omp shared(first, n) private(k) schedule(dynamic, 64)
+         do k = 1, min(chunk, n - first + 1)
+            ids(k) = 0
+            call patch_key(space, coarse, fine, level, self%refined, order(first + k - 1), keys(:, k), lengths(k))
+            if (lengths(k) == 0) cycle
+            hashes(k) = key_hash(keys(1:lengths(k), k))
+            ids(k) = self%hash(find(self%hash, self%sig, keys(1:lengths(k), k), hashes(k)))
          end do
          !$omp end parallel do
-         do k = 1, min(chunk, coarse%nv - first + 1)
+         do k = 1, min(chunk, n - first + 1)
             if (lengths(k) == 0) cycle
-            self%levels(level)%id(first + k - 1) = lookup(self, keys(1:lengths(k), k), hashes(k), n_children)
+            a = order(first + k - 1)
+            if (ids(k) == 0) ids(k) = lookup(self, keys(1:lengths(k), k), hashes(k), n_children)
+            self%levels(level)%id(a) = ids(k)
          end do
       end do
    end subroutine add_mesh
+
+   !> The interior vertices of the mesh whose patches are whole on this rank (on a rank's piece
+   !> of a distributed mesh, the patches outside its subdomain are not), in the order of their
+   !> first patch triangle (patches list their triangles in ascending order).
+   function interior_by_first_triangle(mesh) result(order)
+      type(mesh_t), intent(in) :: mesh
+      integer(ip), allocatable :: order(:)
+
+      logical, allocatable :: inside(:)
+      integer(ip) :: t, a, n
+      integer :: i
+
+      inside = mesh%in_subdomain()
+      inside = inside .and. .not. mesh%boundary_vertex
+      allocate (order(count(inside)))
+      n = 0
+      do t = 1, mesh%nt
+         do i = 1, 3
+            a = mesh%triangles(i, t)
+            if (.not. inside(a)) cycle
+            if (mesh%patch_triangles(mesh%patch_ptr(a)) /= t) cycle
+            n = n + 1
+            order(n) = a
+         end do
+      end do
+   end function interior_by_first_triangle
 
    !> The key of the patch of interior vertex a (see add_mesh) in key(1:length): ne, the local
    !> indices of a in the coarse triangles, then per patch triangle its class, zero-flux edge,
@@ -273,7 +304,9 @@ contains
       id = self%n
       if (id > size(self%sig)) then
          allocate (grown(2*size(self%sig)))
-         grown(1:id - 1) = self%sig(1:id - 1)
+         do i = 1, id - 1
+            call move_signature(self%sig(i), grown(i))
+         end do
          call move_alloc(grown, self%sig)
       end if
       ne = key(1)
@@ -285,6 +318,16 @@ contains
       self%hash(slot) = id
       if (2*self%n > size(self%hash)) call rehash(self)
    end function lookup
+
+   !> What a signature holds while the table is built, moved (no copy) from `from` to `to`.
+   subroutine move_signature(from, to)
+      type(patch_signature_t), intent(inout) :: from, to
+
+      call move_alloc(from%classes, to%classes)
+      call move_alloc(from%neumann, to%neumann)
+      call move_alloc(from%links, to%links)
+      call move_alloc(from%key, to%key)
+   end subroutine move_signature
 
    !> 32-bit FNV-1a over the key's integers, kept in 32 bits of a 64-bit integer so that the
    !> product never overflows (signed overflow is undefined, and the sanitizer build reports it).
@@ -346,7 +389,6 @@ contains
 
       integer :: id, n_blocks
       logical :: ok, all_ok
-      type(patch_signature_t), allocatable :: kept(:)
       real(dp), allocatable :: signs(:, :)
 
       all_ok = .true.
@@ -362,10 +404,9 @@ contains
          end associate
       end do
       !$omp end parallel do
+      ! the spare slots of `sig` stay: they hold nothing, and trimming the array would copy every
+      ! factor (0.06 s of set-up at 10^6 vertices)
       if (allocated(self%hash)) deallocate (self%hash)
-      allocate (kept(self%n))
-      kept = self%sig(1:self%n)
-      call move_alloc(kept, self%sig)
       if (.not. all_ok) call make_error(err, exit_io, 'estimators', 'a patch system is singular (degenerate triangles?)')
    end subroutine finish
 
