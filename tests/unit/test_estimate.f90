@@ -17,6 +17,7 @@ module test_estimate
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, make_frame, edge_gauss
    use twomem_estimate_lifting, only: algebraic_residuals, residual_lifting
    use twomem_estimate_disc_flux, only: discretization_flux, load_moments_t
+   use twomem_estimate_evaluated_iterate, only: evaluated_iterate_t, gradients_on, lifting_on
    use twomem_estimate_shapes, only: shape_classes_t
    use twomem_estimate_coloring, only: coloring_t
    use twomem_estimate_alg_flux, only: algebraic_flux_t, level_flux_t
@@ -141,7 +142,7 @@ contains
       type(mesh_hierarchy_t) :: h
       type(poly_data_t) :: data
       type(discrete_problem_t) :: p
-      real(dp), allocatable :: x(:), r1(:), r2(:), sx(:, :), d(:), u(:, :), expected(:), r(:, :), moment(:), &
+      real(dp), allocatable :: x(:), r1(:), r2(:), sx(:, :), d(:), u(:, :), expected(:), r(:, :, :), moment(:), &
                                nodal(:, :)
       logical, allocatable :: off_unknowns(:)
       integer(ip) :: n, t, v(3), i
@@ -157,7 +158,7 @@ contains
          call algebraic_residuals(p, x, nodal)
          r1 = nodal(p%interior, 1)
          r2 = nodal(p%interior, 2)
-         allocate (sx(mesh%nv, 2), d(mesh%nv), u(mesh%nv, 2), r(3, mesh%nt), moment(mesh%nv))
+         allocate (sx(mesh%nv, 2), d(mesh%nv), u(mesh%nv, 2), r(3, mesh%nt, 2), moment(mesh%nv))
          u = reshape([p%to_nodal(x(1:n), 0.0_dp), p%to_nodal(x(n + 1:2*n), 0.0_dp)], [mesh%nv, 2])
          sx = 0.0_dp
          d = 0.0_dp
@@ -177,13 +178,13 @@ contains
          call check(err, all(pack(nodal(:, 1), off_unknowns) == 0.0_dp) .and. &
                     all(pack(nodal(:, 2), off_unknowns) == 0.0_dp), 'R_α is zero at the vertices of no unknown')
 
-         call residual_lifting(mesh, nodal(:, 1), r)
+         call residual_lifting(mesh, nodal, r)
          moment = 0.0_dp
          do t = 1, mesh%nt
             v = mesh%triangles(:, t)
-            moment(v) = moment(v) + mesh%area(t)/12*(r(:, t) + sum(r(:, t)))
+            moment(v) = moment(v) + mesh%area(t)/12*(r(:, t, 1) + sum(r(:, t, 1)))
             do i = 1, 3
-               if (mesh%boundary_vertex(v(i))) call check(err, r(i, t) == 0.0_dp, 'r = 0 at boundary vertices')
+               if (mesh%boundary_vertex(v(i))) call check(err, all(r(i, t, :) == 0.0_dp), 'r = 0 at boundary vertices')
             end do
          end do
          call check(err, maxval(abs(moment(p%interior) - r1)) <= 1.0e-12_dp*maxval(abs(r1)), '(r, psi_a) = R(a)')
@@ -212,9 +213,10 @@ contains
       type(load_moments_t) :: loads, flat_loads
       type(poly_data_t) :: flat_poly
       type(constant_data_t) :: flat
+      type(evaluated_iterate_t) :: iterate
       real(dp), allocatable :: lambda(:), grad_u(:, :, :), residual(:, :), r(:, :, :), lhs(:), rhs(:)
       real(dp), allocatable :: flat_sigma(:, :, :)
-      real(dp) :: x(2), w, dev, scale, q(3, 3), fv(3), exact, tri(3, 3, 3), mu(2)
+      real(dp) :: x(2), w, dev, scale, q(3, 3), fv(3), exact, tri(3, 3, 3), mu(2), g_on(2, 2), r_on(3, 2)
       integer(ip) :: t, v(3)
       integer :: domain, order, alpha, k, i, j, l
       logical :: ok
@@ -225,9 +227,17 @@ contains
       do domain = 1, 2
          call mesh_problem(trim(domains(domain)), merge(0.4_dp, 0.3_dp, domain == 1), 0, data, h, p, err)
          if (allocated(err)) return
-         call iterate_fields(p, h%meshes(0), random_vector(3*p%n, 20 + domain), lambda, grad_u, residual, r)
+         call iterate_fields(p, h%meshes(0), random_vector(3*p%n, 20 + domain), lambda, grad_u, residual, r, iterate)
          mu = [p%mu1, p%mu2]
          associate (mesh => h%meshes(0))
+            ! the fluxes read ∇u_α and r_α triangle by triangle, computed where they are read
+            dev = 0.0_dp
+            do t = 1, mesh%nt
+               call gradients_on(iterate, mesh, t, p1_gradients(mesh, t), g_on)
+               call lifting_on(iterate, mesh, t, r_on)
+               dev = max(dev, maxval(abs(g_on - grad_u(:, t, :))), maxval(abs(r_on - r(:, t, :))))
+            end do
+            call check(err, dev == 0.0_dp, 'gradients_on and lifting_on are the whole-mesh fields')
             do order = 0, 1
                call space%init(order)
                call shapes%init(space, h, err)
@@ -240,20 +250,17 @@ contains
                flat = constant_data_t(mu1=data%mu1, mu2=data%mu2, f1=data%a(1), f2=data%a(2))
                call flat_loads%init(space, mesh, flat)
                call check(err, flat_loads%constant .and. .not. allocated(flat_loads%moments), 'constant loads stored')
-               call discretization_flux(space, shapes, no_signatures, mesh, 0, colors, mu, flat_loads, grad_u, lambda, &
-                                        r, flat_sigma, ok)
+               call discretization_flux(space, shapes, no_signatures, mesh, 0, colors, mu, flat_loads, iterate, flat_sigma, ok)
                flat_poly = data
                flat_poly%b = 0.0_dp
                flat_poly%c = 0.0_dp
                call loads%init(space, mesh, flat_poly)
-               call discretization_flux(space, shapes, no_signatures, mesh, 0, colors, mu, loads, grad_u, lambda, r, &
-                                        levels(1)%sigma, ok)
+               call discretization_flux(space, shapes, no_signatures, mesh, 0, colors, mu, loads, iterate, levels(1)%sigma, ok)
                call check(err, maxval(abs(flat_sigma - levels(1)%sigma)) <= 1.0e-13_dp*maxval(abs(flat_sigma)), &
                           'constant loads by class integrals')
                call loads%init(space, mesh, data)
                call check(err, .not. loads%constant, 'polynomial loads integrated')
-               call discretization_flux(space, shapes, no_signatures, mesh, 0, colors, mu, loads, grad_u, lambda, r, &
-                                        levels(1)%sigma, ok)
+               call discretization_flux(space, shapes, no_signatures, mesh, 0, colors, mu, loads, iterate, levels(1)%sigma, ok)
                call check(err, ok, 'patch systems regular')
                dev = 0.0_dp
                do t = 1, mesh%nt
@@ -313,6 +320,7 @@ contains
       type(shape_classes_t) :: shapes
       !> no signatures: the general path of every patch is what this test checks
       type(patch_table_t) :: no_signatures
+      type(evaluated_iterate_t) :: iterate
       real(dp), allocatable :: lambda(:), grad_u(:, :, :), residual(:, :), r(:, :, :)
       real(dp) :: x(2), value(2), div, r_x, dev
       integer(ip) :: t
@@ -321,7 +329,7 @@ contains
 
       call mesh_problem('square', 0.5_dp, 2, data, h, p, err)
       if (allocated(err)) return
-      call iterate_fields(p, h%meshes(2), random_vector(3*p%n, 30), lambda, grad_u, residual, r)
+      call iterate_fields(p, h%meshes(2), random_vector(3*p%n, 30), lambda, grad_u, residual, r, iterate)
       associate (mesh => h%meshes(2))
          do order = 0, 1
             call space%init(order)
@@ -331,7 +339,7 @@ contains
                if (allocated(err)) return
                call shapes%init(space, h, err)
                if (allocated(err)) return
-               call alg%compute(shapes, h, residual, r, no_signatures, no_signatures, err)
+               call alg%compute(shapes, h, iterate, no_signatures, no_signatures, err)
                if (allocated(err)) return
                call check(err, size(alg%levels) == max(1, n_meshes - 1), 'one flux part per level with patches')
                dev = 0.0_dp
@@ -649,12 +657,14 @@ contains
       if (.not. allocated(err)) call check(err, res%converged, 'Newton did not converge: '//res%status)
    end subroutine solved_disk
 
-   !> Nodal λ_h, ∇u_α per triangle, nodal residuals and their lifting r_α for the iterate x.
-   subroutine iterate_fields(p, mesh, x, lambda, grad_u, residual, r)
+   !> Nodal λ_h, ∇u_α per triangle, nodal residuals and their lifting r_α for the iterate x, by
+   !> whole-mesh loops, and the same iterate as the flux reconstructions take it.
+   subroutine iterate_fields(p, mesh, x, lambda, grad_u, residual, r, iterate)
       type(discrete_problem_t), intent(in) :: p
       type(mesh_t), intent(in) :: mesh
       real(dp), intent(in) :: x(:)
       real(dp), allocatable, intent(out) :: lambda(:), grad_u(:, :, :), residual(:, :), r(:, :, :)
+      type(evaluated_iterate_t), intent(out) :: iterate
 
       real(dp), allocatable :: u(:, :)
       integer(ip) :: n, t
@@ -669,8 +679,12 @@ contains
          do t = 1, mesh%nt
             grad_u(:, t, alpha) = matmul(p1_gradients(mesh, t), u(mesh%triangles(:, t), alpha))
          end do
-         call residual_lifting(mesh, residual(:, alpha), r(:, :, alpha))
       end do
+      call residual_lifting(mesh, residual, r)
+      call iterate%init(mesh)
+      iterate%u = u
+      iterate%lambda = lambda
+      iterate%residual = residual
    end subroutine iterate_fields
 
    !> Σ over the flux parts (ascending levels) of σ_l(x) and ∇·σ_l(x), x in finest triangle t,

@@ -25,7 +25,7 @@
 !> (twomem_linalg_gathered_solve), which returns ρ_α at every local vertex of T_b, ghost layer
 !> included, so that ∇ρ_α is right on every triangle of a rank's patches. The patches are those
 !> of the vertices of the rank's own triangles (twomem_estimate_coloring), whose data the
-!> caller has made whole on the ghost triangles (the lifting r, twomem_estimate_ghosts).
+!> caller has made whole on the ghost triangles (the lifting r, twomem_estimate_evaluated_iterate).
 module twomem_estimate_alg_flux
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_io
@@ -43,6 +43,7 @@ module twomem_estimate_alg_flux
    use twomem_estimate_patch, only: solve_patch, solve_condensed_factored, inner_edge, on_opposite_edge, edge_free, &
                                     edge_neumann
    use twomem_estimate_patch_classes, only: patch_table_t, patch_order, edge_signs
+   use twomem_estimate_evaluated_iterate, only: evaluated_iterate_t, lifting_on
    implicit none
    private
 
@@ -149,23 +150,23 @@ contains
    end subroutine init
 
    !> self%levels returns σ_alg level by level (levels b+1..J, or J alone with a single mesh)
-   !> from the nodal algebraic residuals (nv_J, 2), zero at boundary vertices, and the lifting
-   !> r (3, nt_J, 2). The interior vertices' patches use the factors of their signatures
+   !> for the evaluated iterate: from its nodal algebraic residuals, zero at boundary vertices,
+   !> and their lifting r on T_J. The interior vertices' patches use the factors of their signatures
    !> (twomem_estimate_patch_classes) in `single` (the finest mesh) and `refined` (the coarse
    !> meshes of the refined levels); with tables that hold no signatures every patch is
    !> assembled and factorized on its own.
-   subroutine compute(self, shapes, hierarchy, residual, r, single, refined, err)
+   subroutine compute(self, shapes, hierarchy, iterate, single, refined, err)
       class(algebraic_flux_t), intent(inout) :: self
       type(shape_classes_t), intent(in) :: shapes
       type(mesh_hierarchy_t), intent(in) :: hierarchy
-      real(dp), intent(in) :: residual(:, :), r(:, :, :)
+      type(evaluated_iterate_t), intent(in) :: iterate
       type(patch_table_t), intent(in) :: single, refined
       type(error_t), allocatable, intent(out) :: err
 
       integer :: j, first
       logical :: ok
 
-      call coarse_representer(self, hierarchy, residual, err)
+      call coarse_representer(self, hierarchy, iterate%residual, err)
       if (allocated(err)) return
       first = self%first()
       ! at the first computation: the solver may have released its memory for them by then
@@ -177,19 +178,20 @@ contains
          if (j < self%finest .and. .not. allocated(self%p2(j)%c)) &
             allocate (self%p2(j)%c(n_p2, hierarchy%meshes(j)%nt, 2))
       end do
-      call project_p2(shapes, hierarchy, first, r, self%p2)
+      call project_p2(shapes, hierarchy, first, iterate, self%p2)
       do j = first, self%finest
          associate (lev => self%levels(j - first + 1))
             if (j == self%base) then
                ! a single mesh: patches and triangles of T_J
                call level_patches(self%space, shapes, single, hierarchy%meshes(j), hierarchy%meshes(j), j, self%colors(j), &
-                                  .true., self%grad_rho, self%p2(j), self%p2(j), r, lev%sigma, ok, .false.)
+                                  .true., self%grad_rho, self%p2(j), self%p2(j), iterate, lev%sigma, ok, .false.)
             else if (j == first) then
                call level_patches(self%space, shapes, refined, hierarchy%meshes(j - 1), hierarchy%meshes(j), j, &
-                                  self%colors(j), .true., self%grad_rho, self%p2(j), self%p2(j), r, lev%sigma, ok, .true.)
+                                  self%colors(j), .true., self%grad_rho, self%p2(j), self%p2(j), iterate, lev%sigma, ok, &
+                                  .true.)
             else
                call level_patches(self%space, shapes, refined, hierarchy%meshes(j - 1), hierarchy%meshes(j), j, &
-                                  self%colors(j), .false., self%grad_rho, self%p2(j - 1), self%p2(j), r, lev%sigma, ok, &
+                                  self%colors(j), .false., self%grad_rho, self%p2(j - 1), self%p2(j), iterate, lev%sigma, ok, &
                                   .true.)
             end if
          end associate
@@ -281,29 +283,30 @@ contains
    !> r_α's L² projection onto P2 of every triangle of T_first..T_{J−1}, coarsest last: that of
    !> a coarse triangle is the sum of the projections of its four children's fields (P1 r on
    !> T_J, their P2 projections above), the class operators p2_from_p1 and p2_from_p2.
-   subroutine project_p2(shapes, hierarchy, first, r, p2)
+   subroutine project_p2(shapes, hierarchy, first, iterate, p2)
       type(shape_classes_t), intent(in) :: shapes
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       integer, intent(in) :: first
-      real(dp), intent(in) :: r(:, :, :)
+      type(evaluated_iterate_t), intent(in) :: iterate
       type(p2_field_t), intent(inout) :: p2(first:)
 
       integer :: l, c, cls, alpha, j
       integer(ip) :: t, child
-      real(dp) :: ratio
+      real(dp) :: ratio, r(3, 2)
 
       do l = ubound(p2, 1) - 1, first, -1
-         !$omp parallel do default(none) shared(shapes, hierarchy, p2, r, l) private(t, c, cls, ratio, child, alpha, j) &
-         !$omp schedule(static)
+         !$omp parallel do default(none) shared(shapes, hierarchy, p2, iterate, l) &
+         !$omp private(t, c, cls, ratio, child, alpha, j, r) schedule(static)
          do t = 1, hierarchy%meshes(l)%nt
             call triangle_class(l, t, cls, ratio)
             p2(l)%c(:, t, :) = 0.0_dp
             do c = 1, 4
                child = 4*(t - 1) + c
+               if (l + 1 == ubound(p2, 1)) call lifting_on(iterate, hierarchy%meshes(l + 1), child, r)
                do alpha = 1, 2
                   if (l + 1 == ubound(p2, 1)) then
                      do j = 1, 3
-                        p2(l)%c(:, t, alpha) = p2(l)%c(:, t, alpha) + r(j, child, alpha)*shapes%p2_from_p1(:, j, c, cls)
+                        p2(l)%c(:, t, alpha) = p2(l)%c(:, t, alpha) + r(j, alpha)*shapes%p2_from_p1(:, j, c, cls)
                      end do
                   else
                      do j = 1, n_p2
@@ -321,8 +324,8 @@ contains
    !> `colors`), triangles of `fine`, level `level` of the hierarchy (its red refinement if
    !> `refined`, else the same mesh). `first`: the data are r ψ_a − ∇ρ·∇ψ_a (grad_rho on the
    !> coarse triangles), otherwise (I − Π_coarse)(r ψ_a).
-   subroutine level_patches(space, shapes, table, coarse, fine, level, colors, first, grad_rho, p2_coarse, p2_fine, r, &
-                            sigma, ok, refined)
+   subroutine level_patches(space, shapes, table, coarse, fine, level, colors, first, grad_rho, p2_coarse, p2_fine, &
+                            iterate, sigma, ok, refined)
       type(rt_space_t), intent(in) :: space
       type(shape_classes_t), intent(in) :: shapes
       type(patch_table_t), intent(in) :: table
@@ -332,8 +335,8 @@ contains
       logical, intent(in) :: first
       real(dp), intent(in) :: grad_rho(:, :, :)
       type(p2_field_t), intent(in) :: p2_coarse, p2_fine
-      !> the residual lifting on T_J: r's values where p2_fine is not stored (the finest level)
-      real(dp), intent(in) :: r(:, :, :)
+      !> its residual lifting on T_J: r where p2_fine is not stored (the finest level)
+      type(evaluated_iterate_t), intent(in) :: iterate
       real(dp), intent(inout) :: sigma(:, :, :)
       logical, intent(out) :: ok
       logical, intent(in) :: refined
@@ -344,7 +347,7 @@ contains
 
       ok = .true.
       !$omp parallel default(none) &
-      !$omp shared(space, shapes, table, coarse, fine, level, colors, first, grad_rho, p2_coarse, p2_fine, r, sigma) &
+      !$omp shared(space, shapes, table, coarse, fine, level, colors, first, grad_rho, p2_coarse, p2_fine, iterate, sigma) &
       !$omp shared(refined) &
       !$omp private(a, ib, m, c, patch_ok) reduction(.and.:ok)
       !$omp workshare
@@ -357,10 +360,10 @@ contains
                a = colors%vertices(m)
                if (refined) then
                   call coarse_patch(space, shapes, table, coarse, fine, level, a, 4, first, grad_rho, p2_coarse, p2_fine, &
-                                    r, sigma, patch_ok)
+                                    iterate, sigma, patch_ok)
                else
                   call coarse_patch(space, shapes, table, coarse, fine, level, a, 1, first, grad_rho, p2_coarse, p2_fine, &
-                                    r, sigma, patch_ok)
+                                    iterate, sigma, patch_ok)
                end if
                ok = ok .and. patch_ok
             end do
@@ -373,7 +376,7 @@ contains
    !> One patch of level_patches; an interior vertex's patch goes with its signature in `table`
    !> (triangles in the signature's order, its edges and factor), one on ∂Ω the general way.
    subroutine coarse_patch(space, shapes, table, coarse, fine, level, a, n_children, first, grad_rho, p2_coarse, p2_fine, &
-                           r, sigma, ok)
+                           iterate, sigma, ok)
       type(rt_space_t), intent(in) :: space
       type(shape_classes_t), intent(in) :: shapes
       type(patch_table_t), intent(in) :: table
@@ -384,8 +387,8 @@ contains
       logical, intent(in) :: first
       real(dp), intent(in) :: grad_rho(:, :, :)
       type(p2_field_t), intent(in) :: p2_coarse, p2_fine
-      !> the residual lifting on T_J: r's values where p2_fine is not stored (the finest level)
-      real(dp), intent(in) :: r(:, :, :)
+      !> its residual lifting on T_J: r where p2_fine is not stored (the finest level)
+      type(evaluated_iterate_t), intent(in) :: iterate
       real(dp), intent(inout) :: sigma(:, :, :)
       logical, intent(out) :: ok
 
@@ -398,7 +401,7 @@ contains
       real(dp) :: ratios(size(children)), signs(3*space%n_trace, size(children))
       real(dp) :: rhs_flux(space%n_flux, size(children), 2), rhs_div(space%n_div, size(children), 2)
       real(dp) :: patch_sigma(space%n_flux, size(children), 2)
-      real(dp) :: coarse_part(space%n_div, 2), smooth(2), hat_gradients(2, 3), area_factor, ratio, ratio_level
+      real(dp) :: coarse_part(space%n_div, 2), smooth(2), hat_gradients(2, 3), area_factor, ratio, ratio_level, r(3, 2)
       integer :: cls, id, coarse_level
       integer(ip) :: order(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a))
 
@@ -482,15 +485,16 @@ contains
                   call add_moments(space%n_div, n_p2, shapes%mono_psi_q(:, :, local_a, cls), area_factor, &
                                    p2_fine%c(:, child, :), rhs_div(:, ne, :))
                else
-                  call add_moments(space%n_div, 3, shapes%bary_psi_q(:, :, local_a, cls), area_factor, r(:, child, :), &
-                                   rhs_div(:, ne, :))
+                  call lifting_on(iterate, fine, child, r)
+                  call add_moments(space%n_div, 3, shapes%bary_psi_q(:, :, local_a, cls), area_factor, r, rhs_div(:, ne, :))
                end if
             else if (allocated(p2_fine%c)) then
                call add_moments(space%n_div, n_p2, shapes%child_mono_psi_q(:, :, local_a, c, cls), area_factor, &
                                 p2_fine%c(:, child, :), rhs_div(:, ne, :))
             else
-               call add_moments(space%n_div, 3, shapes%child_bary_psi_q(:, :, local_a, c, cls), area_factor, &
-                                r(:, child, :), rhs_div(:, ne, :))
+               call lifting_on(iterate, fine, child, r)
+               call add_moments(space%n_div, 3, shapes%child_bary_psi_q(:, :, local_a, c, cls), area_factor, r, &
+                                rhs_div(:, ne, :))
             end if
             if (first) then
                do alpha = 1, 2

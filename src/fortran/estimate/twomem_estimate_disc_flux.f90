@@ -16,6 +16,7 @@ module twomem_estimate_disc_flux
    use twomem_estimate_coloring, only: coloring_t
    use twomem_estimate_patch, only: solve_patch, solve_condensed_factored, inner_edge, edge_free, edge_neumann
    use twomem_estimate_patch_classes, only: patch_table_t, patch_signature_t, patch_order, max_patch
+   use twomem_estimate_evaluated_iterate, only: evaluated_iterate_t, gradients_on, lifting_on
    implicit none
    private
 
@@ -98,13 +99,12 @@ contains
    end function moment
 
    !> sigma(:, t, α): coefficients of σ_α,disc on triangle t of `mesh`, level `level` of the
-   !> hierarchy of `shapes`, whose vertex colouring is `colors`. grad_u(:, t, α) is ∇u_α on t,
-   !> lambda the nodal λ_h, r(:, t, α) the residual lifting's vertex values, loads the load
-   !> moments. `table` holds the patch signatures of `mesh`'s interior vertices
+   !> hierarchy of `shapes`, whose vertex colouring is `colors`, for the evaluated iterate
+   !> (its ∇u_α, λ_h and residual lifting); loads: the load moments. `table` holds the patch signatures of `mesh`'s interior vertices
    !> (twomem_estimate_patch_classes), whose patches use the signatures' factors; a table that
    !> holds none makes every patch assembled and factorized on its own. ok is .false. if some
    !> patch system is singular.
-   subroutine discretization_flux(space, shapes, table, mesh, level, colors, mu, loads, grad_u, lambda, r, sigma, ok)
+   subroutine discretization_flux(space, shapes, table, mesh, level, colors, mu, loads, iterate, sigma, ok)
       type(rt_space_t), intent(in) :: space
       type(shape_classes_t), intent(in) :: shapes
       type(patch_table_t), intent(in) :: table
@@ -113,7 +113,7 @@ contains
       type(coloring_t), intent(in) :: colors
       real(dp), intent(in) :: mu(2)
       type(load_moments_t), intent(in) :: loads
-      real(dp), intent(in) :: grad_u(:, :, :), lambda(:), r(:, :, :)
+      type(evaluated_iterate_t), intent(in) :: iterate
       real(dp), intent(inout) :: sigma(:, :, :)
       logical, intent(out) :: ok
 
@@ -124,7 +124,7 @@ contains
       ok = .true.
       signatures = allocated(table%levels)
       !$omp parallel default(none) &
-      !$omp shared(space, shapes, table, mesh, level, colors, mu, loads, grad_u, lambda, r, sigma) &
+      !$omp shared(space, shapes, table, mesh, level, colors, mu, loads, iterate, sigma) &
       !$omp shared(signatures) private(c, ib, m, a, id, patch_ok) reduction(.and.:ok)
       !$omp workshare
       sigma = 0.0_dp
@@ -137,10 +137,9 @@ contains
                id = 0
                if (signatures) id = table%levels(level)%id(a)
                if (id > 0) then
-                  call interior_patch(space, shapes, table%sig(id), mesh, level, a, mu, loads, &
-                                      grad_u, lambda(a), r, sigma)
+                  call interior_patch(space, shapes, table%sig(id), mesh, level, a, mu, loads, iterate, sigma)
                else
-                  call vertex_patch(space, shapes, mesh, level, a, mu, loads, grad_u, lambda(a), r, sigma, patch_ok)
+                  call vertex_patch(space, shapes, mesh, level, a, mu, loads, iterate, sigma, patch_ok)
                   ok = ok .and. patch_ok
                end if
             end do
@@ -150,14 +149,15 @@ contains
       !$omp end parallel
    end subroutine discretization_flux
 
-   subroutine vertex_patch(space, shapes, mesh, level, a, mu, loads, grad_u, lambda_a, r, sigma, ok)
+   subroutine vertex_patch(space, shapes, mesh, level, a, mu, loads, iterate, sigma, ok)
       type(rt_space_t), intent(in) :: space
       type(shape_classes_t), intent(in) :: shapes
       type(mesh_t), intent(in) :: mesh
       integer, intent(in) :: level
       integer(ip), intent(in) :: a
-      real(dp), intent(in) :: mu(2), grad_u(:, :, :), lambda_a, r(:, :, :)
+      real(dp), intent(in) :: mu(2)
       type(load_moments_t), intent(in) :: loads
+      type(evaluated_iterate_t), intent(in) :: iterate
       real(dp), intent(inout) :: sigma(:, :, :)
       logical, intent(out) :: ok
 
@@ -168,10 +168,11 @@ contains
       real(dp) :: ratios(size(elements)), signs(3*space%n_trace, size(elements)), area_factor
       real(dp) :: rhs_flux(space%n_flux, size(elements), 2), rhs_div(space%n_div, size(elements), 2)
       real(dp) :: patch_sigma(space%n_flux, size(elements), 2), fgrad(2, size(elements), 2)
-      real(dp) :: grad_psi(2), hat_gradients(2, 3)
+      real(dp) :: grad_psi(2), hat_gradients(2, 3), grad_u(2, 2), r(3, 2), lambda_a
       real(dp), parameter :: lambda_sign(2) = [1.0_dp, -1.0_dp]
 
       ne = size(elements)
+      lambda_a = iterate%lambda(a)
       n_inner = 0
       do k = 1, ne
          t = mesh%patch_triangles(mesh%patch_ptr(a) + k - 1)
@@ -198,13 +199,15 @@ contains
          ! with the area, ρ⁻²
          area_factor = 1/ratios(k)**2
          grad_psi = hat_gradients(:, i)
+         call gradients_on(iterate, mesh, t, hat_gradients, grad_u)
+         call lifting_on(iterate, mesh, t, r)
          do alpha = 1, 2
-            fgrad(:, k, alpha) = -mu(alpha)*grad_u(:, t, alpha)
+            fgrad(:, k, alpha) = -mu(alpha)*grad_u(:, alpha)
             rhs_flux(:, k, alpha) = area_factor*matmul(fgrad(:, k, alpha), shapes%psi_phi(:, :, i, c))
             rhs_div(:, k, alpha) = moment(loads, shapes, i, t, c, area_factor, alpha) + area_factor*( &
                                    lambda_sign(alpha)*lambda_a*shapes%psi_q(:, i, c) &
-                                   - matmul(shapes%bary_psi_q(:, :, i, c), r(:, t, alpha)) &
-                                   - mu(alpha)*dot_product(grad_u(:, t, alpha), grad_psi)*shapes%q_int(:, c))
+                                   - matmul(shapes%bary_psi_q(:, :, i, c), r(:, alpha)) &
+                                   - mu(alpha)*dot_product(grad_u(:, alpha), grad_psi)*shapes%q_int(:, c))
          end do
       end do
 
@@ -216,15 +219,16 @@ contains
    end subroutine vertex_patch
    !> The patch of an interior vertex a with its signature's factor (twomem_estimate_patch_classes):
    !> the data of vertex_patch in the signature's order of the triangles.
-   subroutine interior_patch(space, shapes, sig, mesh, level, a, mu, loads, grad_u, lambda_a, r, sigma)
+   subroutine interior_patch(space, shapes, sig, mesh, level, a, mu, loads, iterate, sigma)
       type(rt_space_t), intent(in) :: space
       type(shape_classes_t), intent(in) :: shapes
       type(patch_signature_t), intent(in) :: sig
       type(mesh_t), intent(in) :: mesh
       integer, intent(in) :: level
       integer(ip), intent(in) :: a
-      real(dp), intent(in) :: mu(2), grad_u(:, :, :), lambda_a, r(:, :, :)
+      real(dp), intent(in) :: mu(2)
       type(load_moments_t), intent(in) :: loads
+      type(evaluated_iterate_t), intent(in) :: iterate
       real(dp), intent(inout) :: sigma(:, :, :)
 
       ! fixed-size work arrays (sizes checked when the table was built): no allocation per patch
@@ -232,9 +236,11 @@ contains
       integer(ip) :: t, order(max_patch)
       real(dp) :: ratio, area_factor
       real(dp) :: rhs_div(3, max_patch, 2), fgrad(2, max_patch, 2), grad_psi(2), hat_gradients(2, 3)
+      real(dp) :: grad_u(2, 2), r(3, 2), lambda_a
       real(dp), parameter :: lambda_sign(2) = [1.0_dp, -1.0_dp]
 
       ne = size(sig%classes)
+      lambda_a = iterate%lambda(a)
       nd = space%n_div
       call patch_order(mesh, level, a, order(1:ne))
       ratio = 2.0_dp**level
@@ -245,14 +251,16 @@ contains
          i = sig%neumann(k)
          hat_gradients = p1_gradients(mesh, t)
          grad_psi = hat_gradients(:, i)
+         call gradients_on(iterate, mesh, t, hat_gradients, grad_u)
+         call lifting_on(iterate, mesh, t, r)
          do alpha = 1, 2
-            fgrad(:, k, alpha) = -mu(alpha)*grad_u(:, t, alpha)
+            fgrad(:, k, alpha) = -mu(alpha)*grad_u(:, alpha)
             rhs_div(1:nd, k, alpha) = moment(loads, shapes, i, t, c, area_factor, alpha) + area_factor*( &
                                       lambda_sign(alpha)*lambda_a*shapes%psi_q(:, i, c) &
-                                      - shapes%bary_psi_q(:, 1, i, c)*r(1, t, alpha) &
-                                      - shapes%bary_psi_q(:, 2, i, c)*r(2, t, alpha) &
-                                      - shapes%bary_psi_q(:, 3, i, c)*r(3, t, alpha) &
-                                      - mu(alpha)*dot_product(grad_u(:, t, alpha), grad_psi)*shapes%q_int(:, c))
+                                      - shapes%bary_psi_q(:, 1, i, c)*r(1, alpha) &
+                                      - shapes%bary_psi_q(:, 2, i, c)*r(2, alpha) &
+                                      - shapes%bary_psi_q(:, 3, i, c)*r(3, alpha) &
+                                      - mu(alpha)*dot_product(grad_u(:, alpha), grad_psi)*shapes%q_int(:, c))
          end do
       end do
       call solve_condensed_factored(space, shapes, sig%classes, ratio, sig%neumann, fgrad(:, 1:ne, :), &

@@ -17,7 +17,7 @@
 !> Distributed (a communicator given to `init`): each rank evaluates the patches of the vertices
 !> of its own triangles, which are whole on its piece thanks to the ghost layer, with ∇u_h and
 !> the residual lifting of the ghost triangles copied from their owners
-!> (twomem_estimate_ghosts); it computes the element estimators on its own triangles only, and
+!> (twomem_estimate_evaluated_iterate); it computes the element estimators on its own triangles only, and
 !> every global value is a sum or maximum over the ranks, so all ranks see the same totals and
 !> take the same decisions. The per-triangle values of the local criteria are copied to the
 !> ghost triangles too, so that a vertex's patch test sees its whole patch.
@@ -34,7 +34,8 @@ module twomem_estimate_estimators
    use twomem_linalg_dense, only: lu_factor, lu_solve
    use twomem_linalg_halo, only: halo_t
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, frame_of
-   use twomem_estimate_lifting, only: algebraic_residuals, residual_lifting
+   use twomem_estimate_lifting, only: algebraic_residuals
+   use twomem_estimate_evaluated_iterate, only: evaluated_iterate_t, gradients_on
    use twomem_estimate_disc_flux, only: discretization_flux, load_moments_t
    use twomem_estimate_alg_flux, only: algebraic_flux_t, level_flux_t
    use twomem_estimate_shapes, only: shape_classes_t, triangle_class
@@ -66,9 +67,9 @@ module twomem_estimate_estimators
       type(load_moments_t) :: loads
       real(dp), allocatable :: osc_data(:, :)
       !> workspaces of `evaluate`, kept between evaluations (allocated by the first, freed by
-      !> `free_workspaces`): σ_disc (n_flux, nt, 2), nodal u and residuals (nv, 2) and λ_h, ∇u_α
-      !> and the residual lifting per triangle
-      real(dp), allocatable :: sigma(:, :, :), u(:, :), residual(:, :), lambda(:), grad_u(:, :, :), r(:, :, :)
+      !> `free_workspaces`): σ_disc (n_flux, nt, 2) and the evaluated iterate's nodal fields
+      real(dp), allocatable :: sigma(:, :, :)
+      type(evaluated_iterate_t) :: iterate
       real(dp) :: mu(2) = 1, c_omega = 1
       !> the ranks (one by default), the copies to the ghost triangles, and a copy of the
       !> discrete problem's halo for the residual's products
@@ -233,7 +234,6 @@ contains
       logical, intent(in), optional :: fields, algebraic
 
       integer(ip) :: n
-      integer :: alpha
       logical :: ok, with_fields, with_alg
 
       with_alg = .true.
@@ -246,22 +246,16 @@ contains
          self%has_halo = .true.
       end if
       if (.not. allocated(self%sigma)) call allocate_workspaces(self, hierarchy%meshes(hierarchy%levels))
-      associate (mesh => hierarchy%meshes(hierarchy%levels), u => self%u, lambda => self%lambda, &
-                 residual => self%residual, grad_u => self%grad_u, r => self%r)
-         call scatter(p, x(1:n), p%g, u(:, 1))
-         call scatter(p, x(n + 1:2*n), 0.0_dp, u(:, 2))
-         call scatter(p, x(2*n + 1:3*n), 0.0_dp, lambda)
-         call gradients(mesh, u, grad_u)
-         call algebraic_residuals(p, x, residual, self%halo)
-         do alpha = 1, 2
-            call residual_lifting(mesh, residual(:, alpha), r(:, :, alpha))
-            ! a ghost triangle may have vertices outside this rank's unknowns: its owner's values
-            call self%ghosts%fill(hierarchy%levels, grad_u(:, :, alpha))
-            call self%ghosts%fill(hierarchy%levels, r(:, :, alpha))
-         end do
+      associate (mesh => hierarchy%meshes(hierarchy%levels), it => self%iterate)
+         call scatter(p, x(1:n), p%g, it%u(:, 1))
+         call scatter(p, x(n + 1:2*n), 0.0_dp, it%u(:, 2))
+         call scatter(p, x(2*n + 1:3*n), 0.0_dp, it%lambda)
+         call algebraic_residuals(p, x, it%residual, self%halo)
+         ! a ghost triangle may have vertices outside this rank's unknowns: its owner's values
+         call it%share_ghosts(self%ghosts, mesh, hierarchy%levels)
 
          call discretization_flux(self%space, self%shapes, self%single, mesh, hierarchy%levels, self%colors, self%mu, &
-                                  self%loads, grad_u, lambda, r, self%sigma, ok)
+                                  self%loads, it, self%sigma, ok)
          if (self%comm%any_true(.not. ok)) then
             call make_error(err, exit_io, 'discretization flux', 'a patch system is singular (degenerate triangles?)')
             return
@@ -284,7 +278,7 @@ contains
       type(error_t), allocatable, intent(out) :: err
       logical, intent(in) :: fields
 
-      call self%alg%compute(self%shapes, hierarchy, self%residual, self%r, self%single, self%refined, err)
+      call self%alg%compute(self%shapes, hierarchy, self%iterate, self%single, self%refined, err)
       call self%comm%agree(err)
       if (allocated(err)) return
       call element_pass(self, hierarchy, data, est, fields, .true.)
@@ -295,8 +289,8 @@ contains
       type(estimator_t), intent(inout) :: self
       type(mesh_t), intent(in) :: mesh
 
-      allocate (self%sigma(self%space%n_flux, mesh%nt, 2), self%u(mesh%nv, 2), self%residual(mesh%nv, 2), &
-                self%lambda(mesh%nv), self%grad_u(2, mesh%nt, 2), self%r(3, mesh%nt, 2))
+      allocate (self%sigma(self%space%n_flux, mesh%nt, 2))
+      call self%iterate%init(mesh)
    end subroutine allocate_workspaces
 
    !> The workspaces of the evaluations (about 0.8 KiB per vertex with RT1: σ_disc, the algebraic
@@ -307,7 +301,8 @@ contains
    subroutine free_workspaces(self)
       class(estimator_t), intent(inout) :: self
 
-      if (allocated(self%sigma)) deallocate (self%sigma, self%u, self%residual, self%lambda, self%grad_u, self%r)
+      if (allocated(self%sigma)) deallocate (self%sigma)
+      call self%iterate%free()
       call self%alg%free_levels()
    end subroutine free_workspaces
 
@@ -321,12 +316,12 @@ contains
 
       integer(ip) :: i, n
 
-      holds = allocated(self%u)
+      holds = allocated(self%iterate%u)
       if (.not. holds) return
       n = p%n
       do i = 1, n
-         associate (a => p%interior(i))
-            if (self%u(a, 1) /= x(i) .or. self%u(a, 2) /= x(n + i) .or. self%lambda(a) /= x(2*n + i)) then
+         associate (a => p%interior(i), it => self%iterate)
+            if (it%u(a, 1) /= x(i) .or. it%u(a, 2) /= x(n + i) .or. it%lambda(a) /= x(2*n + i)) then
                holds = .false.
                return
             end if
@@ -385,12 +380,10 @@ contains
          call est%drop_fields()
       end if
       if (algebraic) then
-         call element_estimators(self, hierarchy, data, self%u, self%lambda, self%grad_u, self%sigma, &
-                                 self%alg%levels, est, sums)
+         call element_estimators(self, hierarchy, data, self%sigma, self%alg%levels, est, sums)
       else
          ! no level of algebraic flux: the disc, contact and nonconformity sums are the same
-         call element_estimators(self, hierarchy, data, self%u, self%lambda, self%grad_u, self%sigma, &
-                                 self%alg%levels(1:0), est, sums)
+         call element_estimators(self, hierarchy, data, self%sigma, self%alg%levels(1:0), est, sums)
       end if
       ! the rank's own triangles, summed over the ranks
       call self%comm%sum_in_place(sums)
@@ -437,27 +430,6 @@ contains
       end do
    end subroutine scatter
 
-   !> grad_u(:, t, α) = ∇u_α on triangle t.
-   subroutine gradients(mesh, u, grad_u)
-      type(mesh_t), intent(in) :: mesh
-      real(dp), intent(in) :: u(:, :)
-      real(dp), intent(out) :: grad_u(:, :, :)
-
-      integer(ip) :: t, v(3)
-      integer :: alpha
-
-      !$omp parallel do default(none) shared(mesh, grad_u, u) private(t, v, alpha) schedule(static)
-      do t = 1, mesh%nt
-         v = mesh%triangles(:, t)
-         do alpha = 1, 2
-            ! the same expression as for ∇s_h in element_estimators: ∇(s_h − u_h) is then exactly
-            ! zero where s_h = u_h in every build (η_nonc,3 takes a square root of it)
-            grad_u(:, t, alpha) = matmul(p1_gradients(mesh, t), u(v, alpha))
-         end do
-      end do
-      !$omp end parallel do
-   end subroutine gradients
-
    !> The per-triangle parts on the rank's own triangles (zero on the ghost ones), stored in
    !> est's arrays when it has them, and this rank's sums of them: `sums` = Σ(η_F + η_osc)²,
    !> Ση_F², Ση_osc², Ση_C, Ση_nonc,1², Ση_nonc,2², Σ(η_disc + η_osc)², Ση_alg² (both membranes)
@@ -466,11 +438,11 @@ contains
    !> quadratic forms with the shape class's RT mass matrix: μ_α∇u_α is constant on K, so it is
    !> the combination of the constant basis fields φ_1, φ_2, and each coarser level's σ_alg is
    !> rewritten in K's own basis (`add_in_child_basis`), RT_p being closed under restriction.
-   subroutine element_estimators(self, hierarchy, data, u, lambda, grad_u, sigma, levels, est, sums)
+   subroutine element_estimators(self, hierarchy, data, sigma, levels, est, sums)
       class(estimator_t), intent(in) :: self
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       class(problem_data_t), intent(in) :: data
-      real(dp), intent(in) :: u(:, :), lambda(:), grad_u(:, :, :), sigma(:, :, :)
+      real(dp), intent(in) :: sigma(:, :, :)
       type(level_flux_t), intent(in) :: levels(:)
       type(estimates_t), intent(inout) :: est
       real(dp), intent(out) :: sums(n_sums)
@@ -482,7 +454,7 @@ contains
       real(dp) :: c_disc(self%space%n_flux), c_alg(self%space%n_flux)
       !> K's barycentre in each ancestor's scaled coordinates and the ratio of their scales
       real(dp) :: shift(2, size(levels)), kappa(size(levels))
-      real(dp) :: pos_ll, inv_ratio_sq, uv(3, 2), lam(3), grad_k(2, 2)
+      real(dp) :: pos_ll, inv_ratio_sq, uv(3, 2), lam(3), grad_k(2, 2), hat(2, 3)
       !> f ∓ λ_h at the 7 points of the degree-5 rule (RT0 only)
       real(dp) :: osc_values(2, 7)
       !> one triangle's parts: η_disc,K,α, η_alg,K,α, η_F,K,α, η_osc,K,α; η_C,K, η_nonc,1,K, η_nonc,2,K
@@ -517,11 +489,11 @@ contains
       ! no ancestor's frame computed yet (per thread)
       frame_anc = 0
       !$omp parallel do default(none) &
-      !$omp shared(self, hierarchy, data, u, lambda, grad_u, sigma, levels, est, finest, generations, nt_own) &
+      !$omp shared(self, hierarchy, data, sigma, levels, est, finest, generations, nt_own) &
       !$omp shared(n_blocks, partial, fields) &
       !$omp private(b, t, anc, k, j, alpha, v, frame, level_frames, x, w, sq, f, lam_x, osc_mean, osc_sq, ratio, class) &
       !$omp private(c_disc, c_alg, shift, kappa, ancestors, osc_w, pos_ll, osc_values) &
-      !$omp private(inv_ratio_sq, disc_k, alg_k, flux_k, osc_k, contact_k, nonc1_k, nonc2_k, uv, lam, grad_k) &
+      !$omp private(inv_ratio_sq, disc_k, alg_k, flux_k, osc_k, contact_k, nonc1_k, nonc2_k, uv, lam, grad_k, hat) &
       !$omp firstprivate(frame_anc) schedule(static)
       do b = 1, n_blocks
          partial(:, b) = 0.0_dp
@@ -530,6 +502,8 @@ contains
             frame = frame_of(hierarchy%meshes(finest)%vertices, v)
             call triangle_class(finest, t, class, ratio)
             inv_ratio_sq = 1.0_dp/ratio**2
+            hat = p1_gradients(hierarchy%meshes(finest), t)
+            call gradients_on(self%iterate, hierarchy%meshes(finest), t, hat, grad_k)
             do j = 1, size(levels)
                ! the ancestors' frames, once for both membranes and, since the children of a
                ! triangle are numbered consecutively, once per run of descendants in this thread's
@@ -549,7 +523,7 @@ contains
             end do
             do alpha = 1, 2
                c_disc = sigma(:, t, alpha)
-               c_disc(1:2) = c_disc(1:2) + self%mu(alpha)*grad_u(:, t, alpha)
+               c_disc(1:2) = c_disc(1:2) + self%mu(alpha)*grad_k(:, alpha)
                c_alg = 0.0_dp
                do j = 1, size(levels)
                   if (levels(j)%level == finest) then
@@ -572,8 +546,9 @@ contains
                ! RT0, constant loads: f_α ∓ λ_h deviates from its mean as λ_h does, and for a
                ! linear function ∫_K (l − l̄)² = |K|/36 Σ_{i<j} (l_i − l_j)² (what the degree-5
                ! rule below gives, up to round-off, without 14 load evaluations per triangle)
-               osc_sq = ((lambda(v(1)) - lambda(v(2)))**2 + (lambda(v(2)) - lambda(v(3)))**2 + &
-                         (lambda(v(3)) - lambda(v(1)))**2)*frame%area/36
+               associate (lv => self%iterate%lambda(v))
+                  osc_sq = ((lv(1) - lv(2))**2 + (lv(2) - lv(3))**2 + (lv(3) - lv(1))**2)*frame%area/36
+               end associate
                osc_k = hierarchy%meshes(finest)%h(t)/acos(-1.0_dp)*sqrt(osc_sq/self%mu)
             else if (self%space%order == 0) then
                ! RT0: the oscillation of f_α ∓ λ_h around its mean
@@ -582,7 +557,7 @@ contains
                do k = 1, self%space%rule%n
                   x = matmul(frame%vertices, self%space%rule%bary(:, k))
                   w = self%space%rule%weights(k)*frame%area
-                  lam_x = dot_product(lambda(v), self%space%rule%bary(:, k))
+                  lam_x = dot_product(self%iterate%lambda(v), self%space%rule%bary(:, k))
                   f = [data%load(1, x), data%load(2, x)] + lambda_sign*lam_x
                   osc_values(:, k) = f
                   osc_mean = osc_mean + w*f
@@ -601,12 +576,10 @@ contains
 
             ! contiguous copies: sections and vector subscripts as arguments cost a temporary each
             do k = 1, 3
-               uv(k, :) = u(v(k), :)
-               lam(k) = lambda(v(k))
+               uv(k, :) = self%iterate%u(v(k), :)
+               lam(k) = self%iterate%lambda(v(k))
             end do
-            grad_k = grad_u(:, t, :)
-            call iterate_parts(frame, p1_gradients(hierarchy%meshes(finest), t), self%c_omega, self%mu, uv, lam, &
-                               grad_k, contact_k, nonc1_k, nonc2_k, pos_ll)
+            call iterate_parts(frame, hat, self%c_omega, self%mu, uv, lam, grad_k, contact_k, nonc1_k, nonc2_k, pos_ll)
             partial(:, b) = partial(:, b) + [sum((flux_k + osc_k)**2), sum(flux_k**2), sum(osc_k**2), contact_k, &
                                              nonc1_k**2, nonc2_k**2, sum((disc_k + osc_k)**2), sum(alg_k**2), pos_ll]
             if (fields) then

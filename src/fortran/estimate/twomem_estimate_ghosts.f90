@@ -25,8 +25,13 @@ module twomem_estimate_ghosts
       integer, allocatable :: neighbours(:)
       integer, allocatable :: send_ptr(:), recv_ptr(:)
       integer(ip), allocatable :: send_coarse(:), recv_coarse(:)
+      !> the coarse mesh's own triangles: the ghosts are those after them
+      integer(ip) :: coarse_owned = 0
    contains
       procedure :: init
+      procedure :: has_neighbours
+      procedure :: sent_triangles
+      procedure :: share
       procedure, private :: fill_rows, fill_values
       !> values(:, t) or values(t) of the ghost triangles of a level from their owners
       generic :: fill => fill_rows, fill_values
@@ -46,6 +51,7 @@ contains
       integer :: i, k, q, n
 
       self%comm = comm
+      self%coarse_owned = coarse%nt_owned
       allocate (sends(coarse%nt_owned, 0:comm%size - 1), neighbour(0:comm%size - 1))
       sends = .false.
       do t = 1, coarse%nt_owned
@@ -113,34 +119,75 @@ contains
       integer(ip), intent(in) :: nt
       real(dp), intent(inout) :: values(width, nt)
 
-      real(dp), allocatable :: send(:), recv(:)
-      integer, allocatable :: send_ptr(:), recv_ptr(:)
-      integer(ip) :: generations, j, c, f, fill_at
-      integer :: k
+      integer(ip), allocatable :: sent(:)
+      integer(ip) :: n_ghost
 
       if (size(self%neighbours) == 0) return
+      sent = self%sent_triangles(level)
+      n_ghost = size(self%recv_coarse, kind=ip)*4_ip**level
+      call self%share(level, values(:, sent), values(:, nt - n_ghost + 1:))
+   end subroutine fill_block
+
+   !> Whether this rank has ghost triangles (and other ranks its triangles as theirs).
+   pure logical function has_neighbours(self)
+      class(ghost_cells_t), intent(in) :: self
+
+      has_neighbours = size(self%neighbours) > 0
+   end function has_neighbours
+
+   !> The triangles of level `level` whose values go to the neighbours, in the order `share`
+   !> takes them (repeats where several neighbours receive a triangle).
+   function sent_triangles(self, level) result(list)
+      class(ghost_cells_t), intent(in) :: self
+      integer, intent(in) :: level
+      integer(ip), allocatable :: list(:)
+
+      integer(ip) :: generations, j, c, f, n
+
       generations = 4_ip**level
-      send_ptr = 1 + (self%send_ptr - 1)*width*int(generations)
-      recv_ptr = 1 + (self%recv_ptr - 1)*width*int(generations)
-      allocate (send(send_ptr(size(send_ptr)) - 1), recv(recv_ptr(size(recv_ptr)) - 1))
-      fill_at = 1
+      allocate (list(size(self%send_coarse, kind=ip)*generations))
+      n = 0
       do j = 1, size(self%send_coarse, kind=ip)
          c = self%send_coarse(j)
          do f = (c - 1)*generations + 1, c*generations
-            send(fill_at:fill_at + width - 1) = values(:, f)
-            fill_at = fill_at + width
+            n = n + 1
+            list(n) = f
          end do
       end do
+   end function sent_triangles
+
+   !> tail(:, t − nt_owned) = the owner's values on each ghost triangle t of level `level` (the
+   !> tail of the level's triangles), from sent(:, k) = this rank's values on
+   !> sent_triangles(level)'s k-th triangle. Collective among neighbours.
+   subroutine share(self, level, sent, tail)
+      class(ghost_cells_t), intent(in) :: self
+      integer, intent(in) :: level
+      real(dp), intent(in) :: sent(:, :)
+      real(dp), intent(out) :: tail(:, :)
+
+      real(dp), allocatable :: send(:), recv(:)
+      integer, allocatable :: send_ptr(:), recv_ptr(:)
+      integer(ip) :: generations, j, c, at
+      integer :: k, width
+
+      if (size(self%neighbours) == 0) return
+      width = size(sent, 1)
+      generations = 4_ip**level
+      send_ptr = 1 + (self%send_ptr - 1)*width*int(generations)
+      recv_ptr = 1 + (self%recv_ptr - 1)*width*int(generations)
+      send = reshape(sent, [size(sent)])
+      allocate (recv(recv_ptr(size(recv_ptr)) - 1))
       call self%comm%exchange(self%neighbours, send, send_ptr, recv, recv_ptr)
-      fill_at = 1
+      ! the coarse ghosts are the tail after the coarse mesh's own triangles, so their
+      ! descendants are the tail of every level, in the same order
+      at = 1
       do k = 1, size(self%neighbours)
          do j = self%recv_ptr(k), self%recv_ptr(k + 1) - 1
             c = self%recv_coarse(j)
-            do f = (c - 1)*generations + 1, c*generations
-               values(:, f) = recv(fill_at:fill_at + width - 1)
-               fill_at = fill_at + width
-            end do
+            tail(:, (c - self%coarse_owned - 1)*generations + 1:(c - self%coarse_owned)*generations) = &
+               reshape(recv(at:at + width*generations - 1), [width, int(generations)])
+            at = at + width*generations
          end do
       end do
-   end subroutine fill_block
+   end subroutine share
 end module twomem_estimate_ghosts

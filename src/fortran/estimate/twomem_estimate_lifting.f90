@@ -11,7 +11,7 @@ module twomem_estimate_lifting
    implicit none
    private
 
-   public :: algebraic_residuals, residual_lifting
+   public :: algebraic_residuals, residual_lifting, lifting_on_triangle
 
 contains
 
@@ -53,49 +53,65 @@ contains
       end do
    end subroutine algebraic_residuals
 
-   !> r(:, t) = values of r at the three vertices of triangle t, from nodal residuals
-   !> (zero at boundary vertices).
+   !> r(:, t, α) = the values of r_α at the three vertices of triangle t, from nodal residuals
+   !> residual(:, α) (zero at boundary vertices), on every triangle of the mesh.
    subroutine residual_lifting(mesh, residual, r)
       type(mesh_t), intent(in) :: mesh
-      real(dp), intent(in) :: residual(:)
-      real(dp), intent(out) :: r(:, :)
+      real(dp), intent(in) :: residual(:, :)
+      real(dp), intent(out) :: r(:, :, :)
 
       integer(ip) :: t
-      integer :: i, j, n_free, free(3)
-      real(dp) :: m(3, 3), rhs(3), det
 
-      !$omp parallel do default(none) shared(mesh, residual, r) &
-      !$omp private(t, i, j, n_free, free, m, rhs, det) schedule(static)
+      !$omp parallel do default(none) shared(mesh, residual, r) private(t) schedule(static)
       do t = 1, mesh%nt
-         r(:, t) = 0.0_dp
-         n_free = 0
-         do i = 1, 3
-            associate (a => mesh%triangles(i, t))
-               if (.not. mesh%boundary_vertex(a)) then
-                  n_free = n_free + 1
-                  free(n_free) = i
-                  rhs(n_free) = residual(a)/(mesh%patch_ptr(a + 1) - mesh%patch_ptr(a))
-               end if
-            end associate
-         end do
-         ! the P1 mass matrix of t is |t|/12 (1 + δ_ij): solve its free-vertex block
-         do i = 1, n_free
-            do j = 1, n_free
-               m(i, j) = merge(2.0_dp, 1.0_dp, i == j)*mesh%area(t)/12
-            end do
-         end do
-         select case (n_free)
-         case (1)
-            r(free(1), t) = rhs(1)/m(1, 1)
-         case (2)
-            det = m(1, 1)*m(2, 2) - m(1, 2)*m(2, 1)
-            r(free(1), t) = (m(2, 2)*rhs(1) - m(1, 2)*rhs(2))/det
-            r(free(2), t) = (m(1, 1)*rhs(2) - m(2, 1)*rhs(1))/det
-         case (3)
-            ! inverse of (|t|/12)(I + 11ᵀ): (12/|t|)(I − 11ᵀ/4)
-            r(:, t) = 12/mesh%area(t)*(rhs - sum(rhs)/4)
-         end select
+         call lifting_on_triangle(mesh, residual, t, r(:, t, :))
       end do
       !$omp end parallel do
    end subroutine residual_lifting
+
+   !> r(:, j) = the values at the three vertices of triangle t of the lifting of the nodal
+   !> residuals residual(:, j), for each column j.
+   pure subroutine lifting_on_triangle(mesh, residual, t, r)
+      type(mesh_t), intent(in) :: mesh
+      real(dp), intent(in) :: residual(:, :)
+      integer(ip), intent(in) :: t
+      real(dp), intent(out) :: r(:, :)
+
+      integer :: i, j, n_free, free(3), col
+      real(dp) :: m(3, 3), rhs(3), det, patch_size(3)
+
+      n_free = 0
+      do i = 1, 3
+         associate (a => mesh%triangles(i, t))
+            if (.not. mesh%boundary_vertex(a)) then
+               n_free = n_free + 1
+               free(n_free) = i
+               patch_size(n_free) = mesh%patch_ptr(a + 1) - mesh%patch_ptr(a)
+            end if
+         end associate
+      end do
+      ! the P1 mass matrix of t is |t|/12 (1 + δ_ij): solve its free-vertex block
+      do i = 1, n_free
+         do j = 1, n_free
+            m(i, j) = merge(2.0_dp, 1.0_dp, i == j)*mesh%area(t)/12
+         end do
+      end do
+      do col = 1, size(r, 2)
+         r(:, col) = 0.0_dp
+         do i = 1, n_free
+            rhs(i) = residual(mesh%triangles(free(i), t), col)/patch_size(i)
+         end do
+         select case (n_free)
+         case (1)
+            r(free(1), col) = rhs(1)/m(1, 1)
+         case (2)
+            det = m(1, 1)*m(2, 2) - m(1, 2)*m(2, 1)
+            r(free(1), col) = (m(2, 2)*rhs(1) - m(1, 2)*rhs(2))/det
+            r(free(2), col) = (m(1, 1)*rhs(2) - m(2, 1)*rhs(1))/det
+         case (3)
+            ! inverse of (|t|/12)(I + 11ᵀ): (12/|t|)(I − 11ᵀ/4)
+            r(:, col) = 12/mesh%area(t)*(rhs - sum(rhs)/4)
+         end select
+      end do
+   end subroutine lifting_on_triangle
 end module twomem_estimate_lifting
