@@ -685,6 +685,7 @@ contains
       iterate%u = u
       iterate%lambda = lambda
       iterate%residual = residual
+      call iterate%set_shares(mesh)
    end subroutine iterate_fields
 
    !> Σ over the flux parts (ascending levels) of σ_l(x) and ∇·σ_l(x), x in finest triangle t,

@@ -1,7 +1,8 @@
 !> The iterate an estimator evaluation works on: nodal u_αh and λ_h, the nodal algebraic residuals
 !> R_α (twomem_estimate_lifting), and per triangle of the finest mesh ∇u_αh and the residual
 !> lifting r_α. The two per-triangle fields are not stored: each is computed where it is read
-!> from the nodal values at the triangle's vertices (a few operations on data the reader's patch
+!> from nodal values at the triangle's vertices (u_αh; for r_α the shares R_α(a)/N_a, so that
+!> the division is made once per vertex, not once per triangle and patch that reads it) (a few operations on data the reader's patch
 !> has in cache; stored, they held 0.16 KiB per vertex at the peak of a run). A ghost triangle of
 !> a rank's piece of a distributed mesh is the exception: some of its vertices may lie outside
 !> the rank's unknowns, so its values are copies of its owner's, exchanged once per evaluation
@@ -11,7 +12,7 @@ module twomem_estimate_evaluated_iterate
    use twomem_base_kinds, only: dp, ip
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_fem_assembly, only: p1_gradients
-   use twomem_estimate_lifting, only: lifting_on_triangle
+   use twomem_estimate_lifting, only: patch_shares, lifting_on_triangle
    use twomem_estimate_ghosts, only: ghost_cells_t
    implicit none
    private
@@ -20,8 +21,8 @@ module twomem_estimate_evaluated_iterate
 
    type :: evaluated_iterate_t
       !> u(:, α) = u_αh with its boundary values, lambda = λ_h, residual(:, α) = R_α (zero off
-      !> the unknowns), on this rank's vertices
-      real(dp), allocatable :: u(:, :), lambda(:), residual(:, :)
+      !> the unknowns) and its patch shares (`set_shares`), on this rank's vertices
+      real(dp), allocatable :: u(:, :), lambda(:), residual(:, :), shares(:, :)
       !> the owners' ∇u_α (ghost_grad(:, α, t − nt_owned)) and r_α (ghost_lift(:, α, ...)) on
       !> the ghost triangles t > nt_owned of the finest mesh (none on one rank)
       real(dp), allocatable :: ghost_grad(:, :, :), ghost_lift(:, :, :)
@@ -29,6 +30,7 @@ module twomem_estimate_evaluated_iterate
    contains
       procedure :: init
       procedure :: free
+      procedure :: set_shares
       procedure :: share_ghosts
    end type evaluated_iterate_t
 
@@ -43,14 +45,15 @@ contains
 
       self%nt_owned = mesh%nt_owned
       n_ghost = mesh%nt - mesh%nt_owned
-      allocate (self%u(mesh%nv, 2), self%lambda(mesh%nv), self%residual(mesh%nv, 2), &
+      allocate (self%u(mesh%nv, 2), self%lambda(mesh%nv), self%residual(mesh%nv, 2), self%shares(mesh%nv, 2), &
                 self%ghost_grad(2, 2, n_ghost), self%ghost_lift(3, 2, n_ghost))
    end subroutine init
 
    subroutine free(self)
       class(evaluated_iterate_t), intent(inout) :: self
 
-      if (allocated(self%u)) deallocate (self%u, self%lambda, self%residual, self%ghost_grad, self%ghost_lift)
+      if (allocated(self%u)) deallocate (self%u, self%lambda, self%residual, self%shares, self%ghost_grad, &
+                                         self%ghost_lift)
       self%nt_owned = 0
    end subroutine free
 
@@ -90,9 +93,17 @@ contains
       if (t > self%nt_owned) then
          r = self%ghost_lift(:, :, t - self%nt_owned)
       else
-         call lifting_on_triangle(mesh, self%residual, t, r)
+         call lifting_on_triangle(mesh, self%shares, t, r)
       end if
    end subroutine lifting_on
+
+   !> The residuals' patch shares, once `residual` is set (before any lifting_on).
+   subroutine set_shares(self, mesh)
+      class(evaluated_iterate_t), intent(inout) :: self
+      type(mesh_t), intent(in) :: mesh
+
+      call patch_shares(mesh, self%residual, self%shares)
+   end subroutine set_shares
 
    !> The ghost triangles' ∇u_α and r_α from their owners, once the nodal fields are set (level:
    !> the finest mesh's level in the hierarchy). Collective among neighbours; nothing on one rank.

@@ -11,7 +11,7 @@ module twomem_estimate_lifting
    implicit none
    private
 
-   public :: algebraic_residuals, residual_lifting, lifting_on_triangle
+   public :: algebraic_residuals, residual_lifting, patch_shares, lifting_on_triangle
 
 contains
 
@@ -60,54 +60,73 @@ contains
       real(dp), intent(in) :: residual(:, :)
       real(dp), intent(out) :: r(:, :, :)
 
+      real(dp), allocatable :: shares(:, :)
       integer(ip) :: t
 
-      !$omp parallel do default(none) shared(mesh, residual, r) private(t) schedule(static)
+      allocate (shares(mesh%nv, size(residual, 2)))
+      call patch_shares(mesh, residual, shares)
+      !$omp parallel do default(none) shared(mesh, shares, r) private(t) schedule(static)
       do t = 1, mesh%nt
-         call lifting_on_triangle(mesh, residual, t, r(:, t, :))
+         call lifting_on_triangle(mesh, shares, t, r(:, t, :))
       end do
       !$omp end parallel do
    end subroutine residual_lifting
 
-   !> r(:, j) = the values at the three vertices of triangle t of the lifting of the nodal
-   !> residuals residual(:, j), for each column j.
-   pure subroutine lifting_on_triangle(mesh, residual, t, r)
+   !> shares(a, j) = residual(a, j)/N_a, the part of R(a) that each of the N_a triangles of the
+   !> patch of a carries (zero at boundary vertices, where r vanishes).
+   subroutine patch_shares(mesh, residual, shares)
       type(mesh_t), intent(in) :: mesh
       real(dp), intent(in) :: residual(:, :)
+      real(dp), intent(out) :: shares(:, :)
+
+      integer(ip) :: a
+      real(dp) :: patch_size
+
+      !$omp parallel do default(none) shared(mesh, residual, shares) private(a, patch_size) schedule(static)
+      do a = 1, mesh%nv
+         if (mesh%boundary_vertex(a)) then
+            shares(a, :) = 0.0_dp
+         else
+            patch_size = mesh%patch_ptr(a + 1) - mesh%patch_ptr(a)
+            shares(a, :) = residual(a, :)/patch_size
+         end if
+      end do
+      !$omp end parallel do
+   end subroutine patch_shares
+
+   !> r(:, j) = the values at the three vertices of triangle t of the lifting whose patch shares
+   !> (`patch_shares`) are shares(:, j), for each column j.
+   pure subroutine lifting_on_triangle(mesh, shares, t, r)
+      type(mesh_t), intent(in) :: mesh
+      real(dp), intent(in) :: shares(:, :)
       integer(ip), intent(in) :: t
       real(dp), intent(out) :: r(:, :)
 
-      integer :: i, j, n_free, free(3), col
-      real(dp) :: m(3, 3), rhs(3), det, patch_size(3)
+      integer :: i, n_free, free(3), col
+      real(dp) :: rhs(3), det, diagonal, off_diagonal
 
       n_free = 0
       do i = 1, 3
-         associate (a => mesh%triangles(i, t))
-            if (.not. mesh%boundary_vertex(a)) then
-               n_free = n_free + 1
-               free(n_free) = i
-               patch_size(n_free) = mesh%patch_ptr(a + 1) - mesh%patch_ptr(a)
-            end if
-         end associate
+         if (.not. mesh%boundary_vertex(mesh%triangles(i, t))) then
+            n_free = n_free + 1
+            free(n_free) = i
+         end if
       end do
       ! the P1 mass matrix of t is |t|/12 (1 + δ_ij): solve its free-vertex block
-      do i = 1, n_free
-         do j = 1, n_free
-            m(i, j) = merge(2.0_dp, 1.0_dp, i == j)*mesh%area(t)/12
-         end do
-      end do
+      diagonal = 2.0_dp*mesh%area(t)/12
+      off_diagonal = 1.0_dp*mesh%area(t)/12
       do col = 1, size(r, 2)
          r(:, col) = 0.0_dp
          do i = 1, n_free
-            rhs(i) = residual(mesh%triangles(free(i), t), col)/patch_size(i)
+            rhs(i) = shares(mesh%triangles(free(i), t), col)
          end do
          select case (n_free)
          case (1)
-            r(free(1), col) = rhs(1)/m(1, 1)
+            r(free(1), col) = rhs(1)/diagonal
          case (2)
-            det = m(1, 1)*m(2, 2) - m(1, 2)*m(2, 1)
-            r(free(1), col) = (m(2, 2)*rhs(1) - m(1, 2)*rhs(2))/det
-            r(free(2), col) = (m(1, 1)*rhs(2) - m(2, 1)*rhs(1))/det
+            det = diagonal*diagonal - off_diagonal*off_diagonal
+            r(free(1), col) = (diagonal*rhs(1) - off_diagonal*rhs(2))/det
+            r(free(2), col) = (diagonal*rhs(2) - off_diagonal*rhs(1))/det
          case (3)
             ! inverse of (|t|/12)(I + 11ᵀ): (12/|t|)(I − 11ᵀ/4)
             r(:, col) = 12/mesh%area(t)*(rhs - sum(rhs)/4)
