@@ -6,7 +6,7 @@ module test_estimate
    use twomem_base_kinds, only: dp, ip
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_mesh_generators, only: make_disk, make_square
-   use twomem_mesh_hierarchy, only: mesh_hierarchy_t
+   use twomem_mesh_hierarchy, only: mesh_hierarchy_t, parent_triangle
    use twomem_fem_problem, only: problem_data_t, constant_data_t
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_fem_assembly, only: p1_gradients
@@ -709,7 +709,7 @@ contains
       level = h%levels
       do j = size(levels), 1, -1
          do while (level > levels(j)%level)
-            anc = h%maps(level)%triangle_parent(anc)
+            anc = parent_triangle(anc)
             level = level - 1
          end do
          frame = make_frame(h%meshes(level)%vertices(:, h%meshes(level)%triangles(:, anc)))

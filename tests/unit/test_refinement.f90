@@ -3,7 +3,7 @@
 module test_refinement
    use twomem_base_kinds, only: dp, ip
    use twomem_mesh_triangulation, only: mesh_t, signed_area
-   use twomem_mesh_hierarchy, only: mesh_hierarchy_t
+   use twomem_mesh_hierarchy, only: mesh_hierarchy_t, parent_triangle
    use twomem_fem_problem, only: constant_data_t
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_testing, only: unittest_t, new_unittest, check, check_close, error_t
@@ -85,9 +85,9 @@ contains
 
       call square_hierarchy(3, h, err)
       if (allocated(err)) return
-      associate (fine => h%meshes(3), coarse => h%meshes(2), map => h%maps(3))
+      associate (fine => h%meshes(3), coarse => h%meshes(2))
          do t = 1, fine%nt
-            parent = map%triangle_parent(t)
+            parent = parent_triangle(t)
             ! every fine vertex lies in the closed parent triangle (barycentric coordinates ≥ 0)
             do i = 1, 3
                x = fine%vertices(:, fine%triangles(i, t))

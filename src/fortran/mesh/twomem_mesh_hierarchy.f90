@@ -12,15 +12,14 @@ module twomem_mesh_hierarchy
    implicit none
    private
 
-   public :: mesh_hierarchy_t, refinement_map_t, refine_red, red_children
+   public :: mesh_hierarchy_t, refinement_map_t, refine_red, red_children, parent_triangle
 
    !> How level l was made from level l-1.
    type :: refinement_map_t
       !> the two coarse vertices whose mean is fine vertex a (equal for an inherited vertex),
       !> (2, nv_fine)
       integer(ip), allocatable :: vertex_parents(:, :)
-      !> the coarse triangle each fine triangle lies in, (nt_fine)
-      integer(ip), allocatable :: triangle_parent(:)
+      ! (the coarse triangle of a fine one needs no table: parent_triangle)
    end type refinement_map_t
 
    type :: mesh_hierarchy_t
@@ -123,7 +122,7 @@ contains
       allocate (fine%vertices(2, fine%nv), fine%triangles(3, fine%nt), fine%edges(2, fine%ne), &
                 fine%triangle_edges(3, fine%nt), fine%edge_triangles(2, fine%ne), fine%boundary_vertex(fine%nv), &
                 fine%boundary_edge(fine%ne), fine%area(fine%nt), fine%h(fine%nt))
-      allocate (map%vertex_parents(2, fine%nv), map%triangle_parent(fine%nt))
+      allocate (map%vertex_parents(2, fine%nv))
 
       !$omp parallel default(none) shared(coarse, fine, map, nvc, nec, ntc) private(a, e, t, i, k, m, v, child, half)
       !$omp do schedule(static)
@@ -165,7 +164,6 @@ contains
          fine%triangles(:, 4*t - 2) = [m(3), v(2), m(1)]
          fine%triangles(:, 4*t - 1) = [m(2), m(1), v(3)]
          fine%triangles(:, 4*t) = [m(1), m(2), m(3)]
-         map%triangle_parent(4*t - 3:4*t) = t
          ! half(j, i): the fine half of the coarse edge opposite corner j that touches corner i
          do i = 1, 3
             do k = 1, 3
@@ -335,6 +333,14 @@ contains
    end subroutine refined_patches
    !> The corners of the four children of the triangle with corners v, numbered and ordered as
    !> refine_red makes them; m_i is the midpoint of the edge opposite corner i.
+   !> The coarse triangle that fine triangle t lies in: refine_red numbers the children of coarse
+   !> triangle T as 4T − 3 .. 4T.
+   elemental integer(ip) function parent_triangle(t)
+      integer(ip), intent(in) :: t
+
+      parent_triangle = (t - 1)/4 + 1
+   end function parent_triangle
+
    pure function red_children(v) result(children)
       real(dp), intent(in) :: v(2, 3)
       real(dp) :: children(2, 3, 4)

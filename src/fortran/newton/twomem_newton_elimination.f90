@@ -56,7 +56,7 @@ module twomem_newton_elimination
       logical :: released = .false.
       integer(ip) :: n = 0
       real(dp) :: mu1 = 1, mu2 = 1, c_mu = 2
-      real(dp), allocatable :: mass(:)
+      real(dp), pointer, contiguous :: mass(:) => null()
       !> the problem's stiffness K (the problem outlives the preconditioner), the interface of
       !> its rows (the transfers' finest level) and its full diagonal
       type(csr_t), pointer :: k => null()
@@ -118,7 +118,7 @@ contains
       self%mu1 = p%mu1
       self%mu2 = p%mu2
       self%c_mu = 1/p%mu1 + 1/p%mu2
-      self%mass = p%mass
+      self%mass => p%mass
       self%k => p%stiffness
       self%halo => transfer%halos(top)
       call self%s_mg%init(p%stiffness, transfer, top, options, .true., err)

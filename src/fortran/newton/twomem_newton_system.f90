@@ -29,7 +29,8 @@ module twomem_newton_system
       real(dp) :: mu1 = 1, mu2 = 1
       !> the problem's stiffness K on interior vertices (the problem outlives the system)
       type(csr_t), pointer :: k => null()
-      real(dp), allocatable :: mass(:)
+      !> the problem's lumped mass
+      real(dp), pointer, contiguous :: mass(:) => null()
       !> the C-function Jacobian of the current linearization, per vertex
       real(dp), allocatable :: da(:), db(:)
       !> [F1; F2], the linear part of the right-hand side
@@ -70,14 +71,15 @@ contains
       self%mu1 = p%mu1
       self%mu2 = p%mu2
       self%k => p%stiffness
-      self%mass = p%mass
+      self%mass => p%mass
       self%f = [p%f1, p%f2]
       allocate (self%da(p%n), self%db(p%n))
       self%da = 0.0_dp
       self%db = 1.0_dp
       self%halo = p%halo
       self%dot%comm = p%halo%comm
-      self%dot%owned = [p%halo%owned, p%halo%owned, p%halo%owned]
+      ! a mask only where some unknown is another rank's (all true, it would change no sum)
+      if (.not. all(p%halo%owned)) self%dot%owned = [p%halo%owned, p%halo%owned, p%halo%owned]
       self%assembled = assembled
       if (assembled) call assemble(self)
    end subroutine system_init
