@@ -196,23 +196,25 @@ contains
    end subroutine radial_gradients_at
 
    !> [∇u1, ∇u2] at x, from S = μ1 u1 + μ2 u2 and w = u1 − u2 (both radial): ∇v = (v'(r)/r) x,
-   !> with v'/r finite at the centre.
+   !> with v'/r finite at the centre. Only r² is needed: no square root (the energy error
+   !> evaluates this at some 5·10^7 points at 10^6 vertices, where norm2's scaled sum cost a
+   !> third of the error's time).
    pure function radial_gradient(self, x) result(grad)
       class(radial_data_t), intent(in) :: self
       real(dp), intent(in) :: x(2)
       real(dp) :: grad(2, 2)
 
-      real(dp) :: r, dw_over_r, ds_over_r, msum
+      real(dp) :: r_squared, dw_over_r, ds_over_r, msum
 
-      r = norm2(x)
+      r_squared = x(1)**2 + x(2)**2
       msum = self%mu1 + self%mu2
       ds_over_r = -(self%f1 + self%f2)/2
       if (.not. self%contact) then
          dw_over_r = self%d/2
-      else if (r <= self%rho) then
+      else if (r_squared <= self%rho**2) then
          dw_over_r = 0.0_dp
       else
-         dw_over_r = self%d/2 - self%d*self%rho**2/(2*r**2)
+         dw_over_r = self%d/2 - self%d*self%rho**2/(2*r_squared)
       end if
       grad(:, 1) = (ds_over_r + self%mu2*dw_over_r)/msum*x
       grad(:, 2) = (ds_over_r - self%mu1*dw_over_r)/msum*x
