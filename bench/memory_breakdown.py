@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 #: (group, patterns): an allocation belongs to the first group with a pattern in the innermost
 #: "routine < caller" pair of its stack that any group claims (see `classify`)
 GROUPS = [
-    ("estimator evaluation: σ_disc, ∇u_α and residual lifting per triangle, nodal fields",
+    ("estimator evaluation: σ_disc per triangle, the evaluated iterate's nodal fields",
      ["estimate_estimators_MOD_init <", "estimate_estimators_MOD_evaluate", "app_observer_MOD_refresh <"]),
     ("algebraic flux: σ on its meshes, P2 projections, coarse problem and factorization",
      ["estimate_alg_flux_MOD_init"]),

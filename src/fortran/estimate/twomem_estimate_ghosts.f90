@@ -7,7 +7,9 @@
 !> sides list the same triangles (in whole-mesh order) without asking each other. A level-l
 !> triangle descends from coarse triangle t as one of the 4^l consecutive numbers
 !> 4^l (t − 1) + 1 .. 4^l t, locally and in the whole mesh alike, so the coarse lists serve every
-!> level. With one rank there are no ghosts and `fill` does nothing.
+!> level; the coarse ghosts come after the rank's own triangles, so the ghosts of every level are
+!> its last triangles. `fill` writes the owners' values into a whole level's array, `share` into
+!> one of the ghost layer's size. With one rank there are no ghosts and both do nothing.
 module twomem_estimate_ghosts
    use twomem_base_kinds, only: dp, ip
    use twomem_base_comm, only: comm_t
