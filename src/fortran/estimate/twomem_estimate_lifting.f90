@@ -103,7 +103,7 @@ contains
       real(dp), intent(out) :: r(:, :)
 
       integer :: i, n_free, free(3), col
-      real(dp) :: rhs(3), det, diagonal, off_diagonal
+      real(dp) :: rhs(3), det, diagonal, off_diagonal, scale
 
       n_free = 0
       do i = 1, 3
@@ -113,24 +113,36 @@ contains
          end if
       end do
       ! the P1 mass matrix of t is |t|/12 (1 + δ_ij): solve its free-vertex block
-      diagonal = 2.0_dp*mesh%area(t)/12
-      off_diagonal = 1.0_dp*mesh%area(t)/12
-      do col = 1, size(r, 2)
-         r(:, col) = 0.0_dp
-         do i = 1, n_free
-            rhs(i) = shares(mesh%triangles(free(i), t), col)
+      select case (n_free)
+      case (3)
+         ! inverse of (|t|/12)(I + 11ᵀ): (12/|t|)(I − 11ᵀ/4)
+         scale = 12/mesh%area(t)
+         do col = 1, size(r, 2)
+            do i = 1, 3
+               rhs(i) = shares(mesh%triangles(i, t), col)
+            end do
+            r(:, col) = scale*(rhs - sum(rhs)/4)
          end do
-         select case (n_free)
-         case (1)
-            r(free(1), col) = rhs(1)/diagonal
-         case (2)
-            det = diagonal*diagonal - off_diagonal*off_diagonal
+      case (2)
+         diagonal = 2.0_dp*mesh%area(t)/12
+         off_diagonal = 1.0_dp*mesh%area(t)/12
+         det = diagonal*diagonal - off_diagonal*off_diagonal
+         do col = 1, size(r, 2)
+            do i = 1, 2
+               rhs(i) = shares(mesh%triangles(free(i), t), col)
+            end do
+            r(:, col) = 0.0_dp
             r(free(1), col) = (diagonal*rhs(1) - off_diagonal*rhs(2))/det
             r(free(2), col) = (diagonal*rhs(2) - off_diagonal*rhs(1))/det
-         case (3)
-            ! inverse of (|t|/12)(I + 11ᵀ): (12/|t|)(I − 11ᵀ/4)
-            r(:, col) = 12/mesh%area(t)*(rhs - sum(rhs)/4)
-         end select
-      end do
+         end do
+      case (1)
+         diagonal = 2.0_dp*mesh%area(t)/12
+         do col = 1, size(r, 2)
+            r(:, col) = 0.0_dp
+            r(free(1), col) = shares(mesh%triangles(free(1), t), col)/diagonal
+         end do
+      case default
+         r = 0.0_dp
+      end select
    end subroutine lifting_on_triangle
 end module twomem_estimate_lifting
