@@ -170,9 +170,9 @@ contains
             end do
             d(v) = d(v) + mesh%area(t)/3
          end do
-         expected = p%f1 - p%mu1*sx(p%interior, 1) + d(p%interior)*x(2*n + 1:)
+         expected = p%f(1:n) - p%mu1*sx(p%interior, 1) + d(p%interior)*x(2*n + 1:)
          call check(err, maxval(abs(r1 - expected)) <= 1.0e-13_dp*maxval(abs(expected)), 'R_1')
-         expected = p%f2 - p%mu2*sx(p%interior, 2) - d(p%interior)*x(2*n + 1:)
+         expected = p%f(n + 1:) - p%mu2*sx(p%interior, 2) - d(p%interior)*x(2*n + 1:)
          call check(err, maxval(abs(r2 - expected)) <= 1.0e-13_dp*maxval(abs(expected)), 'R_2')
          off_unknowns = p%unknown == 0
          call check(err, all(pack(nodal(:, 1), off_unknowns) == 0.0_dp) .and. &

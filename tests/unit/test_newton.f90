@@ -134,9 +134,9 @@ contains
       call p%stiffness%matvec(res%x(n + 1:2*n), s2)
       lam = res%x(2*n + 1:)
       w = res%x(1:n) - res%x(n + 1:2*n)
-      call check(err, maxval(abs(p%mu1*s1 - p%mass*lam - p%f1)) < 1.0e-13_dp*maxval(abs(p%f1)) + 1e-15_dp, &
+      call check(err, maxval(abs(p%mu1*s1 - p%mass*lam - p%f(1:p%n))) < 1.0e-13_dp*maxval(abs(p%f(1:p%n))) + 1e-15_dp, &
                  'first membrane equation')
-      call check(err, maxval(abs(p%mu2*s2 + p%mass*lam - p%f2)) < 1.0e-13_dp*maxval(abs(p%f2)) + 1e-15_dp, &
+      call check(err, maxval(abs(p%mu2*s2 + p%mass*lam - p%f(p%n + 1:))) < 1.0e-13_dp*maxval(abs(p%f(p%n + 1:))) + 1e-15_dp, &
                  'second membrane equation')
       call check(err, minval(w) > -1.0e-14_dp, 'u1 - u2 >= 0')
       call check(err, minval(lam) > -1.0e-14_dp, 'lambda >= 0')

@@ -37,11 +37,11 @@ contains
          if (present(halo)) call halo%add(residual(1:n, alpha))
          if (alpha == 1) then
             do i = n, 1, -1
-               residual(p%interior(i), 1) = p%f1(i) - p%mu1*residual(i, 1) + p%mass(i)*x(2*n + i)
+               residual(p%interior(i), 1) = p%f(i) - p%mu1*residual(i, 1) + p%mass(i)*x(2*n + i)
             end do
          else
             do i = n, 1, -1
-               residual(p%interior(i), 2) = p%f2(i) - p%mu2*residual(i, 2) - p%mass(i)*x(2*n + i)
+               residual(p%interior(i), 2) = p%f(n + i) - p%mu2*residual(i, 2) - p%mass(i)*x(2*n + i)
             end do
          end if
          previous = 0

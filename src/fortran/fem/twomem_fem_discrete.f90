@@ -31,8 +31,9 @@ module twomem_fem_discrete
       type(csr_t) :: stiffness
       !> lumped mass |ω_a|/3 at interior vertices
       real(dp), allocatable :: mass(:)
-      !> right-hand sides with the Dirichlet lifting
-      real(dp), allocatable :: f1(:), f2(:)
+      !> the right-hand sides with the Dirichlet lifting, [F1; F2] (the Newton system's first two
+      !> block rows read them as one vector)
+      real(dp), allocatable :: f(:)
       real(dp) :: mu1 = 1.0_dp, mu2 = 1.0_dp, g = 0.0_dp
       !> the unknowns shared with other ranks, and the ones this rank owns
       type(halo_t) :: halo
@@ -85,11 +86,10 @@ contains
          return
       end if
       self%mass = d_full(self%interior)
-      self%f1 = f_full(self%interior, 1) - self%mu1*self%g*coupling
-      self%f2 = f_full(self%interior, 2)
+      self%f = [f_full(self%interior, 1) - self%mu1*self%g*coupling, f_full(self%interior, 2)]
       call self%halo%add(self%mass)
-      call self%halo%add(self%f1)
-      call self%halo%add(self%f2)
+      call self%halo%add(self%f(1:self%n))
+      call self%halo%add(self%f(self%n + 1:))
    end subroutine discrete_init
 
    !> The first quadrature point of the load rule (triangle order) where a load is not finite.

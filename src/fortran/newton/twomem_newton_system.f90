@@ -33,8 +33,8 @@ module twomem_newton_system
       real(dp), pointer, contiguous :: mass(:) => null()
       !> the C-function Jacobian of the current linearization, per vertex
       real(dp), allocatable :: da(:), db(:)
-      !> [F1; F2], the linear part of the right-hand side
-      real(dp), allocatable :: f(:)
+      !> [F1; F2], the linear part of the right-hand side (the problem's)
+      real(dp), pointer, contiguous :: f(:) => null()
       !> the assembled matrix, only when `init` was asked for it
       logical :: assembled = .false.
       type(csr_t) :: a
@@ -72,7 +72,7 @@ contains
       self%mu2 = p%mu2
       self%k => p%stiffness
       self%mass => p%mass
-      self%f = [p%f1, p%f2]
+      self%f => p%f
       allocate (self%da(p%n), self%db(p%n))
       self%da = 0.0_dp
       self%db = 1.0_dp
