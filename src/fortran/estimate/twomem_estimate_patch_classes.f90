@@ -176,22 +176,11 @@ contains
       integer(ip), allocatable :: order(:)
 
       logical, allocatable :: inside(:)
-      integer(ip) :: t, a, n
-      integer :: i
 
       inside = mesh%in_subdomain()
       inside = inside .and. .not. mesh%boundary_vertex
-      allocate (order(count(inside)))
-      n = 0
-      do t = 1, mesh%nt
-         do i = 1, 3
-            a = mesh%triangles(i, t)
-            if (.not. inside(a)) cycle
-            if (mesh%patch_triangles(mesh%patch_ptr(a)) /= t) cycle
-            n = n + 1
-            order(n) = a
-         end do
-      end do
+      order = mesh%vertices_by_first_triangle()
+      order = pack(order, inside(order))
    end function interior_by_first_triangle
 
    !> The key of the patch of interior vertex a (see add_mesh) in key(1:length): ne, the local
