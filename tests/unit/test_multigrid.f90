@@ -72,23 +72,19 @@ contains
       end do
    end function dense
 
-   !> The Laplacian on the square refined `levels` times, with a vertex-dependent positive shift
-   !> on the diagonal, and the prolongation from the level below.
-   subroutine shifted_problem(levels, h, p, prolongation, err)
+   !> The square problem refined `levels` times (its unit-coefficient stiffness is what the
+   !> callers use) and the prolongation from the level below.
+   subroutine square_with_prolongation(levels, h, p, prolongation, err)
       integer, intent(in) :: levels
       type(mesh_hierarchy_t), intent(out) :: h
       type(discrete_problem_t), intent(out) :: p
       type(csr_t), intent(out) :: prolongation
       type(error_t), allocatable, intent(out) :: err
 
-      type(constant_data_t) :: data
-
-      call square_hierarchy(levels, h, err)
-      if (allocated(err)) return
-      call p%init(h%meshes(levels), data, err)
+      call square_problem(levels, h, p, err)
       if (allocated(err)) return
       prolongation = interior_prolongation(h, levels)
-   end subroutine shifted_problem
+   end subroutine square_with_prolongation
 
    !> a with rows and columns of `fixed` replaced by identity rows and zero columns.
    subroutine dirichlet_rows(a, fixed)
@@ -116,7 +112,7 @@ contains
       type(halo_t) :: coarse_halo
       type(comm_t) :: one_rank
 
-      call shifted_problem(3, h, p, pr, err)
+      call square_with_prolongation(3, h, p, pr, err)
       if (allocated(err)) return
       r = pr%transposed()
       a = p%stiffness
@@ -171,7 +167,7 @@ contains
       type(halo_t) :: coarse_halo
       type(comm_t) :: one_rank
 
-      call shifted_problem(4, h, p, pr, err)
+      call square_with_prolongation(4, h, p, pr, err)
       if (allocated(err)) return
       call pc%init(h%meshes(3), data, err)
       if (allocated(err)) return
