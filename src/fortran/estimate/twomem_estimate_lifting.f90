@@ -11,7 +11,7 @@ module twomem_estimate_lifting
    implicit none
    private
 
-   public :: algebraic_residuals, residual_lifting, patch_shares, lifting_on_triangle
+   public :: algebraic_residuals, patch_shares, lifting_on_triangle
 
 contains
 
@@ -52,25 +52,6 @@ contains
          residual(previous + 1:, alpha) = 0.0_dp
       end do
    end subroutine algebraic_residuals
-
-   !> r(:, t, α) = the values of r_α at the three vertices of triangle t, from nodal residuals
-   !> residual(:, α) (zero at boundary vertices), on every triangle of the mesh.
-   subroutine residual_lifting(mesh, residual, r)
-      type(mesh_t), intent(in) :: mesh
-      real(dp), intent(in) :: residual(:, :)
-      real(dp), intent(out) :: r(:, :, :)
-
-      real(dp), allocatable :: shares(:, :)
-      integer(ip) :: t
-
-      allocate (shares(mesh%nv, size(residual, 2)))
-      call patch_shares(mesh, residual, shares)
-      !$omp parallel do default(none) shared(mesh, shares, r) private(t) schedule(static)
-      do t = 1, mesh%nt
-         call lifting_on_triangle(mesh, shares, t, r(:, t, :))
-      end do
-      !$omp end parallel do
-   end subroutine residual_lifting
 
    !> shares(a, j) = residual(a, j)/N_a, the part of R(a) that each of the N_a triangles of the
    !> patch of a carries (zero at boundary vertices, where r vanishes).
