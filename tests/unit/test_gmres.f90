@@ -4,6 +4,7 @@
 !> reasons, breakdown, preconditioning, absolute tolerances.
 module test_gmres
    use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
+   use, intrinsic :: ieee_exceptions, only: ieee_get_halting_mode, ieee_set_halting_mode, ieee_invalid
    use twomem_base_kinds, only: dp, ip
    use twomem_linalg_csr, only: csr_t
    use twomem_linalg_operators, only: linear_operator_t, preconditioner_t, inner_product_t, &
@@ -24,6 +25,14 @@ module test_gmres
       procedure :: setup => jacobi_setup
       procedure :: apply => jacobi_apply
    end type jacobi_t
+
+   !> The identity for its first `healthy` applications, NaN after them: a preconditioner that
+   !> breaks down in the middle of a solve.
+   type, extends(identity_preconditioner_t) :: poisoned_t
+      integer :: healthy = 0, applications = 0
+   contains
+      procedure :: apply => poisoned_apply
+   end type poisoned_t
 
    !> Partial sums over fixed blocks added in a fixed order. The threaded Euclidean product
    !> combines partial sums in whatever order the threads finish, so two identical solves agree
@@ -82,6 +91,7 @@ contains
                new_unittest('reorthogonalization_option', test_reorth), &
                new_unittest('zero_rhs', test_zero_rhs), &
                new_unittest('nan_rhs_is_a_breakdown', test_nan_rhs), &
+               new_unittest('nonfinite_correction_keeps_x', test_nonfinite_correction), &
                new_unittest('workspace_reuse', test_workspace), &
                new_unittest('misuse_is_error', test_misuse)]
    end subroutine collect_gmres
@@ -465,6 +475,46 @@ contains
                  'max_it = 0 returns the guess')
    end subroutine test_limit
 
+   !> A preconditioner that returns NaN in the second cycle: GMRES stops with 'non-finite
+   !> correction' and x is the first cycle's iterate, bit for bit (Newton solves in place, in its
+   !> only copy of the iterate). The reference is the same solve stopped after that cycle.
+   subroutine test_nonfinite_correction(err)
+      type(error_t), allocatable, intent(out) :: err
+      type(csr_t), target :: a
+      type(csr_operator_t) :: op
+      type(poisoned_t) :: poisoned
+      type(identity_preconditioner_t) :: id
+      type(serial_product_t) :: dot
+      real(dp), allocatable :: b(:), x(:), x_first(:)
+      type(gmres_options_t) :: opt
+      type(gmres_monitor_t) :: mon, first
+      logical :: halting
+
+      call laplacian(20_ip, a)
+      op%a => a
+      b = load(a%n)
+      opt%restart = 5
+      opt%max_it = 5
+      allocate (x_first(a%n))
+      x_first = 0.0_dp
+      call gmres_solve(op, id, dot, b, x_first, opt, first, err)
+      if (allocated(err)) return
+      opt%max_it = 100
+      poisoned%healthy = 5
+      allocate (x(a%n))
+      x = 0.0_dp
+      ! the debug build traps invalid operations; here NaN arithmetic is the point
+      call ieee_get_halting_mode(ieee_invalid, halting)
+      call ieee_set_halting_mode(ieee_invalid, .false.)
+      call gmres_solve(op, poisoned, dot, b, x, opt, mon, err)
+      call ieee_set_halting_mode(ieee_invalid, halting)
+      if (allocated(err)) return
+      call check(err, first%reason == 'iteration limit', 'the reference stops after one cycle: '//first%reason)
+      call check(err, mon%reason == 'non-finite correction' .and. .not. mon%converged, 'reason: '//mon%reason)
+      call check(err, poisoned%applications > poisoned%healthy, 'the second cycle ran')
+      call check(err, all(x == x_first), 'x is the last finite iterate, bit for bit')
+   end subroutine test_nonfinite_correction
+
    !> A periodic convection–diffusion stencil with row sums 1: b = 3·(1, …, 1) is an
    !> eigenvector, the Krylov space is invariant after one step.
    subroutine test_eigenvector(err)
@@ -757,6 +807,19 @@ contains
 
       z = self%inv_diag*r
    end subroutine jacobi_apply
+
+   subroutine poisoned_apply(self, r, z)
+      class(poisoned_t), intent(inout) :: self
+      real(dp), intent(in) :: r(:)
+      real(dp), intent(out) :: z(:)
+
+      self%applications = self%applications + 1
+      if (self%applications <= self%healthy) then
+         z = r
+      else
+         z = ieee_value(1.0_dp, ieee_quiet_nan)
+      end if
+   end subroutine poisoned_apply
 
    real(dp) function serial_dot(self, x, y) result(s)
       class(serial_product_t), intent(in) :: self

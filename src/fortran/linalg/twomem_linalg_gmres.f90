@@ -48,7 +48,8 @@ module twomem_linalg_gmres
       real(dp), allocatable :: residual_history(:)
       !> .true. exactly when reason is 'converged'
       logical :: converged = .false.
-      !> 'converged', 'iteration limit', 'breakdown', 'stagnation', 'stopped by observer'
+      !> 'converged', 'iteration limit', 'breakdown', 'stagnation', 'stopped by observer',
+      !> 'non-finite correction' (x is then the last finite iterate)
       character(len=:), allocatable :: reason
       !> cycles whose Arnoldi estimate met the tolerance while the true residual did not
       integer :: false_convergences = 0
@@ -102,7 +103,7 @@ module twomem_linalg_gmres
 
    !> How an Arnoldi cycle ended.
    integer, parameter :: cycle_full = 0, cycle_estimate = 1, cycle_breakdown = 2, &
-                         cycle_limit = 3, cycle_stopped = 4
+                         cycle_limit = 3, cycle_stopped = 4, cycle_nonfinite = 5
 
 contains
 
@@ -266,6 +267,9 @@ contains
          else if (outcome == cycle_stopped) then
             call finish(mon, 'stopped by observer')
             exit
+         else if (outcome == cycle_nonfinite) then
+            call finish(mon, 'non-finite correction')
+            exit
          else if (outcome == cycle_breakdown) then
             ! the Krylov space was invariant, yet x does not meet the tolerance: rounding in
             ! the small solve or a singular operator; another cycle would rebuild the same space
@@ -319,7 +323,9 @@ contains
    end subroutine finish
 
    !> One cycle of at most m Arnoldi steps from the residual in ws%v(1) (norm beta); on return
-   !> x = x + Z y, y minimising the residual over the cycle's Krylov space.
+   !> x = x + Z y, y minimising the residual over the cycle's Krylov space. A non-finite y (an
+   !> overflow, or a preconditioner that returned NaN) leaves x as it was: the caller may solve
+   !> in place, in its only copy of the iterate.
    subroutine arnoldi_cycle(op, prec, dot, x, beta, target, opt, ws, it, history, outcome, &
                             reorths, observer)
       class(linear_operator_t), intent(in) :: op
@@ -394,6 +400,11 @@ contains
       end do
       ! the same operations as for the observed iterate, so a stop returns it bit for bit
       call current_iterate(ws, k, x)
+      ! y is replicated on every rank: they all decide alike
+      if (.not. all(ieee_is_finite(ws%y(1:k)))) then
+         outcome = cycle_nonfinite
+         return
+      end if
       call copy(ws%xc, x)
    end subroutine arnoldi_cycle
 

@@ -170,14 +170,19 @@ contains
       type(active_set_watch_t) :: watch
       type(inner_observer_t) :: inner
       type(history_row_t) :: row
-      real(dp), allocatable :: x(:), x_new(:), b(:), ax(:)
+      real(dp), allocatable, target :: x(:), x_new(:)
+      real(dp), allocatable :: b(:), ax(:)
+      !> where the linear solve writes the new iterate: x itself (GMRES without line search), or
+      !> x_new where the step still needs x (the line search) or where a solver's failure could
+      !> leave a non-finite x (the direct solve)
+      real(dp), pointer, contiguous :: trial(:)
       real(dp), allocatable, target :: c(:), da(:), db(:)
       logical, allocatable :: active(:), previous(:)
       integer(ip) :: n, i
       integer :: k, kind, streak
       real(dp) :: t0, step, b_norm
       character(len=:), allocatable :: why
-      logical :: adaptive, active_set_step, settled, nearly_settled
+      logical :: adaptive, active_set_step, settled, nearly_settled, in_place
 
       call move_alloc(x0, x)
       n = p%n
@@ -201,7 +206,15 @@ contains
          if (.not. allocated(err)) call solver%init(kind, options%precond, options%gmres, p, no_transfer, 0, err)
       end if
       if (allocated(err)) return
-      allocate (c(n), da(n), db(n), b(3*n), x_new(3*n), active(n), previous(n))
+      ! in place, GMRES keeps x finite (a non-finite correction is refused): 3n values fewer
+      in_place = kind == solver_gmres .and. .not. options%line_search
+      allocate (c(n), da(n), db(n), b(3*n), active(n), previous(n))
+      if (in_place) then
+         trial => x
+      else
+         allocate (x_new(3*n))
+         trial => x_new
+      end if
       call watch%init(options%max_it)
       t0 = wall_time()
       ! before the first linearization no vertex is in contact
@@ -259,22 +272,25 @@ contains
             b(2*n + i) = da(i)*(x(i) - x(n + i)) + db(i)*x(2*n + i) - c(i)
          end do
          !$omp end parallel do
-         x_new = x
+         if (.not. in_place) x_new = x
          b_norm = max(sys%dot%norm(b), tiny(1.0_dp))
          if (kind == solver_gmres) then
             inner%newton_it = k
             inner%linearized = merge(c_function_min, options%cfun, active_set_step)
             inner%gmres_before = result%linear_iterations
             inner%b_norm = b_norm
-            call solver%solve(sys, b, x_new, err, observer=inner)
+            call solver%solve(sys, b, trial, err, observer=inner)
             if (allocated(err)) return
             result%linear_iterations = result%linear_iterations + solver%monitor%iterations
-            if (p%halo%comm%any_true(.not. all(ieee_is_finite(x_new)))) then
+            if (solver%monitor%reason == 'non-finite correction') then
+               why = 'not converged: GMRES broke down with a non-finite correction (the iterate before it is kept)'
+               exit
+            else if (p%halo%comm%any_true(.not. all(ieee_is_finite(trial)))) then
                why = 'not converged: GMRES broke down ('//solver%monitor%reason//') with a non-finite iterate'
                exit
             end if
          else
-            call solver%solve(sys, b, x_new, err)
+            call solver%solve(sys, b, trial, err)
             if (allocated(err)) return
          end if
          row = not_computed()
@@ -284,7 +300,7 @@ contains
          else
             ! (3n more values only for the solvers that do not return it)
             if (.not. allocated(ax)) allocate (ax(3*n))
-            call sys%apply(x_new, ax)
+            call sys%apply(trial, ax)
             ax = b - ax
             row%alg_residual = sys%dot%norm(ax)/b_norm
          end if
@@ -293,7 +309,9 @@ contains
          if (step < 1.0_dp) call watch%damped(k)
          ! a full step takes GMRES's iterate itself: x + (x_new − x) differs from it by round-off,
          ! and the observer's evaluation at x_new (the last inner row) must be of this very iterate
-         if (step == 1.0_dp) then
+         if (in_place) then
+            continue
+         else if (step == 1.0_dp) then
             x = x_new
          else
             x = x + step*(x_new - x)
