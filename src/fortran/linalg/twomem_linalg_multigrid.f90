@@ -25,8 +25,8 @@ module twomem_linalg_multigrid
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_io
    use twomem_linalg_csr, only: csr_t
-   use twomem_linalg_galerkin, only: galerkin_pattern, galerkin_assemble, galerkin_rows, cut_rows, touched_rows, &
-                                     truncate_transfer
+   use twomem_linalg_galerkin, only: galerkin_pattern, galerkin_assemble, galerkin_rows, galerkin_diagonal_rows, &
+                                     cut_rows, touched_rows, truncate_transfer
    use twomem_linalg_chebyshev, only: chebyshev_t, level_product
    use twomem_linalg_halo, only: halo_t
    use twomem_linalg_gathered_solve, only: gathered_solver_t
@@ -99,10 +99,8 @@ module twomem_linalg_multigrid
       !> the finest operator and the transfers, kept alive by the caller
       type(csr_t), pointer :: finest => null()
       type(multigrid_transfer_t), pointer :: transfer => null()
-      !> the finest operator's fixed part, when it is base + diag(shift) (see `refresh`), and
-      !> that diagonal as a matrix
+      !> the finest operator's fixed part, when it is base + diag(shift) (see `refresh`)
       type(csr_t), pointer :: base => null()
-      type(csr_t) :: shift_matrix
       !> the coarse levels hold the values of the last refresh (a refresh can then be partial)
       logical :: valid = .false.
       type(mg_level_t), allocatable :: levels(:)
@@ -214,7 +212,7 @@ contains
       type(csr_t), target, intent(in), optional :: base
 
       integer :: l
-      integer(ip) :: n, i
+      integer(ip) :: n
       logical :: fused
 
       call self%free()
@@ -254,8 +252,6 @@ contains
       if (present(base) .and. top > 0) then
          self%base => base
          allocate (self%levels(top - 1)%base_part(self%levels(top - 1)%a%nnz()))
-         n = finest%n
-         call self%shift_matrix%init_pattern([(i, i=1, n + 1)], [(i, i=1, n)])
       end if
       call self%coarse%init(transfer%halos(0)%comm, transfer%coarse_keys, transfer%halos(0)%owned)
       if (present(start_from)) then
@@ -378,12 +374,11 @@ contains
             call make_error(err, exit_io, 'multigrid', 'a split finest operator needs its shift')
             return
          end if
-         self%shift_matrix%val = merge(shift, 0.0_dp, self%transfer%halos(self%top)%owned .and. .not. fixed)
       end if
       truncated = any(fixed)
       do l = self%top, 1, -1
          if (l == self%top) then
-            call coarsen(self, l, truncated, flipped, self%finest)
+            call coarsen(self, l, truncated, flipped, self%finest, shift)
          else
             call coarsen(self, l, truncated, flipped, self%levels(l)%a)
          end if
@@ -413,12 +408,13 @@ contains
    !> truncated transfer values (when a fixed flag flipped), the Galerkin product, and the
    !> smoother of level l (on level l's updated rows). `flipped` marks level l's unknowns whose
    !> fixed flag flipped.
-   subroutine coarsen(self, l, truncated, flipped, a)
+   subroutine coarsen(self, l, truncated, flipped, a, shift)
       type(multigrid_t), intent(inout) :: self
       integer, intent(in) :: l
       logical, intent(in) :: truncated
       logical, intent(in) :: flipped(:)
       type(csr_t), intent(in) :: a
+      real(dp), intent(in), optional :: shift(:)
 
       logical :: fresh
 
@@ -429,11 +425,11 @@ contains
             fresh = .not. allocated(fine%pt)
             if (fresh) allocate (fine%pt(p%nnz()), fine%rt(r%nnz()))
             if (fresh .or. any(flipped)) call truncate_transfer(p, r, fine%fixed, coarse%fixed, fine%pt, fine%rt)
-            call coarse_rows(self, l, a, fine%rt, fine%pt, flipped)
+            call coarse_rows(self, l, a, fine%rt, fine%pt, flipped, shift)
          else
             ! no fixed unknown (any more): the transfer's own values
             if (allocated(fine%pt)) deallocate (fine%pt, fine%rt)
-            call coarse_rows(self, l, a, r%val, p%val, flipped)
+            call coarse_rows(self, l, a, r%val, p%val, flipped, shift)
          end if
          call fine%smoother%setup(a, self%transfer%halos(l), self%options%degree, self%options%ratio, &
                                   row_list(fine%updated))
@@ -443,12 +439,13 @@ contains
    !> The rows of level l−1's operator that the flipped fixed flags and level l's updated rows
    !> reach, recomputed with the transfer values rv, pv; below a split finest operator as
    !> Pᵀ base P (only where a flag flipped) plus Pᵀ diag(shift) P.
-   subroutine coarse_rows(self, l, a, rv, pv, flipped)
+   subroutine coarse_rows(self, l, a, rv, pv, flipped, shift)
       type(multigrid_t), intent(inout) :: self
       integer, intent(in) :: l
       type(csr_t), intent(in) :: a
       real(dp), intent(in) :: rv(:), pv(:)
       logical, intent(in) :: flipped(:)
+      real(dp), intent(in), optional :: shift(:)
 
       integer(ip), allocatable :: rows(:), regain(:)
       logical, allocatable :: no_change(:)
@@ -480,8 +477,8 @@ contains
 
          associate (coarse => self%levels(l - 1), p => self%transfer%p(l), r => self%transfer%r(l))
             if (split) then
-               call galerkin_rows(r, rv, self%shift_matrix, p, pv, list, coarse%a%row_ptr, coarse%a%col, coarse%a%val, &
-                                  start=coarse%base_part)
+               call galerkin_diagonal_rows(r, rv, shift, self%transfer%halos(l)%owned, self%levels(l)%fixed, p, pv, &
+                                           list, coarse%a%row_ptr, coarse%a%col, coarse%a%val, coarse%base_part)
             else
                call galerkin_rows(r, rv, a, p, pv, list, coarse%a%row_ptr, coarse%a%col, coarse%a%val)
             end if
