@@ -12,7 +12,7 @@
 !> absolute values of the parts bounding those of the whole rows.
 module twomem_linalg_chebyshev
    use twomem_base_kinds, only: dp, ip
-   use twomem_linalg_csr, only: csr_t
+   use twomem_linalg_csr, only: csr_t, cut_entry
    use twomem_linalg_halo, only: halo_t
    implicit none
    private
@@ -35,28 +35,38 @@ module twomem_linalg_chebyshev
 
 contains
 
-   !> y = A x with the parts of shared rows summed: the product of a distributed operator.
-   subroutine level_product(a, halo, x, y)
+   !> y = A x with the parts of shared rows summed: the product of a distributed operator. With
+   !> `diagonal` and `fixed` (always both), A is a cut at the fixed unknowns with that diagonal
+   !> (csr_t%cut_matvec); so are the operators of `setup` and `smooth` given them.
+   subroutine level_product(a, halo, x, y, diagonal, fixed)
       type(csr_t), intent(in) :: a
       type(halo_t), intent(inout) :: halo
       real(dp), intent(in) :: x(:)
       real(dp), intent(out) :: y(:)
+      real(dp), intent(in), optional :: diagonal(:)
+      logical, intent(in), optional :: fixed(:)
 
-      call a%matvec(x, y)
+      if (present(diagonal)) then
+         call a%cut_matvec(diagonal, fixed, x, y)
+      else
+         call a%matvec(x, y)
+      end if
       call halo%add(y)
    end subroutine level_product
 
    !> Diagonal and spectral bound of `a` (rows with a non-positive diagonal are left unscaled:
    !> they do not occur in the SPD operators multigrid smooths, but must not divide by zero).
    !> With `rows`, only those rows of `a` changed since the last setup on the same pattern.
-   !> Collective.
-   subroutine setup(self, a, halo, degree, ratio, rows)
+   !> `diagonal` and `fixed`: the operator is `a` cut (see `level_product`). Collective.
+   subroutine setup(self, a, halo, degree, ratio, rows, diagonal, fixed)
       class(chebyshev_t), intent(inout) :: self
       type(csr_t), intent(in) :: a
       type(halo_t), intent(inout) :: halo
       integer, intent(in) :: degree
       real(dp), intent(in) :: ratio
       integer(ip), intent(in), optional :: rows(:)
+      real(dp), intent(in), optional :: diagonal(:)
+      logical, intent(in), optional :: fixed(:)
 
       real(dp), allocatable :: diag(:), row_sum(:)
       integer(ip) :: i, j
@@ -74,15 +84,16 @@ contains
          all_rows = .true.
       end if
       if (all_rows) then
-         !$omp parallel do default(none) shared(a, self) private(i) schedule(static) if(a%n > 4096)
+         !$omp parallel do default(none) shared(a, self, diagonal, fixed) private(i) schedule(static) if(a%n > 4096)
          do i = 1, a%n
-            call row_parts(a, i, self%part_diag(i), self%part_sum(i))
+            call row_parts(a, i, self%part_diag(i), self%part_sum(i), diagonal, fixed)
          end do
          !$omp end parallel do
       else
-         !$omp parallel do default(none) shared(a, self, rows) private(j) schedule(static) if(size(rows) > 4096)
+         !$omp parallel do default(none) shared(a, self, rows, diagonal, fixed) private(j) schedule(static) &
+         !$omp if(size(rows) > 4096)
          do j = 1, size(rows, kind=ip)
-            call row_parts(a, rows(j), self%part_diag(rows(j)), self%part_sum(rows(j)))
+            call row_parts(a, rows(j), self%part_diag(rows(j)), self%part_sum(rows(j)), diagonal, fixed)
          end do
          !$omp end parallel do
       end if
@@ -109,25 +120,34 @@ contains
       self%upper = max(halo%comm%max(bound), 1.0_dp)
    end subroutine setup
 
-   !> Row i's diagonal entry and sum of absolute values.
-   pure subroutine row_parts(a, i, diag, row_sum)
+   !> Row i's diagonal entry and sum of absolute values (of `a` cut, given `diagonal` and `fixed`).
+   pure subroutine row_parts(a, i, diag, row_sum, diagonal, fixed)
       type(csr_t), intent(in) :: a
       integer(ip), intent(in) :: i
       real(dp), intent(out) :: diag, row_sum
+      real(dp), intent(in), optional :: diagonal(:)
+      logical, intent(in), optional :: fixed(:)
 
       integer(ip) :: k
+      real(dp) :: v
 
       diag = 0.0_dp
       row_sum = 0.0_dp
       do k = a%row_ptr(i), a%row_ptr(i + 1) - 1
-         if (a%col(k) == i) diag = a%val(k)
-         row_sum = row_sum + abs(a%val(k))
+         if (present(diagonal)) then
+            v = cut_entry(a, diagonal, fixed, i, k)
+         else
+            v = a%val(k)
+         end if
+         if (a%col(k) == i) diag = v
+         row_sum = row_sum + abs(v)
       end do
    end subroutine row_parts
 
    !> `degree` Chebyshev steps on A x = b from x (from zero when `from_zero`, saving a product).
-   !> r, d and y are work vectors of the size of b.
-   subroutine smooth(self, a, halo, b, x, from_zero, r, d, y)
+   !> r, d and y are work vectors of the size of b. `diagonal` and `fixed`: A is `a` cut (see
+   !> `level_product`).
+   subroutine smooth(self, a, halo, b, x, from_zero, r, d, y, diagonal, fixed)
       class(chebyshev_t), intent(in) :: self
       type(csr_t), intent(in) :: a
       type(halo_t), intent(inout) :: halo
@@ -135,6 +155,8 @@ contains
       real(dp), intent(inout) :: x(:)
       logical, intent(in) :: from_zero
       real(dp), intent(inout) :: r(:), d(:), y(:)
+      real(dp), intent(in), optional :: diagonal(:)
+      logical, intent(in), optional :: fixed(:)
 
       real(dp) :: theta, delta, sigma, rho, rho_old
       integer(ip) :: i, n
@@ -154,7 +176,7 @@ contains
          end do
          !$omp end parallel do
       else
-         call level_product(a, halo, x, y)
+         call level_product(a, halo, x, y, diagonal, fixed)
          !$omp parallel do default(none) shared(n, b, x, d, r, y, self, theta) private(i) schedule(static) if(n > 4096)
          do i = 1, n
             r(i) = b(i) - y(i)
@@ -165,7 +187,7 @@ contains
       end if
       do k = 2, self%degree
          ! r ← r − A d, then the three-term recurrence for the next correction
-         call level_product(a, halo, d, y)
+         call level_product(a, halo, d, y, diagonal, fixed)
          rho = 1/(2*sigma - rho_old)
          !$omp parallel do default(none) shared(n, x, d, r, y, self, rho, rho_old, delta) private(i) &
          !$omp schedule(static) if(n > 4096)

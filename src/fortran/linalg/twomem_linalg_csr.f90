@@ -9,7 +9,7 @@ module twomem_linalg_csr
    implicit none
    private
 
-   public :: csr_t
+   public :: csr_t, cut_entry
 
    type :: csr_t
       !> rows and columns (ncol = n unless the pattern was given a column count)
@@ -21,6 +21,7 @@ module twomem_linalg_csr
       procedure :: nnz
       procedure :: find
       procedure :: matvec
+      procedure :: cut_matvec
       procedure :: residual
       procedure :: subtract_product
       procedure :: diagonal
@@ -103,6 +104,59 @@ contains
       end do
       !$omp end parallel do
    end subroutine matvec
+
+   !> y = A_cut x, A_cut being A with the rows and columns of the `fixed` unknowns zeroed and its
+   !> diagonal replaced by `diagonal` (`cut_entry`): an operator that differs from a stored one
+   !> only there (the Newton w-block: the stiffness with the contact unknowns cut out and a
+   !> diagonal shift) applied without storing its matrix. x must vanish at the fixed unknowns
+   !> (as every vector of a V-cycle on A_cut does), so a cut column adds A's value times 0
+   !> where the stored matrix adds 0 times 0, and no mask is read per entry. A's diagonal must be
+   !> in its pattern and the columns sorted: the row is then summed in the stored matrix's order
+   !> with the same products, so y has its bits.
+   subroutine cut_matvec(self, diagonal, fixed, x, y)
+      class(csr_t), intent(in) :: self
+      real(dp), intent(in) :: diagonal(:)
+      logical, intent(in) :: fixed(:)
+      real(dp), intent(in) :: x(:)
+      real(dp), intent(out) :: y(:)
+
+      integer(ip) :: i, k
+      real(dp) :: s
+
+      !$omp parallel do default(none) shared(self, diagonal, fixed, x, y) private(i, k, s) schedule(static) &
+      !$omp if(self%n > 4096)
+      do i = 1, self%n
+         if (fixed(i)) then
+            ! an identity row (or a zero one, in a part of a shared row)
+            y(i) = diagonal(i)*x(i)
+            cycle
+         end if
+         s = 0.0_dp
+         k = self%row_ptr(i)
+         do while (self%col(k) < i)
+            s = s + self%val(k)*x(self%col(k))
+            k = k + 1
+         end do
+         s = s + diagonal(i)*x(i)
+         do k = k + 1, self%row_ptr(i + 1) - 1
+            s = s + self%val(k)*x(self%col(k))
+         end do
+         y(i) = s
+      end do
+      !$omp end parallel do
+   end subroutine cut_matvec
+
+   !> Entry k (of row i) of A_cut (`cut_matvec`): diagonal(i) on the diagonal, 0 in the row or
+   !> column of a fixed unknown, A's value elsewhere.
+   pure real(dp) function cut_entry(a, diagonal, fixed, i, k) result(v)
+      type(csr_t), intent(in) :: a
+      real(dp), intent(in) :: diagonal(:)
+      logical, intent(in) :: fixed(:)
+      integer(ip), intent(in) :: i, k
+
+      v = merge(0.0_dp, a%val(k), fixed(i) .or. fixed(a%col(k)))
+      v = merge(diagonal(i), v, a%col(k) == i)
+   end function cut_entry
 
    !> r = b − A x
    subroutine residual(self, b, x, r)

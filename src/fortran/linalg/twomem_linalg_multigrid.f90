@@ -20,7 +20,8 @@
 !> fixed `base` plus a diagonal shift (the Newton w-block, whose shift changes everywhere at
 !> every Fischer–Burmeister step) keeps Pᵀ base P apart: only the rows a flipped fixed flag
 !> reaches are recomputed there, and the shift's part Pᵀ D P costs a small fraction of a product
-!> with the base.
+!> with the base. Such an operator is never stored either: the cycle applies base cut at the
+!> fixed unknowns with its own diagonal (`csr_t%cut_matvec`), with the bits of the stored matrix.
 module twomem_linalg_multigrid
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_io
@@ -99,8 +100,11 @@ module twomem_linalg_multigrid
       !> the finest operator and the transfers, kept alive by the caller
       type(csr_t), pointer :: finest => null()
       type(multigrid_transfer_t), pointer :: transfer => null()
-      !> the finest operator's fixed part, when it is base + diag(shift) (see `refresh`)
+      !> the finest operator's fixed part, when it is base + diag(shift) (see `refresh`); that
+      !> operator is then never stored: it is base cut at the fixed unknowns with the diagonal
+      !> `cut_diagonal` (csr_t%cut_matvec), 8 bytes per unknown instead of a matrix
       type(csr_t), pointer :: base => null()
+      real(dp), allocatable :: cut_diagonal(:)
       !> the coarse levels hold the values of the last refresh (a refresh can then be partial)
       logical :: valid = .false.
       type(mg_level_t), allocatable :: levels(:)
@@ -198,8 +202,9 @@ contains
    !> would, patterns and values together); without, it analyses the patterns and the caller
    !> refreshes when it has the values. The caller keeps
    !> `finest` and `transfer` alive and in place while the multigrid is used. With `base` (kept
-   !> alive too, on the pattern of `finest`), every refresh's finest operator is base plus a
-   !> diagonal shift on its free unknowns (see `refresh`). Collective.
+   !> alive too; `finest` is then base itself, and top > 0), every refresh's finest operator is
+   !> base plus a diagonal shift on its free unknowns, cut at the fixed ones (see `refresh`); the
+   !> operator starts as base. Collective.
    subroutine init(self, finest, transfer, top, options, assemble, err, start_from, base)
       class(multigrid_t), intent(inout) :: self
       type(csr_t), target, intent(in) :: finest
@@ -212,7 +217,7 @@ contains
       type(csr_t), target, intent(in), optional :: base
 
       integer :: l
-      integer(ip) :: n
+      integer(ip) :: n, i
       logical :: fused
 
       call self%free()
@@ -252,6 +257,12 @@ contains
       if (present(base) .and. top > 0) then
          self%base => base
          allocate (self%levels(top - 1)%base_part(self%levels(top - 1)%a%nnz()))
+         allocate (self%cut_diagonal(base%n))
+         !$omp parallel do default(none) shared(self, base) private(i) schedule(static) if(base%n > 4096)
+         do i = 1, base%n
+            self%cut_diagonal(i) = base%val(base%find(i, i))
+         end do
+         !$omp end parallel do
       end if
       call self%coarse%init(transfer%halos(0)%comm, transfer%coarse_keys, transfer%halos(0)%owned)
       if (present(start_from)) then
@@ -337,7 +348,8 @@ contains
    end subroutine start_as
 
    !> Recompute the coarse levels from the finest operator's current values and its fixed
-   !> unknowns, whose rows in the finest operator must be identity rows with zero columns.
+   !> unknowns, whose rows in the finest operator must be identity rows with zero columns (as
+   !> they are in the cut operator of a split one).
    !> `changed` marks the finest rows whose values changed since the last refresh other than by
    !> a flipped fixed flag (the flipped rows and their columns are found here): then only the
    !> coarse rows they reach are recomputed, without it every row is. With a `base` (init),
@@ -374,6 +386,7 @@ contains
             call make_error(err, exit_io, 'multigrid', 'a split finest operator needs its shift')
             return
          end if
+         call set_cut_diagonal(self%base, shift, fixed, self%transfer%halos(self%top)%owned, self%cut_diagonal)
       end if
       truncated = any(fixed)
       do l = self%top, 1, -1
@@ -389,6 +402,32 @@ contains
       if (refactor .or. .not. partial) call factor_coarsest(self, err)
       self%valid = .not. allocated(err)
    end subroutine refresh
+
+   !> The diagonal of the split finest operator: an identity row's 1 at a fixed unknown (0 in a
+   !> part that another rank owns), base's diagonal plus the shift at a free one (the shift on
+   !> the owner's part alone).
+   subroutine set_cut_diagonal(base, shift, fixed, owned, diagonal)
+      type(csr_t), intent(in) :: base
+      real(dp), intent(in) :: shift(:)
+      logical, intent(in) :: fixed(:), owned(:)
+      real(dp), intent(out) :: diagonal(:)
+
+      integer(ip) :: i
+      real(dp) :: d
+
+      !$omp parallel do default(none) shared(base, shift, fixed, owned, diagonal) private(i, d) schedule(static) &
+      !$omp if(base%n > 4096)
+      do i = 1, base%n
+         if (fixed(i)) then
+            diagonal(i) = merge(1.0_dp, 0.0_dp, owned(i))
+         else
+            d = base%val(base%find(i, i))
+            if (owned(i)) d = d + shift(i)
+            diagonal(i) = d
+         end if
+      end do
+      !$omp end parallel do
+   end subroutine set_cut_diagonal
 
    !> The direct factorization of the coarsest level (the finest operator itself when there is
    !> one level), its failure told as the multigrid's.
@@ -431,8 +470,13 @@ contains
             if (allocated(fine%pt)) deallocate (fine%pt, fine%rt)
             call coarse_rows(self, l, a, r%val, p%val, flipped, shift)
          end if
-         call fine%smoother%setup(a, self%transfer%halos(l), self%options%degree, self%options%ratio, &
-                                  row_list(fine%updated))
+         if (l == self%top .and. associated(self%base)) then
+            call fine%smoother%setup(a, self%transfer%halos(l), self%options%degree, self%options%ratio, &
+                                     row_list(fine%updated), self%cut_diagonal, fine%fixed)
+         else
+            call fine%smoother%setup(a, self%transfer%halos(l), self%options%degree, self%options%ratio, &
+                                     row_list(fine%updated))
+         end if
       end associate
    end subroutine coarsen
 
@@ -564,6 +608,8 @@ contains
             x = 0.0_dp
             self%failed = .true.
          end if
+      else if (l == self%top .and. associated(self%base)) then
+         call two_grid_step(self, l, self%finest, b, x, work, self%cut_diagonal, self%levels(l)%fixed)
       else if (l == self%top) then
          call two_grid_step(self, l, self%finest, b, x, work)
       else
@@ -571,19 +617,22 @@ contains
       end if
    end subroutine cycle_level
 
-   !> Pre-smoothing, the coarse correction by a cycle on level l−1, post-smoothing.
-   recursive subroutine two_grid_step(self, l, a, b, x, work)
+   !> Pre-smoothing, the coarse correction by a cycle on level l−1, post-smoothing; on the
+   !> operator `a`, cut when given `diagonal` and `fixed` (the split finest level).
+   recursive subroutine two_grid_step(self, l, a, b, x, work, diagonal, fixed)
       type(multigrid_t), intent(inout) :: self
       integer, intent(in) :: l
       type(csr_t), intent(in) :: a
       real(dp), intent(in) :: b(:)
       real(dp), intent(out) :: x(:)
       type(multigrid_work_t), intent(inout) :: work
+      real(dp), intent(in), optional :: diagonal(:)
+      logical, intent(in), optional :: fixed(:)
 
       associate (lev => self%levels(l), p => self%transfer%p(l), r => self%transfer%r(l), &
                  halo => self%transfer%halos(l), v => work%levels(l), below => work%levels(l - 1))
-         call lev%smoother%smooth(a, halo, b, x, .true., v%r1, v%r2, v%r3)
-         call level_product(a, halo, x, v%r3)
+         call lev%smoother%smooth(a, halo, b, x, .true., v%r1, v%r2, v%r3, diagonal, fixed)
+         call level_product(a, halo, x, v%r3, diagonal, fixed)
          ! the residual from the entries this rank owns: the ranks' restrictions then add up
          call owned_residual(b, v%r3, halo%owned, v%r1)
          if (allocated(lev%rt)) then
@@ -598,7 +647,7 @@ contains
          else
             call prolong_add(p, p%val, below%x, x)
          end if
-         call lev%smoother%smooth(a, halo, b, x, .false., v%r1, v%r2, v%r3)
+         call lev%smoother%smooth(a, halo, b, x, .false., v%r1, v%r2, v%r3, diagonal, fixed)
       end associate
    end subroutine two_grid_step
 
@@ -659,6 +708,7 @@ contains
 
       if (allocated(self%levels)) deallocate (self%levels)
       if (allocated(self%own_work)) deallocate (self%own_work)
+      if (allocated(self%cut_diagonal)) deallocate (self%cut_diagonal)
       self%top = -1
       self%finest => null()
       self%transfer => null()

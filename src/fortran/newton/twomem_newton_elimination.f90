@@ -18,7 +18,8 @@
 !> hierarchy is built once per mesh; the w operator changes with the Newton step through its
 !> diagonal and its fixed rows, and `set_linearization` rebuilds its coarse levels (truncated
 !> at the fixed rows): only the rows its changed shifts and fixed flags reach, with K's part of
-!> the coarse operators kept apart from the shift's (`multigrid_t`'s split finest operator). In
+!> the coarse operators kept apart from the shift's (`multigrid_t`'s split finest operator,
+!> which it applies from K: the w operator is stored only when it is solved directly). In
 !> a distributed run K is each rank's part: its products are summed across ranks, and only the
 !> owner of a shared row adds the diagonal shift and identity rows.
 module twomem_newton_elimination
@@ -62,7 +63,8 @@ module twomem_newton_elimination
       type(csr_t), pointer :: k => null()
       type(halo_t), pointer :: halo => null()
       real(dp), allocatable :: k_diag(:)
-      !> the w-block operator K + c_μ D a/b with identity rows at fixed unknowns
+      !> the w-block operator K + c_μ D a/b with identity rows at fixed unknowns, stored only
+      !> where it is solved directly (top = 0): the multigrid hierarchy applies it from K
       type(csr_t) :: w_matrix
       !> S-block (K) and w-block hierarchies, and the vectors of their V-cycles (one set: the
       !> two cycles run one after the other). Allocatable: as a plain component, gfortran 12 left
@@ -72,8 +74,8 @@ module twomem_newton_elimination
       !> the C-function rows of the current Newton matrix: a = ∂C/∂(u1 − u2), b = ∂C/∂λ
       real(dp), allocatable :: a(:), b(:)
       logical, allocatable :: fixed(:)
-      !> rows whose shift or fixed flag the current Newton step changed, rows whose fixed flag
-      !> flipped, and rows of the w-block operator to refill (the changed rows and the
+      !> rows whose shift or fixed flag the current Newton step changed; with a stored w_matrix,
+      !> rows whose fixed flag flipped and rows of it to refill (the changed rows and the
       !> neighbours of flipped ones, whose column is cut or restored)
       logical, allocatable :: row_changed(:), flipped(:), refill(:)
       !> rows whose X3 comes from the membrane balance (ii): fixed rows and large shifts
@@ -84,7 +86,7 @@ module twomem_newton_elimination
       !> is false while the hierarchy holds no valid values (it is then rebuilt whole)
       real(dp), allocatable :: shift(:)
       logical :: built = .false.
-      !> positions of the diagonals of K in its value array
+      !> positions of the diagonals of K in its value array (with a stored w_matrix)
       integer(ip), allocatable :: diag(:)
       !> work: w's right-hand side and fixed values, products with K (S, w and S's right-hand side
       !> live in the output's thirds while `apply` runs)
@@ -123,21 +125,31 @@ contains
       self%halo => transfer%halos(top)
       call self%s_mg%init(p%stiffness, transfer, top, options, .true., err)
       if (allocated(err)) return
-      self%w_matrix = p%stiffness
       ! the w-block starts as the S-block (K: nothing fixed, no shift), so that even the first
-      ! Newton step only recomputes the coarse rows near the contact zone
-      call self%w_mg%init(self%w_matrix, transfer, top, options, .false., err, start_from=self%s_mg, base=p%stiffness)
+      ! Newton step only recomputes the coarse rows near the contact zone; on more than one
+      ! level the hierarchy applies it from K (88 bytes per unknown less)
+      if (top > 0) then
+         call self%w_mg%init(p%stiffness, transfer, top, options, .false., err, start_from=self%s_mg, &
+                             base=p%stiffness)
+      else
+         self%w_matrix = p%stiffness
+         call self%w_mg%init(self%w_matrix, transfer, top, options, .false., err, start_from=self%s_mg)
+      end if
       if (allocated(err)) return
       allocate (self%cycle_work)
       call self%cycle_work%init(self%s_mg)
-      allocate (self%diag(n), self%k_diag(n))
+      allocate (self%k_diag(n))
       do i = 1, n
-         self%diag(i) = p%stiffness%find(i, i)
-         self%k_diag(i) = p%stiffness%val(self%diag(i))
+         self%k_diag(i) = p%stiffness%val(p%stiffness%find(i, i))
       end do
       call self%halo%add(self%k_diag)
-      allocate (self%a(n), self%b(n), self%fixed(n), self%row_changed(n), self%flipped(n), self%refill(n), &
-                self%by_balance(n), self%shift(n), &
+      if (top == 0) then
+         allocate (self%diag(n), self%flipped(n), self%refill(n))
+         do i = 1, n
+            self%diag(i) = p%stiffness%find(i, i)
+         end do
+      end if
+      allocate (self%a(n), self%b(n), self%fixed(n), self%row_changed(n), self%by_balance(n), self%shift(n), &
                 self%rhs_w(n), self%w_fixed(n), self%kw(n))
       self%fixed = .false.
       self%shift = 0.0_dp
@@ -177,7 +189,7 @@ contains
       type(error_t), allocatable, intent(out) :: err
 
       integer(ip) :: i
-      logical :: fixed, changed, zero_row
+      logical :: fixed, changed, zero_row, stored
 
       if (self%released) then
          call restart(self, err)
@@ -185,7 +197,8 @@ contains
       end if
       changed = .not. self%built
       zero_row = .false.
-      !$omp parallel do default(none) shared(self, da, db) private(i, fixed) reduction(.or.:changed, zero_row) &
+      stored = allocated(self%refill)
+      !$omp parallel do default(none) shared(self, da, db, stored) private(i, fixed) reduction(.or.:changed, zero_row) &
       !$omp schedule(static) if(self%n > 4096)
       do i = 1, self%n
          self%a(i) = da(i)
@@ -203,7 +216,7 @@ contains
             self%shift(i) = self%c_mu*self%mass(i)*da(i)/db(i)
          end if
          changed = changed .or. self%row_changed(i)
-         self%flipped(i) = fixed .neqv. self%fixed(i)
+         if (stored) self%flipped(i) = fixed .neqv. self%fixed(i)
          self%fixed(i) = fixed
          self%by_balance(i) = fixed .or. self%shift(i) > self%k_diag(i)
          zero_row = zero_row .or. (fixed .and. da(i) == 0.0_dp)
@@ -214,15 +227,17 @@ contains
          return
       end if
       if (.not. self%halo%comm%any_true(changed)) return
-      if (self%built) then
-         self%refill = self%row_changed
-         do i = 1, self%n
-            if (self%flipped(i)) self%refill(self%k%col(self%k%row_ptr(i):self%k%row_ptr(i + 1) - 1)) = .true.
-         end do
-      else
-         self%refill = .true.
+      if (stored) then
+         if (self%built) then
+            self%refill = self%row_changed
+            do i = 1, self%n
+               if (self%flipped(i)) self%refill(self%k%col(self%k%row_ptr(i):self%k%row_ptr(i + 1) - 1)) = .true.
+            end do
+         else
+            self%refill = .true.
+         end if
+         call fill_w_operator(self%k, self%diag, self%fixed, self%shift, self%halo%owned, self%refill, self%w_matrix)
       end if
-      call fill_w_operator(self%k, self%diag, self%fixed, self%shift, self%halo%owned, self%refill, self%w_matrix)
       ! a failed refresh leaves the hierarchy to be rebuilt whole
       if (self%built) then
          call self%w_mg%refresh(self%fixed, err, changed=self%row_changed, shift=self%shift)
