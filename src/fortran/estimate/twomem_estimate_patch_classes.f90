@@ -170,17 +170,32 @@ contains
 
    !> The interior vertices of the mesh whose patches are whole on this rank (on a rank's piece
    !> of a distributed mesh, the patches outside its subdomain are not), in the order of their
-   !> first patch triangle (patches list their triangles in ascending order).
+   !> first patch triangle (patches list their triangles in ascending order). Written as loops:
+   !> this file's array temporaries live on the stack (CMakeLists.txt), and a mesh-sized one
+   !> overflowed it at 4·10^6 vertices.
    function interior_by_first_triangle(mesh) result(order)
       type(mesh_t), intent(in) :: mesh
       integer(ip), allocatable :: order(:)
 
       logical, allocatable :: inside(:)
+      integer(ip), allocatable :: all_vertices(:)
+      integer(ip) :: k, n, a
 
       inside = mesh%in_subdomain()
-      inside = inside .and. .not. mesh%boundary_vertex
-      order = mesh%vertices_by_first_triangle()
-      order = pack(order, inside(order))
+      all_vertices = mesh%vertices_by_first_triangle()
+      n = 0
+      do a = 1, mesh%nv
+         inside(a) = inside(a) .and. .not. mesh%boundary_vertex(a)
+         if (inside(a)) n = n + 1
+      end do
+      allocate (order(n))
+      n = 0
+      do k = 1, size(all_vertices, kind=ip)
+         a = all_vertices(k)
+         if (.not. inside(a)) cycle
+         n = n + 1
+         order(n) = a
+      end do
    end function interior_by_first_triangle
 
    !> The key of the patch of interior vertex a (see add_mesh) in key(1:length): ne, the local
