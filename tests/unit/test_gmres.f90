@@ -26,6 +26,21 @@ module test_gmres
       procedure :: apply => jacobi_apply
    end type jacobi_t
 
+   !> Puts its work on the iterate of iteration `defer_at` off (`pending`), then checks on the
+   !> second call that it got the same iterate, bit for bit, with GMRES's basis freed; stops
+   !> there if `stop_then`. With `defer` false it stops at `defer_at` at once (the reference).
+   type, extends(gmres_observer_t) :: deferring_observer_t
+      integer :: defer_at = 10
+      logical :: defer = .true., stop_then = .true.
+      type(gmres_workspace_t), pointer :: ws => null()
+      logical :: waiting = .false., finished = .false., same_iterate = .false.
+      integer :: columns_then = -1, calls = 0
+      real(dp), allocatable :: first_x(:)
+   contains
+      procedure :: observe => deferring_observe
+      procedure :: pending => deferring_pending
+   end type deferring_observer_t
+
    !> The identity for its first `healthy` applications, NaN after them: a preconditioner that
    !> breaks down in the middle of a solve.
    type, extends(identity_preconditioner_t) :: poisoned_t
@@ -92,6 +107,7 @@ contains
                new_unittest('zero_rhs', test_zero_rhs), &
                new_unittest('nan_rhs_is_a_breakdown', test_nan_rhs), &
                new_unittest('nonfinite_correction_keeps_x', test_nonfinite_correction), &
+               new_unittest('pending_observer_frees_the_basis', test_pending_observer), &
                new_unittest('workspace_reuse', test_workspace), &
                new_unittest('misuse_is_error', test_misuse)]
    end subroutine collect_gmres
@@ -515,6 +531,52 @@ contains
       call check(err, all(x == x_first), 'x is the last finite iterate, bit for bit')
    end subroutine test_nonfinite_correction
 
+   !> An observer that puts its work off (`gmres_observer_t%pending`): GMRES ends the cycle at
+   !> the same iterate, bit for bit, frees its Krylov basis (one column is left, v(1), for the
+   !> residual) and calls it again; a stop then returns that iterate, as a stop at once would;
+   !> without a stop GMRES goes on from a restart to the solution.
+   subroutine test_pending_observer(err)
+      type(error_t), allocatable, intent(out) :: err
+      type(csr_t), target :: a
+      type(csr_operator_t) :: op
+      type(identity_preconditioner_t) :: id
+      type(serial_product_t) :: dot
+      type(gmres_workspace_t), target :: ws
+      type(deferring_observer_t) :: deferring, at_once
+      real(dp), allocatable :: b(:), x(:), x_ref(:)
+      type(gmres_options_t) :: opt
+      type(gmres_monitor_t) :: mon, ref
+
+      call laplacian(30_ip, a)
+      op%a => a
+      b = load(a%n)
+      opt%restart = 30
+      opt%observe_every = 5
+      allocate (x(a%n), x_ref(a%n))
+      at_once%defer = .false.
+      x_ref = 0.0_dp
+      call gmres_solve(op, id, dot, b, x_ref, opt, ref, err, observer=at_once)
+      if (allocated(err)) return
+      deferring%ws => ws
+      x = 0.0_dp
+      call gmres_solve(op, id, dot, b, x, opt, mon, err, observer=deferring, workspace=ws)
+      if (allocated(err)) return
+      call check(err, ref%reason == 'stopped by observer' .and. ref%iterations == 10, 'reference: '//ref%reason)
+      call check(err, mon%reason == 'stopped by observer' .and. mon%iterations == 10, 'reason: '//mon%reason)
+      call check(err, deferring%finished .and. deferring%same_iterate, 'called again with the same iterate')
+      call check(err, deferring%columns_then == 1, 'the basis was freed but v(1)')
+      call check(err, all(x == deferring%first_x) .and. all(x == x_ref), 'x is the iterate, as a stop at once')
+      if (allocated(err)) return
+
+      deferring = deferring_observer_t(ws=ws, stop_then=.false.)
+      x = 0.0_dp
+      call gmres_solve(op, id, dot, b, x, opt, mon, err, observer=deferring, workspace=ws)
+      if (allocated(err)) return
+      call check(err, deferring%finished .and. deferring%same_iterate, 'called again with the same iterate')
+      call check(err, mon%converged .and. mon%restarts >= 1, 'went on from a restart: '//mon%reason)
+      call check(err, true_residual(a, b, x) <= 1.0e-10_dp*norm2(b)*(1 + 1.0e-6_dp), 'to the solution')
+   end subroutine test_pending_observer
+
    !> A periodic convection–diffusion stencil with row sums 1: b = 3·(1, …, 1) is an
    !> eigenvector, the Krylov space is invariant after one step.
    subroutine test_eigenvector(err)
@@ -807,6 +869,37 @@ contains
 
       z = self%inv_diag*r
    end subroutine jacobi_apply
+
+   subroutine deferring_observe(self, iteration, x, residual_norm, stop)
+      class(deferring_observer_t), intent(inout) :: self
+      integer, intent(in) :: iteration
+      real(dp), intent(in) :: x(:), residual_norm
+      logical, intent(out) :: stop
+
+      stop = .false.
+      self%calls = self%calls + 1
+      if (self%waiting) then
+         self%waiting = .false.
+         self%finished = .true.
+         self%same_iterate = all(x == self%first_x) .and. residual_norm >= 0
+         if (associated(self%ws)) self%columns_then = self%ws%columns()
+         stop = self%stop_then
+      else if (iteration == self%defer_at .and. .not. self%finished) then
+         self%first_x = x
+         if (self%defer) then
+            self%waiting = .true.
+         else
+            self%finished = .true.
+            stop = .true.
+         end if
+      end if
+   end subroutine deferring_observe
+
+   logical function deferring_pending(self)
+      class(deferring_observer_t), intent(in) :: self
+
+      deferring_pending = self%waiting
+   end function deferring_pending
 
    subroutine poisoned_apply(self, r, z)
       class(poisoned_t), intent(inout) :: self

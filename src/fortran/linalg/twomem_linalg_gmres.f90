@@ -59,10 +59,16 @@ module twomem_linalg_gmres
       logical :: happy_breakdown = .false.
    end type gmres_monitor_t
 
-   !> Receives the current iterate; set `stop` to end GMRES with x = this iterate.
+   !> Receives the current iterate; set `stop` to end GMRES with x = this iterate. An observer
+   !> whose work on an iterate needs the memory of GMRES's Krylov basis may put that work off:
+   !> it returns without stopping and answers `pending` with .true.; GMRES then ends its cycle at
+   !> that very iterate (the same bits), frees the basis and calls `observe` again with it and
+   !> its true residual, where the observer finishes (and may stop). If it does not stop, GMRES
+   !> goes on from a restart: the Krylov space is built anew.
    type, abstract :: gmres_observer_t
    contains
       procedure(observer_observe), deferred :: observe
+      procedure :: pending => nothing_pending
    end type gmres_observer_t
 
    abstract interface
@@ -98,12 +104,13 @@ module twomem_linalg_gmres
    contains
       procedure :: init => workspace_init
       procedure :: free => workspace_free
+      procedure :: release_basis
       procedure :: columns => workspace_columns
    end type gmres_workspace_t
 
    !> How an Arnoldi cycle ended.
    integer, parameter :: cycle_full = 0, cycle_estimate = 1, cycle_breakdown = 2, &
-                         cycle_limit = 3, cycle_stopped = 4, cycle_nonfinite = 5
+                         cycle_limit = 3, cycle_stopped = 4, cycle_nonfinite = 5, cycle_pending = 6
 
 contains
 
@@ -119,11 +126,36 @@ contains
                 self%xc(n))
    end subroutine workspace_init
 
+   !> The default observer finishes its work within `observe`.
+   logical function nothing_pending(self)
+      class(gmres_observer_t), intent(in) :: self
+
+      nothing_pending = .false.
+   end function nothing_pending
+
+   !> Free the Krylov basis and the observed iterate but v(1), which the next residual needs;
+   !> the iteration allocates them again as it reaches them. Between solves, the caller may do
+   !> the same before it needs the memory.
+   subroutine release_basis(self)
+      class(gmres_workspace_t), intent(inout) :: self
+
+      integer :: j
+
+      if (.not. allocated(self%v)) return
+      do j = 2, size(self%v)
+         if (allocated(self%v(j)%x)) deallocate (self%v(j)%x)
+      end do
+      do j = 1, size(self%z)
+         if (allocated(self%z(j)%x)) deallocate (self%z(j)%x)
+      end do
+      if (allocated(self%xc)) deallocate (self%xc)
+   end subroutine release_basis
+
    subroutine workspace_free(self)
       class(gmres_workspace_t), intent(inout) :: self
 
-      if (allocated(self%v)) deallocate (self%v, self%z, self%h, self%g, self%cs, self%sn, &
-                                         self%y, self%xc)
+      if (allocated(self%v)) deallocate (self%v, self%z, self%h, self%g, self%cs, self%sn, self%y)
+      if (allocated(self%xc)) deallocate (self%xc)
       self%n = 0
       self%m = 0
    end subroutine workspace_free
@@ -224,7 +256,7 @@ contains
       real(dp), allocatable :: history(:)
       real(dp) :: target, beta, reference, b_norm
       integer :: it, outcome, cycles, stalled
-      logical :: stop
+      logical :: stop, observed
 
       ! once: each norm is a pass over 3n entries (and a reduction over the ranks)
       b_norm = dot%norm(b)
@@ -258,6 +290,14 @@ contains
       reference = beta
       outcome = cycle_full
       do
+         observed = .false.
+         if (outcome == cycle_pending) then
+            ! the cycle ended at the iterate the observer put its work off for: it finishes now,
+            ! with the basis freed
+            call observer%observe(it, x, beta, stop)
+            observed = .true.
+            outcome = merge(cycle_stopped, cycle_full, stop)
+         end if
          if (.not. ieee_is_finite(beta)) then
             call finish(mon, 'breakdown')
             exit
@@ -290,8 +330,13 @@ contains
                call finish(mon, 'stagnation')
                exit
             end if
-            if (present(observer)) then
+            if (present(observer) .and. .not. observed) then
                call observer%observe(it, x, beta, stop)
+               if (.not. stop .and. observer%pending()) then
+                  ! x is the iterate already: only the basis goes before the observer finishes
+                  call ws%release_basis()
+                  call observer%observe(it, x, beta, stop)
+               end if
                if (stop) then
                   call finish(mon, 'stopped by observer')
                   exit
@@ -395,6 +440,9 @@ contains
             if (stop) then
                outcome = cycle_stopped
                exit
+            else if (observer%pending()) then
+               outcome = cycle_pending
+               exit
             end if
          end if
       end do
@@ -406,6 +454,7 @@ contains
          return
       end if
       call copy(ws%xc, x)
+      if (outcome == cycle_pending) call ws%release_basis()
    end subroutine arnoldi_cycle
 
    !> history(it) = value, doubling the array (lower bound 0) when full.
@@ -488,6 +537,7 @@ contains
       do i = k, 1, -1
          ws%y(i) = (ws%g(i) - sum(ws%h(i, i + 1:k)*ws%y(i + 1:k)))/ws%h(i, i)
       end do
+      if (.not. allocated(ws%xc)) allocate (ws%xc(ws%n))
       call copy(x, ws%xc)
       do i = 1, k
          call axpy(ws%y(i), ws%z(i)%x, ws%xc)

@@ -16,6 +16,9 @@
 !> that the schedule expects to end the run first releases the preconditioner's memory (the
 !> multigrid hierarchies): the evaluation's algebraic flux needs about as much, and the peak
 !> of the run is where both would meet. Should GMRES go on, its next application rebuilds them.
+!> That evaluation is put off to the end of GMRES's cycle (`gmres_observer_t%pending`): GMRES
+!> ends the cycle at the same iterate and frees its Krylov basis first, the other large block in
+!> memory then; only if the algebraic test fails does the solve go on, from a restart.
 module twomem_newton_inner
    use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan, ieee_is_finite, ieee_is_nan
    use twomem_base_kinds, only: dp, ip
@@ -95,11 +98,16 @@ module twomem_newton_inner
       !> the running solve's preconditioner: an evaluation expected to end the run takes its
       !> memory (`release`; applied again, it rebuilds)
       class(preconditioner_t), pointer :: prec => null()
+      !> a whole evaluation expected to end the run, put off until GMRES has freed its basis,
+      !> and the row of its check so far (η_lin, η_disc, the residuals)
+      logical :: whole_pending = .false.
+      type(history_row_t) :: pending_row
       !> work: C and its Jacobian at the GMRES iterate (the Newton driver's arrays for them,
       !> which it does not read while GMRES runs)
       real(dp), pointer, contiguous :: c(:) => null(), da(:) => null(), db(:) => null()
    contains
       procedure :: observe => observe_gmres
+      procedure :: pending => whole_evaluation_pending
    end type inner_observer_t
 
 contains
@@ -114,20 +122,37 @@ contains
 
       type(history_row_t) :: row
       integer(ip) :: n
-      logical :: estimates
+      logical :: estimates, last
 
-      n = size(x, kind=ip)/3
-      row = not_computed()
-      call self%residual%relative(x, row%lin_residual, self%c, self%da, self%db)
-      row%alg_residual = residual_norm/self%b_norm
-      row%newton_it = self%newton_it
-      row%gmres_it = self%gmres_before + iteration
-      row%active = self%residual%sys%global_count(x(1:n) - x(n + 1:2*n) <= x(2*n + 1:))
-      row%inner = .true.
-      row%step = ieee_value(1.0_dp, ieee_quiet_nan)
-      row%active_changed = -1
-      estimates = .true.
-      if (self%adaptive .and. associated(self%user)) estimates = self%schedule%decide(self%user, x, row, self%prec)
+      stop = .false.
+      if (self%whole_pending) then
+         ! GMRES has ended its cycle at the same iterate (bit for bit) and freed its basis: the
+         ! row is the one of the check, and the hierarchies go too
+         self%whole_pending = .false.
+         row = self%pending_row
+         estimates = .true.
+         if (associated(self%prec)) call self%prec%release()
+      else
+         n = size(x, kind=ip)/3
+         row = not_computed()
+         call self%residual%relative(x, row%lin_residual, self%c, self%da, self%db)
+         row%alg_residual = residual_norm/self%b_norm
+         row%newton_it = self%newton_it
+         row%gmres_it = self%gmres_before + iteration
+         row%active = self%residual%sys%global_count(x(1:n) - x(n + 1:2*n) <= x(2*n + 1:))
+         row%inner = .true.
+         row%step = ieee_value(1.0_dp, ieee_quiet_nan)
+         row%active_changed = -1
+         estimates = .true.
+         if (self%adaptive .and. associated(self%user)) then
+            estimates = self%schedule%decide(self%user, x, row, self%prec, last)
+            if (estimates .and. last) then
+               self%whole_pending = .true.
+               self%pending_row = row
+               return
+            end if
+         end if
+      end if
       if (associated(self%user)) call self%user%observe(x, row, estimates=estimates)
       row%wall_time = wall_time() - self%t0
       call self%history%append(row)
@@ -149,17 +174,20 @@ contains
    !> Whether the check at iterate x evaluates the estimators (collective: the estimators are
    !> the same on every rank); a check that does not keeps η_lin, and η_disc if it computed it,
    !> in its row. `prec` (may be null), the running solve's preconditioner, is released before
-   !> a whole evaluation that the Newton test predicts to be the last.
-   logical function decide(self, user, x, row, prec) result(evaluates)
+   !> a whole evaluation that the Newton test predicts to be the last; with `last`, the caller
+   !> is told instead (and releases it when it evaluates).
+   logical function decide(self, user, x, row, prec, last) result(evaluates)
       class(check_schedule_t), intent(inout) :: self
       class(newton_observer_t), intent(inout) :: user
       real(dp), intent(in) :: x(:)
       type(history_row_t), intent(inout) :: row
       class(preconditioner_t), pointer, intent(in) :: prec
+      logical, intent(out), optional :: last
 
       real(dp) :: eta_lin, eta_disc
 
       evaluates = .true.
+      if (present(last)) last = .false.
       if (.not. self%predict) return
       eta_lin = user%linearization_estimate(x)
       if (ieee_is_nan(eta_lin)) return
@@ -175,12 +203,21 @@ contains
          row%eta_lin = eta_lin
          row%eta_disc = eta_disc
          evaluates = .false.
+      else if (present(last)) then
+         last = .true.
       else if (associated(prec)) then
          ! the Newton test holds here: unless the algebraic test fails, this evaluation ends the
          ! run, and its algebraic flux need not meet the preconditioner's hierarchies in memory
          call prec%release()
       end if
    end function decide
+
+   !> A whole evaluation waits for GMRES to free its Krylov basis (see the type).
+   logical function whole_evaluation_pending(self) result(pending)
+      class(inner_observer_t), intent(in) :: self
+
+      pending = self%whole_pending
+   end function whole_evaluation_pending
 
    !> Whether an iterate whose η_lin is `eta_lin` is worth an evaluation: the Newton test can
    !> hold with the last η_disc (always, without one or without a prediction).

@@ -276,6 +276,8 @@ contains
          b_norm = max(sys%dot%norm(b), tiny(1.0_dp))
          if (kind == solver_gmres) then
             inner%newton_it = k
+            ! (a check put off by a GMRES solve that then failed is not this step's)
+            inner%whole_pending = .false.
             inner%linearized = merge(c_function_min, options%cfun, active_set_step)
             inner%gmres_before = result%linear_iterations
             inner%b_norm = b_norm
@@ -375,7 +377,7 @@ contains
          type(history_row_t), intent(inout) :: row
          logical, intent(in) :: reuse
 
-         logical :: estimates
+         logical :: estimates, last
 
          ! contact where u1 − u2 ≤ λ: for Newton-min exactly the vertices with the a-row
          active = x(1:n) - x(n + 1:2*n) <= x(2*n + 1:)
@@ -391,7 +393,16 @@ contains
             ! Algorithm 1 reads the estimators from the first step on: at the initial iterate
             ! (at 10^6 vertices, a fifth of the adaptive run's evaluations) no test needs them
             estimates = .not. adaptive
-            if (adaptive .and. k > 0) estimates = inner%schedule%decide(observer, x, row, inner%prec)
+            if (adaptive .and. k > 0) then
+               estimates = inner%schedule%decide(observer, x, row, inner%prec, last)
+               if (estimates .and. last) then
+                  ! a whole evaluation expected to end the run: the idle Krylov basis and the
+                  ! preconditioner's hierarchies make room for its algebraic flux (the next
+                  ! solve, if any, builds them again)
+                  call solver%workspace%release_basis()
+                  if (associated(inner%prec)) call inner%prec%release()
+               end if
+            end if
             call observer%observe(x, row, estimates=estimates)
             if (adaptive .and. estimates) call inner%schedule%remember(row)
          end if
