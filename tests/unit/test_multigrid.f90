@@ -41,6 +41,7 @@ contains
                new_unittest('elimination_without_coarsening_is_exact', test_elimination_exact), &
                new_unittest('partial_rebuild_matches_full_rebuild', test_partial_rebuild), &
                new_unittest('assembled_hierarchy_matches_refresh', test_assembled_hierarchy), &
+               new_unittest('frozen_hierarchy_cycles_the_same', test_frozen_hierarchy), &
                new_unittest('released_preconditioner_rebuilds_the_same', test_release), &
                new_unittest('gmres_with_multigrid_iterations_bounded', test_gmres_iterations)]
    end subroutine collect_multigrid
@@ -536,6 +537,41 @@ contains
       end do
       call check(err, identical, 'patterns, values and smoothers agree bit for bit')
    end subroutine test_assembled_hierarchy
+
+   !> A frozen hierarchy (the S-block's, once the w-block has started from it) has dropped what
+   !> only a refresh reads: its V-cycle gives the bits of before, and a refresh is refused.
+   subroutine test_frozen_hierarchy(err)
+      type(error_t), allocatable, intent(out) :: err
+      integer, parameter :: levels = 4
+      type(mesh_hierarchy_t) :: h
+      type(discrete_problem_t), target :: p
+      type(constant_data_t) :: data
+      type(multigrid_transfer_t), target :: transfer
+      type(multigrid_t) :: mg
+      type(multigrid_options_t) :: options
+      real(dp), allocatable :: b(:), before(:), after(:)
+      type(error_t), allocatable :: refused
+      integer(ip) :: i
+
+      call square_hierarchy(levels, h, err)
+      if (allocated(err)) return
+      call p%init(h%meshes(levels), data, err)
+      if (allocated(err)) return
+      call transfer%init(interior_prolongations(h, levels), err)
+      if (allocated(err)) return
+      call mg%init(p%stiffness, transfer, levels, options, .true., err)
+      if (allocated(err)) return
+      b = [(sin(0.3_dp*i), i=1, p%n)]
+      allocate (before(p%n), after(p%n))
+      call mg%vcycle(b, before)
+      call mg%freeze()
+      call mg%vcycle(b, after)
+      call check(err, all(after == before), 'the frozen V-cycle gives the bits of before')
+      call check(err, .not. allocated(mg%levels(levels)%smoother%part_diag) .and. &
+                 .not. allocated(mg%levels(levels - 1)%part_diag), 'the refresh data are gone')
+      call mg%refresh([(.false., i=1, p%n)], refused)
+      call check(err, allocated(refused), 'a refresh of a frozen hierarchy is refused')
+   end subroutine test_frozen_hierarchy
 
    !> A release frees the hierarchies and the w-block operator; the preconditioner applied
    !> afterwards (GMRES going on) rebuilds them for the same Newton step and gives the bits of

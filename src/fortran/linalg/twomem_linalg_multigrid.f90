@@ -107,6 +107,8 @@ module twomem_linalg_multigrid
       real(dp), allocatable :: cut_diagonal(:)
       !> the coarse levels hold the values of the last refresh (a refresh can then be partial)
       logical :: valid = .false.
+      !> `freeze` dropped what only a refresh reads: the operator may no longer change
+      logical :: frozen = .false.
       type(mg_level_t), allocatable :: levels(:)
       type(multigrid_options_t) :: options
       type(gathered_solver_t) :: coarse
@@ -119,6 +121,7 @@ module twomem_linalg_multigrid
    contains
       procedure :: init
       procedure :: refresh
+      procedure :: freeze
       procedure :: vcycle
       procedure :: free
    end type multigrid_t
@@ -316,7 +319,7 @@ contains
       logical :: usable
 
       top = self%top
-      usable = start%valid .and. start%top == top
+      usable = start%valid .and. .not. start%frozen .and. start%top == top
       if (usable) usable = .not. any(start%levels(top)%fixed)
       if (usable .and. associated(self%base)) then
          associate (below => start%levels(top - 1))
@@ -366,6 +369,10 @@ contains
       logical :: truncated, partial, refactor
       logical, allocatable :: flipped(:)
 
+      if (self%frozen) then
+         call make_error(err, exit_io, 'multigrid', 'a frozen hierarchy was refreshed')
+         return
+      end if
       partial = self%valid .and. present(changed)
       self%valid = .false.
       associate (finest => self%levels(self%top))
@@ -402,6 +409,28 @@ contains
       if (refactor .or. .not. partial) call factor_coarsest(self, err)
       self%valid = .not. allocated(err)
    end subroutine refresh
+
+   !> Drop what only `refresh` reads: the levels' fixed flags and row marks, the coarse rows'
+   !> diagonal parts and cut flags, the smoothers' row parts (about 36 bytes per finest unknown).
+   !> For a hierarchy whose operator never changes (the S-block), once every hierarchy that
+   !> starts from it (`init`'s start_from) has been made; the V-cycle needs none of it.
+   subroutine freeze(self)
+      class(multigrid_t), intent(inout) :: self
+
+      integer :: l
+
+      if (.not. allocated(self%levels)) return
+      do l = 0, self%top
+         associate (lev => self%levels(l))
+            if (allocated(lev%fixed)) deallocate (lev%fixed)
+            if (allocated(lev%updated)) deallocate (lev%updated)
+            if (allocated(lev%part_diag)) deallocate (lev%part_diag)
+            if (allocated(lev%cut)) deallocate (lev%cut)
+            if (allocated(lev%smoother%part_diag)) deallocate (lev%smoother%part_diag, lev%smoother%part_sum)
+         end associate
+      end do
+      self%frozen = .true.
+   end subroutine freeze
 
    !> The diagonal of the split finest operator: an identity row's 1 at a fixed unknown (0 in a
    !> part that another rank owns), base's diagonal plus the shift at a free one (the shift on
@@ -714,6 +743,7 @@ contains
       self%transfer => null()
       self%base => null()
       self%valid = .false.
+      self%frozen = .false.
       self%failed = .false.
    end subroutine free
 end module twomem_linalg_multigrid

@@ -136,6 +136,8 @@ contains
          call self%w_mg%init(self%w_matrix, transfer, top, options, .false., err, start_from=self%s_mg)
       end if
       if (allocated(err)) return
+      ! the S-block's operator never changes, and the w-block has started from its hierarchy
+      call self%s_mg%freeze()
       allocate (self%cycle_work)
       call self%cycle_work%init(self%s_mg)
       allocate (self%k_diag(n))
