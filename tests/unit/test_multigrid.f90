@@ -210,7 +210,6 @@ contains
       type(error_t), allocatable, intent(out) :: err
       type(mesh_hierarchy_t) :: h
       type(discrete_problem_t), target :: p
-      type(constant_data_t) :: data
       type(multigrid_transfer_t), target :: transfer
       type(multigrid_t) :: mg
       type(multigrid_options_t) :: options
@@ -220,11 +219,7 @@ contains
 
       do k = 1, 3
          levels = 2*k + 1
-         call square_hierarchy(levels, h, err)
-         if (allocated(err)) return
-         call p%init(h%meshes(levels), data, err)
-         if (allocated(err)) return
-         call transfer%init(interior_prolongations(h, levels), err)
+         call square_with_transfers(levels, h, p, transfer, err)
          if (allocated(err)) return
          call mg%init(p%stiffness, transfer, levels, options, .true., err)
          if (allocated(err)) return
@@ -240,7 +235,6 @@ contains
       type(error_t), allocatable, intent(out) :: err
       type(mesh_hierarchy_t) :: h
       type(discrete_problem_t), target :: p
-      type(constant_data_t) :: data
       type(multigrid_transfer_t), target :: transfer
       type(multigrid_t) :: mg
       type(multigrid_options_t) :: options
@@ -252,11 +246,7 @@ contains
       real(dp) :: rate
       character(len=32) :: msg
 
-      call square_hierarchy(5, h, err)
-      if (allocated(err)) return
-      call p%init(h%meshes(5), data, err)
-      if (allocated(err)) return
-      call transfer%init(interior_prolongations(h, 5), err)
+      call square_with_transfers(5, h, p, transfer, err)
       if (allocated(err)) return
       a = p%stiffness
       allocate (fixed(a%n))
@@ -360,10 +350,23 @@ contains
       type(multigrid_transfer_t), intent(out) :: transfer
       type(error_t), allocatable, intent(out) :: err
 
-      call square_problem(levels, h, p, err, mu2=4.0_dp)
+      call square_with_transfers(levels, h, p, transfer, err, mu2=4.0_dp)
+   end subroutine membranes_on_square
+
+   !> The square refined `levels` times, its problem (square_problem: the stiffness K is that of
+   !> any data) and the interior prolongations of every level.
+   subroutine square_with_transfers(levels, h, p, transfer, err, mu2)
+      integer, intent(in) :: levels
+      type(mesh_hierarchy_t), intent(out) :: h
+      type(discrete_problem_t), intent(out) :: p
+      type(multigrid_transfer_t), intent(out) :: transfer
+      type(error_t), allocatable, intent(out) :: err
+      real(dp), intent(in), optional :: mu2
+
+      call square_problem(levels, h, p, err, mu2)
       if (allocated(err)) return
       call transfer%init(interior_prolongations(h, levels), err)
-   end subroutine membranes_on_square
+   end subroutine square_with_transfers
 
    !> C-function rows for step `step` of a made-up Newton iteration on the square: Fischer–
    !> Burmeister rows whose contact region (x < x_contact) grows from step to step, shifts that
@@ -506,18 +509,13 @@ contains
       integer, parameter :: levels = 4
       type(mesh_hierarchy_t) :: h
       type(discrete_problem_t), target :: p
-      type(constant_data_t) :: data
       type(multigrid_transfer_t), target :: transfer
       type(multigrid_t) :: assembled, refreshed
       type(multigrid_options_t) :: options
       logical :: identical
       integer :: l
 
-      call square_hierarchy(levels, h, err)
-      if (allocated(err)) return
-      call p%init(h%meshes(levels), data, err)
-      if (allocated(err)) return
-      call transfer%init(interior_prolongations(h, levels), err)
+      call square_with_transfers(levels, h, p, transfer, err)
       if (allocated(err)) return
       call assembled%init(p%stiffness, transfer, levels, options, .true., err)
       if (allocated(err)) return
@@ -545,7 +543,6 @@ contains
       integer, parameter :: levels = 4
       type(mesh_hierarchy_t) :: h
       type(discrete_problem_t), target :: p
-      type(constant_data_t) :: data
       type(multigrid_transfer_t), target :: transfer
       type(multigrid_t) :: mg
       type(multigrid_options_t) :: options
@@ -553,11 +550,7 @@ contains
       type(error_t), allocatable :: refused
       integer(ip) :: i
 
-      call square_hierarchy(levels, h, err)
-      if (allocated(err)) return
-      call p%init(h%meshes(levels), data, err)
-      if (allocated(err)) return
-      call transfer%init(interior_prolongations(h, levels), err)
+      call square_with_transfers(levels, h, p, transfer, err)
       if (allocated(err)) return
       call mg%init(p%stiffness, transfer, levels, options, .true., err)
       if (allocated(err)) return
