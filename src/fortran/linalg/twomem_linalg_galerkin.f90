@@ -200,13 +200,14 @@ contains
       real(dp), intent(in), optional :: start(:)
 
       real(dp) :: zero(0)
+      logical :: no_mask(0)
 
       if (present(start)) then
          call product_rows(r%n, rows, r%row_ptr, r%col, rv, a%row_ptr, a%col, a%val, p%row_ptr, p%col, pv, &
-                           c_ptr, c_col, c_val, .true., start)
+                           c_ptr, c_col, c_val, .true., start, .false., no_mask, no_mask)
       else
          call product_rows(r%n, rows, r%row_ptr, r%col, rv, a%row_ptr, a%col, a%val, p%row_ptr, p%col, pv, &
-                           c_ptr, c_col, c_val, .false., zero)
+                           c_ptr, c_col, c_val, .false., zero, .false., no_mask, no_mask)
       end if
    end subroutine galerkin_rows
 
@@ -221,33 +222,10 @@ contains
       integer(ip), intent(in) :: rows(:), c_ptr(:), c_col(:)
       real(dp), intent(inout) :: c_val(:)
 
-      integer(ip), allocatable :: position(:)
-      integer(ip) :: i, k, m, q, kk, jr
-      real(dp) :: rik, rikakj
+      integer(ip) :: no_pattern(0)
 
-      !$omp parallel default(none) shared(r, rv, d, owned, fixed, p, pv, rows, c_ptr, c_col, c_val, start) &
-      !$omp private(position, i, k, m, q, kk, jr, rik, rikakj) if(size(rows) > 1024)
-      allocate (position(r%n))
-      !$omp do schedule(static)
-      do jr = 1, size(rows, kind=ip)
-         i = rows(jr)
-         do m = c_ptr(i), c_ptr(i + 1) - 1
-            position(c_col(m)) = m
-         end do
-         c_val(c_ptr(i):c_ptr(i + 1) - 1) = start(c_ptr(i):c_ptr(i + 1) - 1)
-         do k = r%row_ptr(i), r%row_ptr(i + 1) - 1
-            rik = rv(k)
-            if (rik == 0.0_dp) cycle
-            kk = r%col(k)
-            rikakj = rik*merge(d(kk), 0.0_dp, owned(kk) .and. .not. fixed(kk))
-            do q = p%row_ptr(kk), p%row_ptr(kk + 1) - 1
-               c_val(position(p%col(q))) = c_val(position(p%col(q))) + rikakj*pv(q)
-            end do
-         end do
-      end do
-      !$omp end do
-      deallocate (position)
-      !$omp end parallel
+      call product_rows(r%n, rows, r%row_ptr, r%col, rv, no_pattern, no_pattern, d, p%row_ptr, p%col, pv, &
+                        c_ptr, c_col, c_val, .true., start, .true., owned, fixed)
    end subroutine galerkin_diagonal_rows
 
    !> After the rows `rows` of c were recomputed: the identity rows. part_diag keeps this rank's
@@ -395,9 +373,11 @@ contains
 
    !> The numeric product on plain arrays (contiguous dummies let the compiler keep every base
    !> address in a register in the innermost loop), on the listed rows, each from 0 or, with
-   !> `from_start`, from the values in `start`.
+   !> `from_start`, from the values in `start`. With `diagonal`, A = diag(a_val) read as 0 where
+   !> an unknown is not `owned` or is `fixed` (a_ptr and a_col are then not read): the
+   !> operations of that diagonal stored as a matrix.
    subroutine product_rows(nc, rows, r_ptr, r_col, rv, a_ptr, a_col, a_val, p_ptr, p_col, pv, c_ptr, c_col, c_val, &
-                           from_start, start)
+                           from_start, start, diagonal, owned, fixed)
       integer(ip), intent(in) :: nc
       integer(ip), intent(in) :: rows(:), r_ptr(:), r_col(:), a_ptr(:), a_col(:), p_ptr(:), p_col(:), c_ptr(:), &
                                  c_col(:)
@@ -405,14 +385,16 @@ contains
       real(dp), intent(inout) :: c_val(:)
       logical, intent(in) :: from_start
       real(dp), intent(in) :: start(:)
+      logical, intent(in) :: diagonal
+      logical, intent(in) :: owned(:), fixed(:)
 
       integer(ip), allocatable :: position(:)
       integer(ip) :: i, k, m, q, kk, j, jr
       real(dp) :: rik, rikakj
 
       !$omp parallel default(none) shared(nc, rows, r_ptr, r_col, rv, a_ptr, a_col, a_val, p_ptr, p_col, pv) &
-      !$omp shared(c_ptr, c_col, c_val, start, from_start) private(position, i, k, m, q, kk, j, jr, rik, rikakj) &
-      !$omp if(size(rows) > 1024)
+      !$omp shared(c_ptr, c_col, c_val, start, from_start, diagonal, owned, fixed) &
+      !$omp private(position, i, k, m, q, kk, j, jr, rik, rikakj) if(size(rows) > 1024)
       allocate (position(nc))
       !$omp do schedule(static)
       do jr = 1, size(rows, kind=ip)
@@ -429,6 +411,13 @@ contains
             rik = rv(k)
             if (rik == 0.0_dp) cycle
             kk = r_col(k)
+            if (diagonal) then
+               rikakj = rik*merge(a_val(kk), 0.0_dp, owned(kk) .and. .not. fixed(kk))
+               do q = p_ptr(kk), p_ptr(kk + 1) - 1
+                  c_val(position(p_col(q))) = c_val(position(p_col(q))) + rikakj*pv(q)
+               end do
+               cycle
+            end if
             do m = a_ptr(kk), a_ptr(kk + 1) - 1
                rikakj = rik*a_val(m)
                j = a_col(m)
