@@ -145,7 +145,7 @@ contains
          row%active_changed = -1
          estimates = .true.
          if (self%adaptive .and. associated(self%user)) then
-            estimates = self%schedule%decide(self%user, x, row, self%prec, last)
+            estimates = self%schedule%decide(self%user, x, row, last)
             if (estimates .and. last) then
                self%whole_pending = .true.
                self%pending_row = row
@@ -173,21 +173,19 @@ contains
 
    !> Whether the check at iterate x evaluates the estimators (collective: the estimators are
    !> the same on every rank); a check that does not keeps η_lin, and η_disc if it computed it,
-   !> in its row. `prec` (may be null), the running solve's preconditioner, is released before
-   !> a whole evaluation that the Newton test predicts to be the last; with `last`, the caller
-   !> is told instead (and releases it when it evaluates).
-   logical function decide(self, user, x, row, prec, last) result(evaluates)
+   !> in its row. `last`: a whole evaluation that the Newton test predicts to be the last, before
+   !> which the caller makes room (the preconditioner's hierarchies, the Krylov basis).
+   logical function decide(self, user, x, row, last) result(evaluates)
       class(check_schedule_t), intent(inout) :: self
       class(newton_observer_t), intent(inout) :: user
       real(dp), intent(in) :: x(:)
       type(history_row_t), intent(inout) :: row
-      class(preconditioner_t), pointer, intent(in) :: prec
-      logical, intent(out), optional :: last
+      logical, intent(out) :: last
 
       real(dp) :: eta_lin, eta_disc
 
       evaluates = .true.
-      if (present(last)) last = .false.
+      last = .false.
       if (.not. self%predict) return
       eta_lin = user%linearization_estimate(x)
       if (ieee_is_nan(eta_lin)) return
@@ -203,12 +201,10 @@ contains
          row%eta_lin = eta_lin
          row%eta_disc = eta_disc
          evaluates = .false.
-      else if (present(last)) then
-         last = .true.
-      else if (associated(prec)) then
+      else
          ! the Newton test holds here: unless the algebraic test fails, this evaluation ends the
-         ! run, and its algebraic flux need not meet the preconditioner's hierarchies in memory
-         call prec%release()
+         ! run, and its algebraic flux need not meet the solver's memory
+         last = .true.
       end if
    end function decide
 

@@ -394,7 +394,7 @@ contains
             ! (at 10^6 vertices, a fifth of the adaptive run's evaluations) no test needs them
             estimates = .not. adaptive
             if (adaptive .and. k > 0) then
-               estimates = inner%schedule%decide(observer, x, row, inner%prec, last)
+               estimates = inner%schedule%decide(observer, x, row, last)
                if (estimates .and. last) then
                   ! a whole evaluation expected to end the run: the idle Krylov basis and the
                   ! preconditioner's hierarchies make room for its algebraic flux (the next
