@@ -279,7 +279,7 @@ contains
                   v = mesh%triangles(:, t)
                   ! q_k at the vertices: 1, (v − barycentre)/h_K
                   q(1, :) = 1.0_dp
-                  q(2:3, :) = (mesh%vertices(:, v) - spread(sum(mesh%vertices(:, v), dim=2)/3, 2, 3))/mesh%h(t)
+                  q(2:3, :) = (mesh%vertices(:, v) - spread(sum(mesh%vertices(:, v), dim=2)/3, 2, 3))/mesh%diameter_of(t)
                   do alpha = 1, 2
                      fv = [(data%load(alpha, mesh%vertices(:, v(j))), j=1, 3)]
                      do i = 1, 3
@@ -308,7 +308,7 @@ contains
                                        - dot_product(r(:, t, alpha), space%rule%bary(:, k)))*space%div_test_values(frame, x)
                      end do
                      dev = max(dev, maxval(abs(lhs - rhs)))
-                     scale = max(scale, maxval(abs(rhs)), mu(alpha)*norm2(grad_u(:, t, alpha))*mesh%area(t)/mesh%h(t))
+                     scale = max(scale, maxval(abs(rhs)), mu(alpha)*norm2(grad_u(:, t, alpha))*mesh%area(t)/mesh%diameter_of(t))
                   end do
                end do
                call check(err, dev <= 1.0e-12_dp*scale, 'divergence moments of sigma_disc on the '//trim(domains(domain)))
@@ -462,7 +462,7 @@ contains
                end do
                b = mesh%area(t)*matmul(estimator%space%rule%bary, estimator%space%rule%weights*f)
                b = 12/mesh%area(t)*(b - sum(b)/4)
-               osc = osc + (mesh%h(t)/pi)**2/mu(alpha)*mesh%area(t)* &
+               osc = osc + (mesh%diameter_of(t)/pi)**2/mu(alpha)*mesh%area(t)* &
                      sum(estimator%space%rule%weights*(f - matmul(b, estimator%space%rule%bary))**2)
             end do
          end do

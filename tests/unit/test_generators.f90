@@ -163,6 +163,7 @@ contains
       type(error_t), allocatable, intent(out) :: err
       type(mesh_t) :: mesh
       integer :: c
+      integer(ip) :: it
       character(len=80) :: msg
 
       do c = 1, n_cases
@@ -170,8 +171,8 @@ contains
          if (allocated(err)) return
          write (msg, '(a,f6.2)') 'smallest angle below 20 degrees: ', min_angle(mesh)
          call check(err, min_angle(mesh) >= 20.0_dp, trim(msg))
-         write (msg, '(a,f6.3)') 'longest edge / coarse_h above 1.5: ', maxval(mesh%h)/cases(1, c)
-         call check(err, maxval(mesh%h) <= 1.5_dp*cases(1, c), trim(msg))
+         write (msg, '(a,f6.3)') 'longest edge / coarse_h above 1.5: ', maxval(mesh%diameter_of([(it, it=1, mesh%nt)]))/cases(1, c)
+         call check(err, maxval(mesh%diameter_of([(it, it=1, mesh%nt)])) <= 1.5_dp*cases(1, c), trim(msg))
          if (allocated(err)) return
       end do
    end subroutine test_disk_shape
@@ -281,7 +282,7 @@ contains
       type(error_t), allocatable, intent(out) :: err
       type(mesh_t) :: mesh
       integer :: k
-      integer(ip) :: n
+      integer(ip) :: n, it
       real(dp), parameter :: sizes(3) = [2.0_dp, 0.3_dp, 0.05_dp]
 
       do k = 1, size(sizes)
@@ -294,7 +295,7 @@ contains
          call check_close(err, mesh%total_area(), 4.0_dp, mesh%nt*epsilon(1.0_dp), 0.0_dp, 'square area')
          call check(err, all(abs(mesh%vertices) <= 1.0_dp), 'a vertex outside the square')
          call check(err, min_angle(mesh) >= 45.0_dp - 1.0e-10_dp, 'square angles are not 45/90')
-         call check(err, maxval(mesh%h) <= sqrt(2.0_dp)*sizes(k)*(1 + 1.0e-12_dp), &
+         call check(err, maxval(mesh%diameter_of([(it, it=1, mesh%nt)])) <= sqrt(2.0_dp)*sizes(k)*(1 + 1.0e-12_dp), &
                     'square cells larger than coarse_h')
          if (allocated(err)) return
       end do

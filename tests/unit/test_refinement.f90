@@ -20,8 +20,41 @@ contains
       tests = [new_unittest('area_and_euler', test_area_euler), &
                new_unittest('nested_children', test_nested), &
                new_unittest('prolongation_exact_for_linear', test_prolong), &
-               new_unittest('boundary_stays_on_coarse_edges', test_boundary)]
+               new_unittest('boundary_stays_on_coarse_edges', test_boundary), &
+               new_unittest('whole_meshes_number_themselves', test_whole_numbering)]
    end subroutine collect_refinement
+
+   !> Every level refined from a whole mesh is whole: no numbering of a piece is stored, its
+   !> global numbers are its own and every owner is rank 0; the diameters are the longest edges.
+   subroutine test_whole_numbering(err)
+      type(error_t), allocatable, intent(out) :: err
+      type(mesh_hierarchy_t) :: h
+      integer(ip) :: a, t
+      integer :: l
+      character(len=48) :: msg
+
+      call square_hierarchy(2, h, err)
+      if (allocated(err)) return
+      do l = 0, 2
+         associate (m => h%meshes(l))
+            write (msg, '("level ",i0)') l
+            call check(err, m%whole() .and. .not. allocated(m%global_vertex) .and. &
+                       .not. allocated(m%triangle_owner), 'whole, nothing stored: '//trim(msg))
+            call check(err, m%nv_global == m%nv .and. m%nt_global == m%nt .and. m%nt_owned == m%nt, &
+                       'whole sizes: '//trim(msg))
+            call check(err, all(m%global_vertex_of([(a, a=1, m%nv)]) == [(a, a=1, m%nv)]) .and. &
+                       all(m%global_triangle_of([(t, t=1, m%nt)]) == [(t, t=1, m%nt)]) .and. &
+                       all(m%vertex_owner_of([(a, a=1, m%nv)]) == 0) .and. &
+                       all(m%triangle_owner_of([(t, t=1, m%nt)]) == 0), 'own numbers, rank 0: '//trim(msg))
+            ! every level-l triangle of the square is right isosceles with hypotenuse 2^(1−l)
+            call check_close(err, maxval(m%diameter_of([(t, t=1, m%nt)])), 2.0_dp**(1 - l), 1.0e-14_dp, 0.0_dp, &
+                             'longest edge: '//trim(msg))
+            call check_close(err, minval(m%diameter_of([(t, t=1, m%nt)])), 2.0_dp**(1 - l), 1.0e-14_dp, 0.0_dp, &
+                             'every triangle alike: '//trim(msg))
+         end associate
+         if (allocated(err)) return
+      end do
+   end subroutine test_whole_numbering
 
    !> (-1,1)² from four triangles around the centre, refined `levels` times.
    subroutine square_hierarchy(levels, h, err)

@@ -136,7 +136,7 @@ contains
          unknown = interior_numbering(hierarchy%meshes(l))
          interior = pack([(a, a=1, hierarchy%meshes(l)%nv)], unknown > 0)
          call interior_halo(hierarchy%meshes(l), interior, comm, halos(l - bottom))
-         if (l == bottom) keys = hierarchy%meshes(l)%global_vertex(interior)
+         if (l == bottom) keys = hierarchy%meshes(l)%global_vertex_of(interior)
       end do
       prolongations = interior_prolongations(hierarchy, top)
       call transfer%init(prolongations(bottom + 1:top), err, halos=halos, coarse_keys=keys)

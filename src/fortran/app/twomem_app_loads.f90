@@ -149,7 +149,7 @@ contains
             scale = max(1.0_dp, maxval(abs(mesh%vertices)))
             tol = 1.0e-8_dp*scale
             do a = 1, mesh%nv
-               g = mesh%global_vertex(a)
+               g = mesh%global_vertex_of(a)
                if (maxval(abs(xy(:, g) - mesh%vertices(:, a))) > tol) then
                   call file%close(ignored)
                   call make_error(err, exit_bad_input, key//': '//path//':/mesh/vertices', 'vertex '// &
@@ -159,7 +159,7 @@ contains
                end if
             end do
          end if
-         column = whole(mesh%global_vertex(1:mesh%nv))
+         column = whole(mesh%global_vertex_of([(a, a=1, mesh%nv)]))
       end associate
       call file%close(err)
       if (allocated(err)) call prefix_error(err, key)

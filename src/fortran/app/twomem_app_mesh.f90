@@ -120,9 +120,10 @@ contains
       type(mesh_t), intent(in) :: m
 
       real(dp) :: h_min, h_max
+      integer(ip) :: t
 
-      h_min = comm%min_real(minval(m%h(1:m%nt_owned), mask=m%nt_owned > 0))
-      h_max = comm%max(maxval(m%h(1:m%nt_owned), mask=m%nt_owned > 0))
+      h_min = comm%min_real(minval(m%diameter_of([(t, t=1, m%nt_owned)]), mask=m%nt_owned > 0))
+      h_max = comm%max(maxval(m%diameter_of([(t, t=1, m%nt_owned)]), mask=m%nt_owned > 0))
       if (comm%is_root()) write (output_unit, '("  level ",i2,": ",i9," vertices ",i10," triangles  h ",es9.3, &
            &" .. ",es9.3)') l, m%nv_global, m%nt_global, h_min, h_max
    end subroutine report_level

@@ -134,10 +134,14 @@ contains
          self%rho_vertices = [self%coarse%interior, ghost_only]
          ! factorized once per run: METIS's analysis (0.23 s of 0.47 at 65k unknowns) would cost
          ! more than its smaller factor saves in a handful of solves
-         call self%coarse_solver%init(self%comm, base_mesh%global_vertex(self%rho_vertices), &
+         call self%coarse_solver%init(self%comm, base_mesh%global_vertex_of(self%rho_vertices), &
                                       [self%coarse%halo%owned, spread(.false., 1, size(ghost_only))], &
                                       ordering_minimum_degree)
-         self%fine_owned = fine_mesh%vertex_owner == self%comm%rank
+         ! (a loop: this file puts array temporaries on the stack)
+         allocate (self%fine_owned(fine_mesh%nv))
+         do a = 1, fine_mesh%nv
+            self%fine_owned(a) = fine_mesh%vertex_owner_of(a) == self%comm%rank
+         end do
          allocate (self%nodal(base_mesh%nv))
       end associate
       allocate (self%restricted(self%base:self%finest - 1))

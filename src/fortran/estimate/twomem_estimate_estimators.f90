@@ -206,7 +206,7 @@ contains
          call lu_factor(gram, piv, ok)
          call lu_solve(gram, piv, projection)
          do alpha = 1, 2
-            osc(alpha, t) = mesh%h(t)/pi/sqrt(mu(alpha))* &
+            osc(alpha, t) = mesh%diameter_of(t)/pi/sqrt(mu(alpha))* &
                             sqrt(max(0.0_dp, ff(alpha) - dot_product(b(:, alpha), projection(:, alpha))))
          end do
       end do
@@ -550,7 +550,7 @@ contains
                associate (lv => self%iterate%lambda(v))
                   osc_sq = ((lv(1) - lv(2))**2 + (lv(2) - lv(3))**2 + (lv(3) - lv(1))**2)*frame%area/36
                end associate
-               osc_k = hierarchy%meshes(finest)%h(t)/acos(-1.0_dp)*sqrt(osc_sq/self%mu)
+               osc_k = hierarchy%meshes(finest)%diameter_of(t)/acos(-1.0_dp)*sqrt(osc_sq/self%mu)
             else if (self%space%order == 0) then
                ! RT0: the oscillation of f_α ∓ λ_h around its mean
                osc_mean = 0.0_dp
@@ -568,7 +568,7 @@ contains
                   osc_w = self%space%rule%weights(k)*frame%area
                   osc_sq = osc_sq + osc_w*(osc_values(:, k) - osc_mean)**2
                end do
-               osc_k = hierarchy%meshes(finest)%h(t)/acos(-1.0_dp)*sqrt(osc_sq/self%mu)
+               osc_k = hierarchy%meshes(finest)%diameter_of(t)/acos(-1.0_dp)*sqrt(osc_sq/self%mu)
             else if (allocated(self%osc_data)) then
                osc_k = self%osc_data(:, t)
             else

@@ -60,7 +60,7 @@ contains
          do i = 1, 3
             associate (a => coarse%triangles(i, t))
                do m = coarse%patch_ptr(a), coarse%patch_ptr(a + 1) - 1
-                  q = coarse%triangle_owner(coarse%patch_triangles(m))
+                  q = coarse%triangle_owner_of(coarse%patch_triangles(m))
                   if (q /= comm%rank) sends(t, q) = .true.
                end do
             end associate
@@ -68,14 +68,14 @@ contains
       end do
       neighbour = any(sends, dim=1)
       do t = coarse%nt_owned + 1, coarse%nt
-         neighbour(coarse%triangle_owner(t)) = .true.
+         neighbour(coarse%triangle_owner_of(t)) = .true.
       end do
       self%neighbours = pack([(q, q=0, comm%size - 1)], neighbour)
       n = size(self%neighbours)
       allocate (self%send_ptr(n + 1), self%recv_ptr(n + 1))
       allocate (self%send_coarse(count(sends)), self%recv_coarse(coarse%nt - coarse%nt_owned))
       ! both lists in whole-mesh order
-      order = sorting_permutation(coarse%global_triangle)
+      order = sorting_permutation(coarse%global_triangle_of([(t, t=1, coarse%nt)]))
       self%send_ptr(1) = 1
       self%recv_ptr(1) = 1
       do k = 1, n
@@ -89,7 +89,7 @@ contains
                   self%send_coarse(self%send_ptr(k + 1)) = t
                   self%send_ptr(k + 1) = self%send_ptr(k + 1) + 1
                end if
-            else if (coarse%triangle_owner(t) == q) then
+            else if (coarse%triangle_owner_of(t) == q) then
                self%recv_coarse(self%recv_ptr(k + 1)) = t
                self%recv_ptr(k + 1) = self%recv_ptr(k + 1) + 1
             end if

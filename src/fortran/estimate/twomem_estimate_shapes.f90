@@ -448,7 +448,7 @@ contains
          sign = merge(-1.0_dp, 1.0_dp, modulo(class, 2) == 0)
          v = hierarchy%meshes(level)%vertices(:, hierarchy%meshes(level)%triangles(:, t))
          v0 = hierarchy%meshes(0)%vertices(:, hierarchy%meshes(0)%triangles(:, t0))
-         tolerance = 1.0e-8_dp*hierarchy%meshes(0)%h(t0)/ratio
+         tolerance = 1.0e-8_dp*hierarchy%meshes(0)%diameter_of(t0)/ratio
          do i = 1, 3
             ok = ok .and. all(abs((v(:, i) - sum(v, dim=2)/3) - sign/ratio*(v0(:, i) - sum(v0, dim=2)/3)) <= tolerance)
          end do

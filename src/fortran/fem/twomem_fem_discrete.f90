@@ -68,7 +68,7 @@ contains
          return
       end if
       self%interior = pack([(a, a=1, mesh%nv)], self%unknown > 0)
-      self%global = mesh%global_vertex(self%interior)
+      self%global = mesh%global_vertex_of(self%interior)
       if (present(comm)) then
          call interior_halo(mesh, self%interior, comm, self%halo)
       else

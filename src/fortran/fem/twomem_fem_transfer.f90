@@ -117,7 +117,7 @@ contains
       do i = 1, size(interior)
          a = interior(i)
          do m = mesh%patch_ptr(a), mesh%patch_ptr(a + 1) - 1
-            q = mesh%triangle_owner(mesh%patch_triangles(m))
+            q = mesh%triangle_owner_of(mesh%patch_triangles(m))
             if (q /= comm%rank) shares(i, q) = .true.
          end do
       end do
@@ -130,7 +130,7 @@ contains
       ! unknowns in whole-mesh order: both sides of an interface list it alike (with no
       ! neighbour there is nothing to list, and a serial run skips a heap sort of every unknown)
       if (size(neighbours) > 0) then
-         order = sorting_permutation(mesh%global_vertex(interior))
+         order = sorting_permutation(mesh%global_vertex_of(interior))
       else
          allocate (order(0))
       end if
@@ -144,7 +144,7 @@ contains
             end if
          end do
       end do
-      owner = mesh%vertex_owner(interior)
+      owner = mesh%vertex_owner_of(interior)
       call halo%init(comm, owner, neighbours, ptr, idx)
    end subroutine interior_halo
 

@@ -42,14 +42,14 @@ contains
       self%nv = mesh%nv_global
       self%nt = mesh%nt_global
       inside = mesh%in_subdomain()
-      self%my_vertices = pack([(a, a=1, mesh%nv)], inside .and. mesh%vertex_owner == comm%rank)
+      self%my_vertices = pack([(a, a=1, mesh%nv)], inside .and. mesh%vertex_owner_of([(a, a=1, mesh%nv)]) == comm%rank)
       self%my_triangles = [(a, a=1, mesh%nt_owned)]
       call comm%gather_counts(size(self%my_vertices), self%vertex_counts)
       call comm%gather_counts(size(self%my_triangles), self%triangle_counts)
       allocate (self%vertex_slots(merge(sum(self%vertex_counts), 0, comm%is_root())), &
                 self%triangle_slots(merge(sum(self%triangle_counts), 0, comm%is_root())))
-      call comm%gatherv(mesh%global_vertex(self%my_vertices), self%vertex_counts, self%vertex_slots)
-      call comm%gatherv(mesh%global_triangle(self%my_triangles), self%triangle_counts, self%triangle_slots)
+      call comm%gatherv(mesh%global_vertex_of(self%my_vertices), self%vertex_counts, self%vertex_slots)
+      call comm%gatherv(mesh%global_triangle_of(self%my_triangles), self%triangle_counts, self%triangle_slots)
    end subroutine init
 
    !> The whole nodal field (rank 0; empty elsewhere) from this rank's nodal values. Collective.
@@ -96,7 +96,7 @@ contains
       vertices(2, :) = y
       allocate (gathered(size(self%triangle_slots)))
       do k = 1, 3
-         corner = mesh%global_vertex(mesh%triangles(k, self%my_triangles))
+         corner = mesh%global_vertex_of(mesh%triangles(k, self%my_triangles))
          call self%comm%gatherv(corner, self%triangle_counts, gathered)
          if (self%comm%is_root()) triangles(k, self%triangle_slots) = gathered
       end do

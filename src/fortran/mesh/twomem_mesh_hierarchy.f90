@@ -121,7 +121,7 @@ contains
       fine%n_flipped = 0
       allocate (fine%vertices(2, fine%nv), fine%triangles(3, fine%nt), fine%edges(2, fine%ne), &
                 fine%triangle_edges(3, fine%nt), fine%edge_triangles(2, fine%ne), fine%boundary_vertex(fine%nv), &
-                fine%boundary_edge(fine%ne), fine%area(fine%nt), fine%h(fine%nt))
+                fine%boundary_edge(fine%ne), fine%area(fine%nt))
       allocate (map%vertex_parents(2, fine%nv))
 
       !$omp parallel default(none) shared(coarse, fine, map, nvc, nec, ntc) private(a, e, t, i, k, m, v, child, half)
@@ -215,6 +215,8 @@ contains
       fine%nv_global = coarse%nv_global + coarse%ne_global
       fine%nt_global = 4*coarse%nt_global
       fine%ne_global = 2*coarse%ne_global + 3*coarse%nt_global
+      ! the children of a whole mesh are numbered as a whole mesh's
+      if (coarse%whole()) return
       allocate (fine%global_vertex(fine%nv), fine%global_triangle(fine%nt), fine%global_edge(fine%ne), &
                 fine%triangle_owner(fine%nt), fine%vertex_owner(fine%nv))
       !$omp parallel default(none) shared(coarse, fine, nvc, nec) private(e, t, i, ge, gt, k)
@@ -259,15 +261,12 @@ contains
       !$omp end parallel
    end subroutine refined_partition
 
-   !> Area and diameter of triangle t, computed as `mesh_t%init` computes them.
+   !> Area of triangle t, computed as `mesh_t%init` computes it.
    subroutine measure(mesh, t)
       type(mesh_t), intent(inout) :: mesh
       integer(ip), intent(in) :: t
 
       associate (v => mesh%triangles(:, t))
-         mesh%h(t) = max(norm2(mesh%vertices(:, v(2)) - mesh%vertices(:, v(1))), &
-                         norm2(mesh%vertices(:, v(3)) - mesh%vertices(:, v(2))), &
-                         norm2(mesh%vertices(:, v(1)) - mesh%vertices(:, v(3))))
          mesh%area(t) = abs(signed_area(mesh%vertices(:, v(1)), mesh%vertices(:, v(2)), mesh%vertices(:, v(3))))
       end associate
    end subroutine measure

@@ -126,6 +126,8 @@ contains
       call local%init(vertices, triangles, 'partition', err, diameter=whole%diameter)
       if (allocated(err)) return
       call attach_partition(whole, tri_local, vert_local, part, owner, nt_own, local)
+      ! one rank's piece is the whole mesh, numbered as it is: no numbering need be stored
+      if (comm%size == 1) call local%set_whole()
    end subroutine distribute_coarse
 
    !> The partition data of the piece: whole-mesh numbers, owners, and the boundary as the
@@ -146,6 +148,7 @@ contains
       local%ne_global = whole%ne
       local%global_triangle = tri_local
       local%triangle_owner = part(tri_local)
+      allocate (local%global_vertex(local%nv), local%vertex_owner(local%nv), local%global_edge(local%ne))
       do a = 1, whole%nv
          if (vert_local(a) > 0) then
             local%global_vertex(vert_local(a)) = a

@@ -31,8 +31,8 @@ module twomem_mesh_triangulation
       !> vertex patches in CSR form: the triangles around vertex a are
       !> patch_triangles(patch_ptr(a):patch_ptr(a+1)-1)
       integer(ip), allocatable :: patch_ptr(:), patch_triangles(:)
-      !> triangle areas and diameters (longest edge)
-      real(dp), allocatable :: area(:), h(:)
+      !> triangle areas (their diameters are not stored: `diameter_of`)
+      real(dp), allocatable :: area(:)
       !> diameter of the domain (largest distance between boundary vertices)
       real(dp) :: diameter = 0.0_dp
       !> triangles whose orientation `init` reversed
@@ -43,7 +43,9 @@ module twomem_mesh_triangulation
       !> triangle carries its number in the whole (serial) mesh, so results are gathered in the
       !> serial layout. vertex_owner is the lowest rank owning a triangle at the vertex (−1 for
       !> a vertex of ghost triangles only). A whole mesh is one rank's piece of itself:
-      !> nt_owned = nt, global numbers = local ones, every owner 0.
+      !> nt_owned = nt, global numbers = local ones, every owner 0; it stores none of these
+      !> arrays (37 bytes per vertex), which `whole` tells: read them through global_vertex_of,
+      !> global_triangle_of, vertex_owner_of and triangle_owner_of.
       integer(ip) :: nt_owned = 0
       integer(ip) :: nv_global = 0, nt_global = 0, ne_global = 0
       integer(ip), allocatable :: global_vertex(:), global_triangle(:), global_edge(:)
@@ -53,7 +55,10 @@ module twomem_mesh_triangulation
       procedure :: free => mesh_free
       procedure :: n_boundary_vertices
       procedure :: total_area
+      procedure :: diameter_of
       procedure :: set_whole
+      procedure :: whole => is_whole
+      procedure :: global_vertex_of, global_triangle_of, vertex_owner_of, triangle_owner_of
       procedure :: in_subdomain
       procedure :: vertices_by_first_triangle
       procedure :: drop_refinement_tables
@@ -82,6 +87,19 @@ contains
       end do
       i = 0
    end function position_of
+
+   !> The diameter of triangle t, its longest edge (a few operations: cheaper to compute where
+   !> needed than 16 bytes per vertex to store). The same bits whatever the orientation.
+   elemental real(dp) function diameter_of(self, t) result(h)
+      class(mesh_t), intent(in) :: self
+      integer(ip), intent(in) :: t
+
+      associate (v => self%triangles(:, t))
+         h = max(norm2(self%vertices(:, v(2)) - self%vertices(:, v(1))), &
+                 norm2(self%vertices(:, v(3)) - self%vertices(:, v(2))), &
+                 norm2(self%vertices(:, v(1)) - self%vertices(:, v(3))))
+      end associate
+   end function diameter_of
 
    pure function signed_area(p1, p2, p3) result(a)
       real(dp), intent(in) :: p1(2), p2(2), p3(2)
@@ -131,7 +149,7 @@ contains
       end if
       self%vertices = vertices
       self%triangles = triangles
-      allocate (self%area(self%nt), self%h(self%nt))
+      allocate (self%area(self%nt))
       self%n_flipped = 0
       do t = 1, self%nt
          associate (v => self%triangles(:, t))
@@ -140,9 +158,7 @@ contains
                call make_error(err, exit_bad_input, source, msg)
                return
             end if
-            hmax = max(norm2(self%vertices(:, v(2)) - self%vertices(:, v(1))), &
-                       norm2(self%vertices(:, v(3)) - self%vertices(:, v(2))), &
-                       norm2(self%vertices(:, v(1)) - self%vertices(:, v(3))))
+            hmax = self%diameter_of(t)
             a = signed_area(self%vertices(:, v(1)), self%vertices(:, v(2)), self%vertices(:, v(3)))
             ! A sliver this thin has no usable gradient: its stiffness would be round-off.
             if (abs(a) <= 1.0e3_dp*epsilon(1.0_dp)*hmax**2) then
@@ -157,7 +173,6 @@ contains
                self%n_flipped = self%n_flipped + 1
             end if
             self%area(t) = abs(a)
-            self%h(t) = hmax
          end associate
       end do
 
@@ -183,19 +198,71 @@ contains
    subroutine set_whole(self)
       class(mesh_t), intent(inout) :: self
 
-      integer(ip) :: i
-
       self%nt_owned = self%nt
       self%nv_global = self%nv
       self%nt_global = self%nt
       self%ne_global = self%ne
-      self%global_vertex = [(i, i=1, self%nv)]
-      self%global_triangle = [(i, i=1, self%nt)]
-      self%global_edge = [(i, i=1, self%ne)]
-      allocate (self%triangle_owner(self%nt), self%vertex_owner(self%nv))
-      self%triangle_owner = 0
-      self%vertex_owner = 0
+      if (allocated(self%global_vertex)) deallocate (self%global_vertex)
+      if (allocated(self%global_triangle)) deallocate (self%global_triangle)
+      if (allocated(self%global_edge)) deallocate (self%global_edge)
+      if (allocated(self%triangle_owner)) deallocate (self%triangle_owner)
+      if (allocated(self%vertex_owner)) deallocate (self%vertex_owner)
    end subroutine set_whole
+
+   !> Whether the mesh is whole (see the type): no numbering of a piece stored.
+   pure logical function is_whole(self)
+      class(mesh_t), intent(in) :: self
+
+      is_whole = .not. allocated(self%global_vertex)
+   end function is_whole
+
+   !> Number of local vertex a in the whole mesh.
+   elemental integer(ip) function global_vertex_of(self, a) result(g)
+      class(mesh_t), intent(in) :: self
+      integer(ip), intent(in) :: a
+
+      if (allocated(self%global_vertex)) then
+         g = self%global_vertex(a)
+      else
+         g = a
+      end if
+   end function global_vertex_of
+
+   !> Number of local triangle t in the whole mesh.
+   elemental integer(ip) function global_triangle_of(self, t) result(g)
+      class(mesh_t), intent(in) :: self
+      integer(ip), intent(in) :: t
+
+      if (allocated(self%global_triangle)) then
+         g = self%global_triangle(t)
+      else
+         g = t
+      end if
+   end function global_triangle_of
+
+   !> The rank owning local vertex a (see the type).
+   elemental integer function vertex_owner_of(self, a) result(rank)
+      class(mesh_t), intent(in) :: self
+      integer(ip), intent(in) :: a
+
+      if (allocated(self%vertex_owner)) then
+         rank = self%vertex_owner(a)
+      else
+         rank = 0
+      end if
+   end function vertex_owner_of
+
+   !> The rank owning local triangle t.
+   elemental integer function triangle_owner_of(self, t) result(rank)
+      class(mesh_t), intent(in) :: self
+      integer(ip), intent(in) :: t
+
+      if (allocated(self%triangle_owner)) then
+         rank = self%triangle_owner(t)
+      else
+         rank = 0
+      end if
+   end function triangle_owner_of
 
    !> Vertices of this rank's own triangles (the solver's unknowns live there; the other local
    !> vertices belong to the ghost layer only).
@@ -267,7 +334,6 @@ contains
       if (allocated(self%patch_ptr)) deallocate (self%patch_ptr)
       if (allocated(self%patch_triangles)) deallocate (self%patch_triangles)
       if (allocated(self%area)) deallocate (self%area)
-      if (allocated(self%h)) deallocate (self%h)
    end subroutine mesh_free
 
    pure integer(ip) function n_boundary_vertices(self)
