@@ -7,7 +7,7 @@ module test_newton
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_newton_cfun, only: cfun_min, cfun_fb
    use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_solve
-   use twomem_newton_inner, only: check_schedule_t
+   use twomem_newton_inner, only: check_schedule_t, newton_observer_t
    use twomem_newton_history, only: history_row_t, not_computed
    use twomem_testing, only: unittest_t, new_unittest, check, check_close, error_t
    use test_refinement, only: square_problem
@@ -15,6 +15,19 @@ module test_newton
    private
 
    public :: collect_newton
+
+   !> Answers the partial estimates with set values and counts what the schedule asks.
+   type, extends(newton_observer_t) :: counting_observer_t
+      real(dp) :: eta_lin = 0.0_dp, eta_disc = 0.0_dp
+      integer :: lin_calls = 0, disc_calls = 0, drops = 0, observes = 0
+      !> the size of the last iterate it was shown
+      integer :: n = 0
+   contains
+      procedure :: observe => observe_counted
+      procedure :: linearization_estimate => counted_lin
+      procedure :: discretization_estimate => counted_disc
+      procedure :: drop_partial => counted_drop
+   end type counting_observer_t
 
 contains
 
@@ -26,7 +39,8 @@ contains
                new_unittest('cfun_fb_values_and_kink', test_cfun_fb), &
                new_unittest('discrete_equations_roundoff', test_discrete_equations), &
                new_unittest('iteration_limit_reported', test_limit), &
-               new_unittest('check_schedule_predicts_the_newton_test', test_check_schedule)]
+               new_unittest('check_schedule_predicts_the_newton_test', test_check_schedule), &
+               new_unittest('check_schedule_stages', test_check_stages)]
    end subroutine collect_newton
 
    subroutine test_cfun_min(err)
@@ -189,4 +203,91 @@ contains
          ieee_nan = ieee_value(1.0_dp, ieee_quiet_nan)
       end function ieee_nan
    end subroutine test_check_schedule
+
+   !> The stages of a check (check_schedule_t%screen, %decide): η_lin alone screens a check out
+   !> and stays in its row; a screened check goes on to η_disc without asking for η_lin again;
+   !> when the Newton test then fails the partial evaluation is dropped (the next check sees
+   !> another iterate), and when it holds the evaluation is whole and expected to be the last;
+   !> with 'all' nothing partial is asked.
+   subroutine test_check_stages(err)
+      type(error_t), allocatable, intent(out) :: err
+      type(check_schedule_t) :: schedule
+      type(counting_observer_t) :: obs
+      type(history_row_t) :: row
+      real(dp) :: x(3), eta_lin
+      logical :: go_on, evaluates, last
+
+      x = 0.0_dp
+      schedule%predict = .true.
+      schedule%gamma_lin = 0.3_dp
+      obs%eta_lin = 1.0e-2_dp
+      obs%eta_disc = 1.0e-3_dp
+      row = not_computed()
+      go_on = schedule%screen(obs, x, row, eta_lin)
+      call check(err, go_on .and. eta_lin == 1.0e-2_dp .and. obs%lin_calls == 1, 'the first check goes on past eta_lin')
+      if (allocated(err)) return
+      evaluates = schedule%decide(obs, x, row, last, screened=eta_lin)
+      call check(err, .not. evaluates .and. .not. last, 'eta_lin above gamma_lin eta_disc: no whole evaluation')
+      call check(err, obs%lin_calls == 1 .and. obs%disc_calls == 1, 'eta_lin not asked again, eta_disc once')
+      call check(err, obs%drops == 1, 'the partial evaluation is dropped')
+      call check(err, row%eta_lin == 1.0e-2_dp .and. row%eta_disc == 1.0e-3_dp, 'the row keeps eta_lin and eta_disc')
+      if (allocated(err)) return
+
+      row = not_computed()
+      go_on = schedule%screen(obs, x, row, eta_lin)
+      call check(err, .not. go_on .and. row%eta_lin == 1.0e-2_dp .and. obs%disc_calls == 1, &
+                 'the next check is screened out by eta_lin alone, which its row keeps')
+      if (allocated(err)) return
+
+      obs%eta_lin = 1.0e-4_dp
+      row = not_computed()
+      evaluates = schedule%decide(obs, x, row, last)
+      call check(err, evaluates .and. last, 'the Newton test holds: a whole evaluation, expected to be the last')
+      call check(err, obs%lin_calls == 3 .and. obs%disc_calls == 2 .and. obs%drops == 1, &
+                 'decide screens by itself, and keeps the evaluation it will complete')
+      if (allocated(err)) return
+
+      schedule%predict = .false.
+      go_on = schedule%screen(obs, x, row, eta_lin)
+      evaluates = schedule%decide(obs, x, row, last)
+      call check(err, go_on .and. evaluates .and. .not. last .and. obs%lin_calls == 3 .and. obs%disc_calls == 2, &
+                 "'all': every check evaluates, nothing partial asked")
+   end subroutine test_check_stages
+
+   subroutine observe_counted(self, x, row, estimates)
+      class(counting_observer_t), intent(inout) :: self
+      real(dp), intent(in) :: x(:)
+      type(history_row_t), intent(inout) :: row
+      logical, intent(in) :: estimates
+
+      self%observes = self%observes + 1
+      self%n = size(x)
+      if (estimates) row%eta_disc = self%eta_disc
+   end subroutine observe_counted
+
+   function counted_lin(self, x) result(eta)
+      class(counting_observer_t), intent(inout) :: self
+      real(dp), intent(in) :: x(:)
+      real(dp) :: eta
+
+      self%lin_calls = self%lin_calls + 1
+      self%n = size(x)
+      eta = self%eta_lin
+   end function counted_lin
+
+   function counted_disc(self, x) result(eta)
+      class(counting_observer_t), intent(inout) :: self
+      real(dp), intent(in) :: x(:)
+      real(dp) :: eta
+
+      self%disc_calls = self%disc_calls + 1
+      self%n = size(x)
+      eta = self%eta_disc
+   end function counted_disc
+
+   subroutine counted_drop(self)
+      class(counting_observer_t), intent(inout) :: self
+
+      self%drops = self%drops + 1
+   end subroutine counted_drop
 end module test_newton

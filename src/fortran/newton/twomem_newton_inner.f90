@@ -18,11 +18,15 @@
 !> of the run is where both would meet. Should GMRES go on, its next application rebuilds them.
 !> That evaluation is put off to the end of GMRES's cycle (`gmres_observer_t%pending`): GMRES
 !> ends the cycle at the same iterate and frees its Krylov basis first, the other large block in
-!> memory then; only if the algebraic test fails does the solve go on, from a restart.
+!> memory then; only if the algebraic test fails does the solve go on, from a restart. So is a
+!> check where the inexact test stops GMRES anyway and η_lin asks for η_disc (the first check
+!> of the run, whose discretization flux would otherwise meet the basis, and a check that may
+!> end the run): whatever it computes, GMRES ends there unless an evaluation says otherwise.
 module twomem_newton_inner
    use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan, ieee_is_finite, ieee_is_nan
    use twomem_base_kinds, only: dp, ip
    use twomem_base_timer, only: wall_time
+   use twomem_base_system, only: return_freed_memory
    use twomem_linalg_gmres, only: gmres_observer_t
    use twomem_linalg_operators, only: preconditioner_t
    use twomem_newton_cfun, only: c_function_min, cfun_eval
@@ -39,12 +43,14 @@ module twomem_newton_inner
    !> can compute η_lin alone, much more cheaply than a whole evaluation, says so through
    !> `linearization_estimate`, and one that can compute η_disc without the algebraic part
    !> through `discretization_estimate` (NaN: it cannot, and the adaptive method evaluates
-   !> everything).
+   !> everything). `drop_partial` tells it that the last `discretization_estimate` will not be
+   !> completed: what it kept for that may go.
    type, abstract :: newton_observer_t
    contains
       procedure(observe_interface), deferred :: observe
       procedure :: linearization_estimate => no_partial_estimate
       procedure :: discretization_estimate => no_partial_estimate
+      procedure :: drop_partial => nothing_to_drop
    end type newton_observer_t
 
    abstract interface
@@ -76,9 +82,14 @@ module twomem_newton_inner
       real(dp) :: eta_disc = -1
    contains
       procedure :: decide
+      procedure :: screen
       procedure :: wanted
       procedure :: remember
    end type check_schedule_t
+
+   !> What a check put off until GMRES has freed its Krylov basis has still to do: the decision
+   !> after η_lin (stages 2 and 3 of `check_schedule_t`), or the whole evaluation.
+   integer, parameter :: put_off_none = 0, put_off_decision = 1, put_off_whole = 2
 
    !> GMRES's observer inside Newton step `newton_it`.
    type, extends(gmres_observer_t) :: inner_observer_t
@@ -98,16 +109,18 @@ module twomem_newton_inner
       !> the running solve's preconditioner: an evaluation expected to end the run takes its
       !> memory (`release`; applied again, it rebuilds)
       class(preconditioner_t), pointer :: prec => null()
-      !> a whole evaluation expected to end the run, put off until GMRES has freed its basis,
-      !> and the row of its check so far (η_lin, η_disc, the residuals)
-      logical :: whole_pending = .false.
+      !> a check put off until GMRES has freed its basis (put_off_*), the row of its check so far
+      !> (the residuals, and η_lin, η_disc when known) and the η_lin that asked for η_disc
+      integer :: put_off = put_off_none
       type(history_row_t) :: pending_row
+      real(dp) :: pending_eta_lin = 0
       !> work: C and its Jacobian at the GMRES iterate (the Newton driver's arrays for them,
       !> which it does not read while GMRES runs)
       real(dp), pointer, contiguous :: c(:) => null(), da(:) => null(), db(:) => null()
    contains
       procedure :: observe => observe_gmres
-      procedure :: pending => whole_evaluation_pending
+      procedure :: pending => check_pending
+      procedure :: forget_pending
    end type inner_observer_t
 
 contains
@@ -121,35 +134,48 @@ contains
       logical, intent(out) :: stop
 
       type(history_row_t) :: row
-      integer(ip) :: n
-      logical :: estimates, last
+      real(dp) :: eta_lin
+      logical :: estimates, last, forced
 
       stop = .false.
-      if (self%whole_pending) then
+      eta_lin = ieee_value(1.0_dp, ieee_quiet_nan)
+      if (self%put_off /= put_off_none) then
          ! GMRES has ended its cycle at the same iterate (bit for bit) and freed its basis: the
-         ! row is the one of the check, and the hierarchies go too
-         self%whole_pending = .false.
+         ! row is the one of the check, whose inexact test stopped GMRES if it was put off
+         ! before the decision
          row = self%pending_row
-         estimates = .true.
-         if (associated(self%prec)) call self%prec%release()
+         forced = self%put_off == put_off_decision
+         if (forced) then
+            ! the basis's memory goes back before the flux's arrays are made, which it cannot hold
+            call return_freed_memory()
+            estimates = self%schedule%decide(self%user, x, row, last, screened=self%pending_eta_lin)
+         else
+            estimates = .true.
+            last = .true.
+         end if
+         self%put_off = put_off_none
+         ! an evaluation expected to end the run takes the hierarchies' memory too
+         if (estimates .and. last .and. associated(self%prec)) call self%prec%release()
       else
-         n = size(x, kind=ip)/3
-         row = not_computed()
-         call self%residual%relative(x, row%lin_residual, self%c, self%da, self%db)
-         row%alg_residual = residual_norm/self%b_norm
-         row%newton_it = self%newton_it
-         row%gmres_it = self%gmres_before + iteration
-         row%active = self%residual%sys%global_count(x(1:n) - x(n + 1:2*n) <= x(2*n + 1:))
-         row%inner = .true.
-         row%step = ieee_value(1.0_dp, ieee_quiet_nan)
-         row%active_changed = -1
+         row = new_row(self, iteration, x, residual_norm)
          estimates = .true.
+         forced = .false.
          if (self%adaptive .and. associated(self%user)) then
-            estimates = self%schedule%decide(self%user, x, row, last)
-            if (estimates .and. last) then
-               self%whole_pending = .true.
-               self%pending_row = row
-               return
+            if (self%schedule%predict) forced = forcing_stop(self, x, row)
+            if (forced) then
+               ! GMRES ends here unless an evaluation's algebraic test says otherwise: η_disc,
+               ! if η_lin asks for it, waits for the basis to go
+               estimates = .false.
+               if (self%schedule%screen(self%user, x, row, eta_lin)) then
+                  call put_off(self, put_off_decision, row, eta_lin)
+                  return
+               end if
+            else
+               estimates = self%schedule%decide(self%user, x, row, last)
+               if (estimates .and. last) then
+                  call put_off(self, put_off_whole, row, eta_lin)
+                  return
+               end if
             end if
          end if
       end if
@@ -159,41 +185,87 @@ contains
       if (self%adaptive .and. estimates) then
          call self%schedule%remember(row)
          stop = alg_criterion(row, self%gamma_alg, self%local_criteria)
+      else if (forced) then
+         stop = .true.
       else
-         ! For Newton-min, once GMRES's iterate has the Jacobian's contact set, B − A x and
-         ! R_lin(x) are the same vector computed two ways: the slack keeps round-off from
-         ! deciding the tie. At that tie the linearization residual is all algebraic, and
-         ! stopping would leave the next Newton step nothing to do but go on with this very
-         ! solve: GMRES goes on to newton.tol instead.
-         stop = (self%paper_forcing .or. self%adaptive) .and. row%alg_residual <= row%lin_residual*(1 + 1.0e-8_dp)
-         if (stop .and. self%finish .and. row%lin_residual > self%newton_tol .and. self%linearized == c_function_min) &
-            stop = .not. same_branches(self, x)
+         stop = forcing_stop(self, x, row)
       end if
    end subroutine observe_gmres
+
+   !> The row of GMRES iterate x: its residuals and contact set, nothing observed yet.
+   function new_row(self, iteration, x, residual_norm) result(row)
+      type(inner_observer_t), intent(inout) :: self
+      integer, intent(in) :: iteration
+      real(dp), intent(in) :: x(:), residual_norm
+      type(history_row_t) :: row
+
+      integer(ip) :: n
+
+      n = size(x, kind=ip)/3
+      row = not_computed()
+      call self%residual%relative(x, row%lin_residual, self%c, self%da, self%db)
+      row%alg_residual = residual_norm/self%b_norm
+      row%newton_it = self%newton_it
+      row%gmres_it = self%gmres_before + iteration
+      row%active = self%residual%sys%global_count(x(1:n) - x(n + 1:2*n) <= x(2*n + 1:))
+      row%inner = .true.
+      row%step = ieee_value(1.0_dp, ieee_quiet_nan)
+      row%active_changed = -1
+   end function new_row
+
+   !> The inexact method's test at GMRES iterate x, whose residuals `row` holds.
+   logical function forcing_stop(self, x, row) result(stop)
+      type(inner_observer_t), intent(inout) :: self
+      real(dp), intent(in) :: x(:)
+      type(history_row_t), intent(in) :: row
+
+      ! For Newton-min, once GMRES's iterate has the Jacobian's contact set, B − A x and
+      ! R_lin(x) are the same vector computed two ways: the slack keeps round-off from
+      ! deciding the tie. At that tie the linearization residual is all algebraic, and
+      ! stopping would leave the next Newton step nothing to do but go on with this very
+      ! solve: GMRES goes on to newton.tol instead.
+      stop = (self%paper_forcing .or. self%adaptive) .and. row%alg_residual <= row%lin_residual*(1 + 1.0e-8_dp)
+      if (stop .and. self%finish .and. row%lin_residual > self%newton_tol .and. self%linearized == c_function_min) &
+         stop = .not. same_branches(self, x)
+   end function forcing_stop
+
+   !> Answer `pending` until GMRES calls again with its basis freed.
+   subroutine put_off(self, what, row, eta_lin)
+      type(inner_observer_t), intent(inout) :: self
+      integer, intent(in) :: what
+      type(history_row_t), intent(in) :: row
+      real(dp), intent(in) :: eta_lin
+
+      self%put_off = what
+      self%pending_row = row
+      self%pending_eta_lin = eta_lin
+   end subroutine put_off
 
    !> Whether the check at iterate x evaluates the estimators (collective: the estimators are
    !> the same on every rank); a check that does not keeps η_lin, and η_disc if it computed it,
    !> in its row. `last`: a whole evaluation that the Newton test predicts to be the last, before
    !> which the caller makes room (the preconditioner's hierarchies, the Krylov basis).
-   logical function decide(self, user, x, row, last) result(evaluates)
+   !> `screened`: η_lin of x, which `screen` found worth going on with.
+   logical function decide(self, user, x, row, last, screened) result(evaluates)
       class(check_schedule_t), intent(inout) :: self
       class(newton_observer_t), intent(inout) :: user
       real(dp), intent(in) :: x(:)
       type(history_row_t), intent(inout) :: row
       logical, intent(out) :: last
+      real(dp), intent(in), optional :: screened
 
       real(dp) :: eta_lin, eta_disc
 
       evaluates = .true.
       last = .false.
       if (.not. self%predict) return
-      eta_lin = user%linearization_estimate(x)
-      if (ieee_is_nan(eta_lin)) return
-      if (.not. self%wanted(eta_lin)) then
-         row%eta_lin = eta_lin
+      if (present(screened)) then
+         eta_lin = screened
+      else if (.not. self%screen(user, x, row, eta_lin)) then
          evaluates = .false.
          return
       end if
+      if (ieee_is_nan(eta_lin)) return
       eta_disc = user%discretization_estimate(x)
       if (ieee_is_nan(eta_disc)) return
       self%eta_disc = eta_disc
@@ -201,6 +273,8 @@ contains
          row%eta_lin = eta_lin
          row%eta_disc = eta_disc
          evaluates = .false.
+         ! the next check sees another iterate
+         call user%drop_partial()
       else
          ! the Newton test holds here: unless the algebraic test fails, this evaluation ends the
          ! run, and its algebraic flux need not meet the solver's memory
@@ -208,12 +282,37 @@ contains
       end if
    end function decide
 
-   !> A whole evaluation waits for GMRES to free its Krylov basis (see the type).
-   logical function whole_evaluation_pending(self) result(pending)
+   !> The first stage of a check at iterate x: η_lin (`eta_lin`), and whether the check goes on
+   !> (NaN: the observer cannot tell η_lin alone, or checks are not predicted, and the check
+   !> evaluates everything). One that does not keeps η_lin in its row.
+   logical function screen(self, user, x, row, eta_lin) result(go_on)
+      class(check_schedule_t), intent(in) :: self
+      class(newton_observer_t), intent(inout) :: user
+      real(dp), intent(in) :: x(:)
+      type(history_row_t), intent(inout) :: row
+      real(dp), intent(out) :: eta_lin
+
+      go_on = .true.
+      eta_lin = ieee_value(1.0_dp, ieee_quiet_nan)
+      if (.not. self%predict) return
+      eta_lin = user%linearization_estimate(x)
+      go_on = self%wanted(eta_lin)
+      if (.not. go_on) row%eta_lin = eta_lin
+   end function screen
+
+   !> A check waits for GMRES to free its Krylov basis (see the type).
+   logical function check_pending(self) result(pending)
       class(inner_observer_t), intent(in) :: self
 
-      pending = self%whole_pending
-   end function whole_evaluation_pending
+      pending = self%put_off /= put_off_none
+   end function check_pending
+
+   !> Forget a check put off by a GMRES solve that did not come back to it (it failed).
+   subroutine forget_pending(self)
+      class(inner_observer_t), intent(inout) :: self
+
+      self%put_off = put_off_none
+   end subroutine forget_pending
 
    !> Whether an iterate whose η_lin is `eta_lin` is worth an evaluation: the Newton test can
    !> hold with the last η_disc (always, without one or without a prediction).
@@ -235,6 +334,11 @@ contains
       self%eta_disc = -1
       if (ieee_is_finite(row%eta_disc)) self%eta_disc = row%eta_disc
    end subroutine remember
+
+   !> The default keeps nothing for a completion.
+   subroutine nothing_to_drop(self)
+      class(newton_observer_t), intent(inout) :: self
+   end subroutine nothing_to_drop
 
    !> The default: no part of the estimators without a whole evaluation.
    function no_partial_estimate(self, x) result(eta)

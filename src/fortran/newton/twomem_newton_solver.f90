@@ -27,6 +27,7 @@ module twomem_newton_solver
    use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_io
+   use twomem_base_system, only: return_freed_memory
    use twomem_base_timer, only: wall_time
    use twomem_linalg_csr, only: csr_t
    use twomem_linalg_multigrid, only: multigrid_transfer_t
@@ -266,6 +267,8 @@ contains
          if (active_set_step) call cfun_eval(c_function_min, x, c, da, db)
          ! B = [F; J_C X − C(X)] with the Jacobian of the previous iterate
          call sys%set_jacobian(da, db)
+         ! (an evaluation of the estimators between the steps may have taken its memory)
+         if (.not. allocated(b)) allocate (b(3*n))
          b(1:2*n) = sys%f
          !$omp parallel do default(none) shared(b, x, da, db, c, n) private(i) schedule(static) if(n > 4096)
          do i = 1, n
@@ -277,7 +280,7 @@ contains
          if (kind == solver_gmres) then
             inner%newton_it = k
             ! (a check put off by a GMRES solve that then failed is not this step's)
-            inner%whole_pending = .false.
+            call inner%forget_pending()
             inner%linearized = merge(c_function_min, options%cfun, active_set_step)
             inner%gmres_before = result%linear_iterations
             inner%b_norm = b_norm
@@ -377,6 +380,7 @@ contains
          type(history_row_t), intent(inout) :: row
          logical, intent(in) :: reuse
 
+         real(dp) :: eta_lin
          logical :: estimates, last
 
          ! contact where u1 − u2 ≤ λ: for Newton-min exactly the vertices with the a-row
@@ -394,13 +398,18 @@ contains
             ! (at 10^6 vertices, a fifth of the adaptive run's evaluations) no test needs them
             estimates = .not. adaptive
             if (adaptive .and. k > 0) then
-               estimates = inner%schedule%decide(observer, x, row, last)
-               if (estimates .and. last) then
-                  ! a whole evaluation expected to end the run: the idle Krylov basis and the
-                  ! preconditioner's hierarchies make room for its algebraic flux (the next
-                  ! solve, if any, builds them again)
-                  call solver%workspace%release_basis()
-                  if (associated(inner%prec)) call inner%prec%release()
+               estimates = inner%schedule%screen(observer, x, row, eta_lin)
+               if (estimates) then
+                  ! η_disc at least: the idle Krylov workspace and right-hand side make room
+                  ! for the evaluation's arrays (the next step allocates them again)
+                  call solver%workspace%free()
+                  deallocate (b)
+                  call return_freed_memory()
+                  estimates = inner%schedule%decide(observer, x, row, last, screened=eta_lin)
+                  ! a whole evaluation expected to end the run: the preconditioner's hierarchies
+                  ! make room for its algebraic flux too (the next solve, if any, builds them
+                  ! again)
+                  if (estimates .and. last .and. associated(inner%prec)) call inner%prec%release()
                end if
             end if
             call observer%observe(x, row, estimates=estimates)
