@@ -57,7 +57,8 @@ contains
                new_unittest('nonconforming_iterate', test_nonconforming), &
                new_unittest('poincare_constant', test_poincare), &
                new_unittest('local_criteria', test_local_criteria), &
-               new_unittest('block_colouring', test_block_colouring)]
+               new_unittest('block_colouring', test_block_colouring), &
+               new_unittest('fields_after_end_evaluations', test_end_evaluations)]
    end subroutine collect_estimate
 
    !> Green's formula per basis function, (∇·φ_i, q) + (φ_i, ∇q) = ⟨φ_i·n, q⟩_∂K, for q = 1 and
@@ -544,6 +545,52 @@ contains
          call check(err, lin_ok .eqv. lin_expected, 'lin criterion: '//what)
       end subroutine criteria
    end subroutine test_local_criteria
+
+   !> The run's last evaluation: once `end_evaluations` has dropped what only evaluations need
+   !> (patch factors, the shape classes' patch operators, the algebraic flux's coarse
+   !> factorization and P2 fields), the element pass still gives the per-triangle fields of an
+   !> evaluation that kept them, bit for bit; a later evaluation is refused. Non-constant loads
+   !> (per-triangle load moments and oscillations) and two levels of algebraic flux.
+   subroutine test_end_evaluations(err)
+      type(error_t), allocatable, intent(out) :: err
+      type(mesh_hierarchy_t) :: h
+      type(poly_data_t) :: data
+      type(discrete_problem_t) :: p
+      type(estimator_t) :: kept, ended
+      type(estimates_t) :: expected, est
+      type(error_t), allocatable :: refused
+      real(dp), allocatable :: x(:)
+
+      data%c = [2.0_dp, -1.5_dp]
+      call mesh_problem('disk', 0.5_dp, 2, data, h, p, err)
+      if (allocated(err)) return
+      x = random_vector(3*p%n, 41)
+      call kept%init(h, data, 1, 3, poincare_constant('disk', 2.0_dp), err)
+      if (allocated(err)) return
+      call kept%evaluate(h, data, p, x, expected, err, fields=.true.)
+      if (allocated(err)) return
+      call ended%init(h, data, 1, 3, poincare_constant('disk', 2.0_dp), err)
+      if (allocated(err)) return
+      call ended%evaluate(h, data, p, x, est, err, fields=.false.)
+      if (allocated(err)) return
+      call check(err, .not. est%has_fields(), 'the evaluation for the stopping tests has no fields')
+      if (allocated(err)) return
+      call ended%end_evaluations()
+      call ended%element_fields(h, data, est)
+      call check(err, est%has_fields(), 'the element pass after end_evaluations made the fields')
+      if (allocated(err)) return
+      call check(err, all(est%disc_k == expected%disc_k) .and. all(est%alg_k == expected%alg_k) .and. &
+                 all(est%flux_k == expected%flux_k) .and. all(est%osc_k == expected%osc_k) .and. &
+                 all(est%contact_k == expected%contact_k) .and. all(est%nonc1_k == expected%nonc1_k) .and. &
+                 all(est%nonc2_k == expected%nonc2_k), 'the per-triangle fields keep their bits')
+      call check(err, est%total == expected%total .and. est%alg == expected%alg .and. est%disc == expected%disc, &
+                 'the totals keep their bits')
+      call check(err, any(expected%alg_k > 0) .and. any(expected%osc_k > 0), &
+                 'the algebraic and oscillation fields are not zero (the comparison can fail)')
+      if (allocated(err)) return
+      call ended%evaluate(h, data, p, x, est, refused)
+      call check(err, allocated(refused), 'an evaluation after end_evaluations is refused')
+   end subroutine test_end_evaluations
 
    ! ---- fixtures and helpers ----
 

@@ -47,6 +47,7 @@ module twomem_app_observer
       procedure :: observe
       procedure :: linearization_estimate
       procedure :: discretization_estimate
+      procedure :: evaluate_last
       procedure :: estimate
       procedure :: free_workspaces
       procedure, private :: refresh
@@ -116,18 +117,28 @@ contains
       if (.not. allocated(self%err)) eta_disc = self%last%disc
    end function discretization_estimate
 
-   !> Every estimator at x with its per-triangle fields: one timed evaluation, or the previous one
-   !> if it saw this very x (with its element pass run again for the fields it left out). The
-   !> fields are handed over: the observer keeps the global values only (a later `estimate` of
-   !> the same x runs the element pass again).
-   subroutine estimate(self, x, est)
+   !> The run's last evaluation, at x: one timed evaluation, or the previous one if it saw this
+   !> very x. What only evaluations need then goes (estimator_t%end_evaluations), and none
+   !> follows: `estimate` hands its estimators over.
+   subroutine evaluate_last(self, x)
       class(run_observer_t), intent(inout) :: self
       real(dp), intent(in) :: x(:)
+
+      call self%refresh(x, fields=.true.)
+      if (allocated(self%err)) return
+      call self%estimator%end_evaluations()
+      call return_freed_memory()
+   end subroutine evaluate_last
+
+   !> Every estimator of `evaluate_last`'s iterate with its per-triangle fields (its element pass
+   !> run again for the fields it left out), handed over: the observer keeps the global values
+   !> only.
+   subroutine estimate(self, est)
+      class(run_observer_t), intent(inout) :: self
       type(estimates_t), intent(out) :: est
 
       real(dp) :: t0
 
-      call self%refresh(x, fields=.true.)
       if (allocated(self%err)) return
       if (.not. self%last%has_fields()) then
          t0 = wall_time()

@@ -186,7 +186,8 @@ contains
       type(comm_t), intent(in) :: comm
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       class(problem_data_t), intent(in) :: data
-      type(discrete_problem_t), intent(in) :: p
+      !> its stiffness matrix goes once the estimators are final
+      type(discrete_problem_t), intent(inout) :: p
       type(newton_result_t), intent(in) :: newton
       type(coarse_work_t), intent(in) :: coarse
       logical, intent(in) :: need_estimates
@@ -214,17 +215,22 @@ contains
             call clock%switch(phase_error)
             if (.not. observer%exact_energy%ready(mesh)) call observer%exact_energy%init(mesh, data)
             energy = observer%exact_energy%per_element(mesh, u1, u2)
+            ! no later iterate asks for it: room for the estimators' fields
+            call observer%exact_energy%free()
             rec%energy_error = plan%cells(energy)
             rec%energy_error_total = sqrt(comm%sum(sum(energy(1:mesh%nt_owned)**2)))
             deallocate (energy)
          end if
          if (need_estimates) then
             call clock%switch(phase_estimators)
-            call observer%estimate(newton%x, final)
+            call observer%evaluate_last(newton%x)
             if (allocated(observer%err)) then
                call move_alloc(observer%err, err)
                return
             end if
+            ! the stiffness served the residuals of the evaluations: room for the fields
+            call p%free_stiffness()
+            call observer%estimate(final)
             call observer%free_workspaces()
             call return_freed_memory()
          end if

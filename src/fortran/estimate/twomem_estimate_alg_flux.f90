@@ -91,6 +91,7 @@ module twomem_estimate_alg_flux
       procedure :: compute
       procedure :: first
       procedure :: free_levels
+      procedure :: drop_solvers
    end type algebraic_flux_t
 
 contains
@@ -223,6 +224,25 @@ contains
          end do
       end if
    end subroutine free_levels
+
+   !> After the last `compute`: what only a computation reads goes (the coarse factorization, the
+   !> P2 fields, ∇ρ_α, the representer's and colourings' arrays); `levels`, its result, stays for
+   !> the element pass. A later `compute` would need `init` again.
+   subroutine drop_solvers(self)
+      class(algebraic_flux_t), intent(inout) :: self
+
+      integer :: j
+
+      call self%coarse_solver%release_factor()
+      if (allocated(self%p2)) then
+         do j = lbound(self%p2, 1), ubound(self%p2, 1)
+            if (allocated(self%p2(j)%c)) deallocate (self%p2(j)%c)
+         end do
+      end if
+      if (allocated(self%restricted)) deallocate (self%restricted)
+      if (allocated(self%colors)) deallocate (self%colors)
+      if (allocated(self%grad_rho)) deallocate (self%grad_rho)
+   end subroutine drop_solvers
 
    !> The first level with patch problems: b + 1, or J for a single mesh.
    pure integer function first(self)

@@ -77,6 +77,8 @@ module twomem_estimate_estimators
       type(ghost_cells_t) :: ghosts
       type(halo_t) :: halo
       logical :: has_halo = .false.
+      !> `end_evaluations` has dropped what evaluations need
+      logical :: ended = .false.
    contains
       procedure :: init
       procedure :: evaluate
@@ -84,6 +86,7 @@ module twomem_estimate_estimators
       procedure :: complete
       procedure :: linearization_estimate
       procedure :: free_workspaces
+      procedure :: end_evaluations
       procedure :: holds
    end type estimator_t
 
@@ -236,6 +239,10 @@ contains
       integer(ip) :: n
       logical :: ok, with_fields, with_alg
 
+      if (self%ended) then
+         call make_error(err, exit_io, 'estimators', 'internal: an evaluation after end_evaluations')
+         return
+      end if
       with_alg = .true.
       if (present(algebraic)) with_alg = algebraic
       with_fields = with_alg
@@ -279,6 +286,10 @@ contains
       type(error_t), allocatable, intent(out) :: err
       logical, intent(in) :: fields
 
+      if (self%ended) then
+         call make_error(err, exit_io, 'estimators', 'internal: an evaluation after end_evaluations')
+         return
+      end if
       call self%alg%compute(self%shapes, hierarchy, self%iterate, self%single, self%refined, err)
       call self%comm%agree(err)
       if (allocated(err)) return
@@ -306,6 +317,21 @@ contains
       call self%iterate%free()
       call self%alg%free_levels()
    end subroutine free_workspaces
+
+   !> After the run's last evaluation, of which only the element pass may still run
+   !> (`element_fields`): what else evaluations need goes, the patch factors, the shape classes'
+   !> patch operators and the algebraic flux's coarse factorization and P2 fields (0.25 KiB per
+   !> vertex with RT1), so that the per-triangle fields do not meet it. Evaluating afterwards is
+   !> an error.
+   subroutine end_evaluations(self)
+      class(estimator_t), intent(inout) :: self
+
+      self%ended = .true.
+      call self%single%free()
+      call self%refined%free()
+      call self%alg%drop_solvers()
+      call self%shapes%keep_mass_only()
+   end subroutine end_evaluations
 
    !> Whether the workspaces' nodal copies are those of iterate x (this rank's unknowns), as after
    !> an evaluation of x: the test by which a caller reuses an evaluation without keeping a copy

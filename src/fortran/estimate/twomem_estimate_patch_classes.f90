@@ -57,9 +57,20 @@ module twomem_estimate_patch_classes
       procedure :: init
       procedure :: add_mesh
       procedure :: finish
+      procedure :: free => free_table
    end type patch_table_t
 
 contains
+
+   !> Every signature and factor goes: the table holds none, as before `init`.
+   subroutine free_table(self)
+      class(patch_table_t), intent(inout) :: self
+
+      if (allocated(self%sig)) deallocate (self%sig)
+      if (allocated(self%levels)) deallocate (self%levels)
+      if (allocated(self%hash)) deallocate (self%hash)
+      self%n = 0
+   end subroutine free_table
 
    !> An empty table for patch meshes of levels 0..finest.
    subroutine init(self, refined, finest)

@@ -82,6 +82,7 @@ module twomem_estimate_shapes
    contains
       procedure :: init
       procedure :: free
+      procedure :: keep_mass_only
    end type shape_classes_t
 
 contains
@@ -456,10 +457,22 @@ contains
       !$omp end parallel do
    end function similar
 
+   !> Once no patch is solved: everything but the mass matrices (the flux norms) goes.
+   subroutine keep_mass_only(self)
+      class(shape_classes_t), intent(inout) :: self
+
+      real(dp), allocatable :: mass(:, :, :)
+
+      if (allocated(self%mass)) call move_alloc(self%mass, mass)
+      call self%free()
+      if (allocated(mass)) call move_alloc(mass, self%mass)
+   end subroutine keep_mass_only
+
    subroutine free(self)
       class(shape_classes_t), intent(inout) :: self
 
-      if (allocated(self%z)) deallocate (self%z, self%y, self%zc, self%czc, self%cy, self%mass)
+      if (allocated(self%z)) deallocate (self%z, self%y, self%zc, self%czc, self%cy)
+      if (allocated(self%mass)) deallocate (self%mass)
       if (allocated(self%psi_phi)) deallocate (self%psi_phi, self%psi_q, self%bary_psi_q, self%q_int)
       if (allocated(self%mono_psi_q)) deallocate (self%mono_psi_q, self%div_proj, self%p2_from_p2, self%p2_from_p1)
       if (allocated(self%child_mono_psi_q)) deallocate (self%child_mono_psi_q, self%child_bary_psi_q, self%child_q_coarse)

@@ -42,6 +42,7 @@ module twomem_fem_discrete
    contains
       procedure :: init => discrete_init
       procedure :: to_nodal
+      procedure :: free_stiffness
    end type discrete_problem_t
 
 contains
@@ -131,4 +132,12 @@ contains
       u = boundary_value
       u(self%interior) = x
    end function to_nodal
+
+   !> The stiffness matrix goes (0.09 KiB per vertex), once no residual and no evaluation of
+   !> the estimators is left (the result record); the rest, maps and loads, stays.
+   subroutine free_stiffness(self)
+      class(discrete_problem_t), intent(inout) :: self
+
+      if (allocated(self%stiffness%val)) deallocate (self%stiffness%row_ptr, self%stiffness%col, self%stiffness%val)
+   end subroutine free_stiffness
 end module twomem_fem_discrete

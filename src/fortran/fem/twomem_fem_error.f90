@@ -39,6 +39,7 @@ module twomem_fem_error
       procedure :: ready
       procedure :: per_element => cached_per_element
       procedure :: squared_total
+      procedure :: free => free_exact_part
    end type exact_energy_t
 
    integer, parameter :: max_depth = 5
@@ -74,6 +75,14 @@ contains
       end do
       !$omp end parallel do
    end function energy_error_per_element
+
+   !> The integrated part goes (`ready` is .false. until the next `init`).
+   subroutine free_exact_part(self)
+      class(exact_energy_t), intent(inout) :: self
+
+      if (allocated(self%mean)) deallocate (self%mean, self%spread)
+      self%nt = -1
+   end subroutine free_exact_part
 
    !> Whether `init` has integrated a mesh of this size (the mesh its caller keeps using).
    pure logical function ready(self, mesh)

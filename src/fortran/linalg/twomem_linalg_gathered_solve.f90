@@ -43,6 +43,7 @@ module twomem_linalg_gathered_solve
       procedure :: init
       procedure :: factor
       procedure :: solve
+      procedure :: release_factor
    end type gathered_solver_t
 
 contains
@@ -238,4 +239,16 @@ contains
       if (allocated(err)) return
       call self%comm%scatterv_reals(all_x, self%counts, x)
    end subroutine solve
+
+   !> The factorization and the whole matrix go, for a caller that solves no more; `factor`
+   !> makes them again.
+   subroutine release_factor(self)
+      class(gathered_solver_t), intent(inout) :: self
+
+      call self%direct%free()
+      if (allocated(self%whole%val)) deallocate (self%whole%row_ptr, self%whole%col, self%whole%val)
+      if (allocated(self%slots)) deallocate (self%slots)
+      self%local_nnz = -1
+      self%analysed = .false.
+   end subroutine release_factor
 end module twomem_linalg_gathered_solve
