@@ -566,10 +566,10 @@ contains
       call check(err, allocated(refused), 'a refresh of a frozen hierarchy is refused')
    end subroutine test_frozen_hierarchy
 
-   !> A release frees the hierarchies and the w-block operator; the preconditioner applied
-   !> afterwards (GMRES going on) rebuilds them for the same Newton step and gives the bits of
-   !> before, and one released and then given the next step's rows gives the bits of one built
-   !> for that step from scratch (no trace of the steps before the release).
+   !> A release frees the hierarchies, the w-block operator and the transfers' restrictions; the
+   !> preconditioner applied afterwards (GMRES going on) rebuilds them for the same Newton step
+   !> and gives the bits of before, and one released and then given the next step's rows gives
+   !> the bits of one built for that step from scratch (no trace of the steps before the release).
    subroutine test_release(err)
       type(error_t), allocatable, intent(out) :: err
       integer, parameter :: levels = 3
@@ -599,10 +599,12 @@ contains
       call prec%apply(r, z_before)
       call prec%release()
       call check(err, .not. allocated(prec%w_mg%levels) .and. .not. allocated(prec%s_mg%levels) .and. &
-                 .not. allocated(prec%w_matrix%val) .and. .not. allocated(prec%shift), &
-                 'the release frees the hierarchies, the w-block operator and the row data')
+                 .not. allocated(prec%w_matrix%val) .and. .not. allocated(prec%shift) .and. &
+                 .not. allocated(transfer%r), &
+                 'the release frees the hierarchies, the w-block operator, the row data and the restrictions')
       call prec%apply(r, z_after)
       call check(err, all(z_after == z_before), 'applied after a release: the bits of before')
+      call check(err, allocated(transfer%r), 'the rebuild transposed the prolongations again')
       ! (err is intent(out) in what follows: a failed check ends the test here)
       if (allocated(err)) return
       call prec%release()

@@ -204,6 +204,8 @@ contains
             call make_error(err, exit_io, 'algebraic flux', 'a patch system is singular (degenerate triangles?)')
             return
          end if
+         ! the levels above read the P2 fields of j and up only: room for the finest level's part
+         if (j > first .and. j < self%finest) deallocate (self%p2(j - 1)%c)
       end do
    end subroutine compute
 

@@ -60,6 +60,8 @@ module twomem_linalg_multigrid
       integer(ip), allocatable :: coarse_keys(:)
    contains
       procedure :: init => transfer_init
+      procedure :: drop_restrictions
+      procedure :: restore_restrictions
    end type multigrid_transfer_t
 
    type :: mg_level_t
@@ -127,6 +129,27 @@ module twomem_linalg_multigrid
    end type multigrid_t
 
 contains
+
+   !> R = Pᵀ goes (about 0.03 KiB per vertex) while no multigrid uses the transfers, as when a
+   !> preconditioner is released for an evaluation of the estimators; `restore_restrictions`
+   !> (which multigrid_t%init calls) transposes P again, to the same bits.
+   subroutine drop_restrictions(self)
+      class(multigrid_transfer_t), intent(inout) :: self
+
+      if (allocated(self%r)) deallocate (self%r)
+   end subroutine drop_restrictions
+
+   subroutine restore_restrictions(self)
+      class(multigrid_transfer_t), intent(inout) :: self
+
+      integer :: l
+
+      if (allocated(self%r) .or. .not. allocated(self%p)) return
+      allocate (self%r(self%levels))
+      do l = 1, self%levels
+         self%r(l) = self%p(l)%transposed()
+      end do
+   end subroutine restore_restrictions
 
    !> From prolongations(l), l = 1..L, level l−1 to level l. `halos` (levels 0..L) and
    !> `coarse_keys` describe a distributed hierarchy; without them the levels are whole (one
@@ -224,6 +247,7 @@ contains
       logical :: fused
 
       call self%free()
+      call transfer%restore_restrictions()
       if (top < 0 .or. top > transfer%levels .or. .not. allocated(transfer%halos)) then
          call make_error(err, exit_io, 'multigrid', 'the operator does not match a level of the hierarchy')
          return

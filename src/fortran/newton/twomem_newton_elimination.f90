@@ -449,9 +449,9 @@ contains
       !$omp end parallel do
    end subroutine back_substitute
 
-   !> Keep only what a rebuild needs (the problem, the transfers and the C-function rows a, b of
-   !> the current Newton step): the hierarchies, the w-block operator and the rows' flags and
-   !> work vectors go, about 0.4 KiB per vertex. The next set_linearization or apply builds
+   !> Keep only what a rebuild needs (the problem, the prolongations and the C-function rows a,
+   !> b of the current Newton step): the hierarchies, the w-block operator, the rows' flags and
+   !> work vectors and the transfers' restrictions go, about 0.4 KiB per vertex. The next set_linearization or apply builds
    !> them again as init and set_linearization do, which gives the bits of the hierarchy
    !> updated step by step (test_partial_rebuild): a release changes the memory, not the
    !> iterates. It costs a rebuild when the preconditioner is applied again.
@@ -469,6 +469,8 @@ contains
       ! its owner is reset (see the type)
       call self%s_mg%free()
       call self%w_mg%free()
+      ! no multigrid uses them until the rebuild, which transposes P again
+      call args%transfer%drop_restrictions()
       call reset(self)
       self%args = args
       call move_alloc(a, self%a)
