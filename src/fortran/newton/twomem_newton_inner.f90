@@ -164,9 +164,10 @@ contains
             if (self%schedule%predict) forced = forcing_stop(self, x, row)
             if (forced) then
                ! GMRES ends here unless an evaluation's algebraic test says otherwise: η_disc,
-               ! if η_lin asks for it, waits for the basis to go
-               estimates = .false.
-               if (self%schedule%screen(self%user, x, row, eta_lin)) then
+               ! if η_lin asks for it, waits for the basis to go (an observer without partial
+               ! estimates, NaN, evaluates everything here, as at any other check)
+               estimates = self%schedule%screen(self%user, x, row, eta_lin)
+               if (estimates .and. .not. ieee_is_nan(eta_lin)) then
                   call put_off(self, put_off_decision, row, eta_lin)
                   return
                end if
