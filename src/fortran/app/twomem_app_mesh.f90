@@ -119,11 +119,22 @@ contains
       integer, intent(in) :: l
       type(mesh_t), intent(in) :: m
 
-      real(dp) :: h_min, h_max
+      real(dp) :: h_min, h_max, h
       integer(ip) :: t
 
-      h_min = comm%min_real(minval(m%diameter_of([(t, t=1, m%nt_owned)]), mask=m%nt_owned > 0))
-      h_max = comm%max(maxval(m%diameter_of([(t, t=1, m%nt_owned)]), mask=m%nt_owned > 0))
+      ! (no rank without triangles reaches here; its extremes would be ±huge)
+      h_min = huge(1.0_dp)
+      h_max = -huge(1.0_dp)
+      !$omp parallel do default(none) shared(m) private(t, h) reduction(min:h_min) reduction(max:h_max) &
+      !$omp schedule(static)
+      do t = 1, m%nt_owned
+         h = m%diameter_of(t)
+         h_min = min(h_min, h)
+         h_max = max(h_max, h)
+      end do
+      !$omp end parallel do
+      h_min = comm%min_real(h_min)
+      h_max = comm%max(h_max)
       if (comm%is_root()) write (output_unit, '("  level ",i2,": ",i9," vertices ",i10," triangles  h ",es9.3, &
            &" .. ",es9.3)') l, m%nv_global, m%nt_global, h_min, h_max
    end subroutine report_level
