@@ -50,8 +50,8 @@ module twomem_app_observer
       procedure :: evaluate_last
       procedure :: estimate
       procedure :: free_workspaces
-      procedure, private :: refresh
       procedure :: drop_partial
+      procedure, private :: refresh
    end type run_observer_t
 
 contains

@@ -451,10 +451,11 @@ contains
 
    !> Keep only what a rebuild needs (the problem, the prolongations and the C-function rows a,
    !> b of the current Newton step): the hierarchies, the w-block operator, the rows' flags and
-   !> work vectors and the transfers' restrictions go, about 0.4 KiB per vertex. The next set_linearization or apply builds
-   !> them again as init and set_linearization do, which gives the bits of the hierarchy
-   !> updated step by step (test_partial_rebuild): a release changes the memory, not the
-   !> iterates. It costs a rebuild when the preconditioner is applied again.
+   !> work vectors and the transfers' restrictions go, about 0.4 KiB per vertex. The next
+   !> set_linearization or apply builds them again as init and set_linearization do, which
+   !> gives the bits of the hierarchy updated step by step (test_partial_rebuild): a release
+   !> changes the memory, not the iterates. It costs a rebuild when the preconditioner is
+   !> applied again.
    subroutine release(self)
       class(elimination_preconditioner_t), intent(inout) :: self
 

@@ -135,9 +135,11 @@ contains
 
       type(history_row_t) :: row
       real(dp) :: eta_lin
-      logical :: estimates, last, forced
+      !> forced: the inexact test stops GMRES at this iterate, as far as it has been asked (tested)
+      logical :: estimates, last, forced, tested
 
       stop = .false.
+      tested = .false.
       eta_lin = ieee_value(1.0_dp, ieee_quiet_nan)
       if (self%put_off /= put_off_none) then
          ! GMRES has ended its cycle at the same iterate (bit for bit) and freed its basis: the
@@ -145,6 +147,7 @@ contains
          ! before the decision
          row = self%pending_row
          forced = self%put_off == put_off_decision
+         tested = forced
          if (forced) then
             ! the basis's memory goes back before the flux's arrays are made, which it cannot hold
             call return_freed_memory()
@@ -161,7 +164,10 @@ contains
          estimates = .true.
          forced = .false.
          if (self%adaptive .and. associated(self%user)) then
-            if (self%schedule%predict) forced = forcing_stop(self, x, row)
+            if (self%schedule%predict) then
+               forced = forcing_stop(self, x, row)
+               tested = .true.
+            end if
             if (forced) then
                ! GMRES ends here unless an evaluation's algebraic test says otherwise: η_disc,
                ! if η_lin asks for it, waits for the basis to go (an observer without partial
@@ -186,8 +192,8 @@ contains
       if (self%adaptive .and. estimates) then
          call self%schedule%remember(row)
          stop = alg_criterion(row, self%gamma_alg, self%local_criteria)
-      else if (forced) then
-         stop = .true.
+      else if (tested) then
+         stop = forced
       else
          stop = forcing_stop(self, x, row)
       end if
