@@ -439,9 +439,12 @@ contains
       integer(ip) :: t, t0
       integer :: class, i
       real(dp) :: ratio, sign, v(2, 3), v0(2, 3), tolerance
+      !> the coarse triangles' diameters, once (not per descendant)
+      real(dp), allocatable :: h0(:)
 
       ok = .true.
-      !$omp parallel do default(none) shared(hierarchy, level) &
+      h0 = hierarchy%meshes(0)%diameter_of([(t0, t0=1, hierarchy%meshes(0)%nt)])
+      !$omp parallel do default(none) shared(hierarchy, level, h0) &
       !$omp private(t, t0, class, ratio, sign, v, v0, tolerance, i) reduction(.and.:ok) schedule(static)
       do t = 1, hierarchy%meshes(level)%nt
          call triangle_class(level, t, class, ratio)
@@ -449,7 +452,7 @@ contains
          sign = merge(-1.0_dp, 1.0_dp, modulo(class, 2) == 0)
          v = hierarchy%meshes(level)%vertices(:, hierarchy%meshes(level)%triangles(:, t))
          v0 = hierarchy%meshes(0)%vertices(:, hierarchy%meshes(0)%triangles(:, t0))
-         tolerance = 1.0e-8_dp*hierarchy%meshes(0)%diameter_of(t0)/ratio
+         tolerance = 1.0e-8_dp*h0(t0)/ratio
          do i = 1, 3
             ok = ok .and. all(abs((v(:, i) - sum(v, dim=2)/3) - sign/ratio*(v0(:, i) - sum(v0, dim=2)/3)) <= tolerance)
          end do
