@@ -209,7 +209,8 @@ contains
          call lu_factor(gram, piv, ok)
          call lu_solve(gram, piv, projection)
          do alpha = 1, 2
-            osc(alpha, t) = mesh%diameter_of(t)/pi/sqrt(mu(alpha))* &
+            ! (the frame's scale is the triangle's diameter, mesh_t%diameter_of)
+            osc(alpha, t) = frame%scale/pi/sqrt(mu(alpha))* &
                             sqrt(max(0.0_dp, ff(alpha) - dot_product(b(:, alpha), projection(:, alpha))))
          end do
       end do
@@ -576,7 +577,7 @@ contains
                associate (lv => self%iterate%lambda(v))
                   osc_sq = ((lv(1) - lv(2))**2 + (lv(2) - lv(3))**2 + (lv(3) - lv(1))**2)*frame%area/36
                end associate
-               osc_k = hierarchy%meshes(finest)%diameter_of(t)/acos(-1.0_dp)*sqrt(osc_sq/self%mu)
+               osc_k = frame%scale/acos(-1.0_dp)*sqrt(osc_sq/self%mu)
             else if (self%space%order == 0) then
                ! RT0: the oscillation of f_α ∓ λ_h around its mean
                osc_mean = 0.0_dp
@@ -594,7 +595,7 @@ contains
                   osc_w = self%space%rule%weights(k)*frame%area
                   osc_sq = osc_sq + osc_w*(osc_values(:, k) - osc_mean)**2
                end do
-               osc_k = hierarchy%meshes(finest)%diameter_of(t)/acos(-1.0_dp)*sqrt(osc_sq/self%mu)
+               osc_k = frame%scale/acos(-1.0_dp)*sqrt(osc_sq/self%mu)
             else if (allocated(self%osc_data)) then
                osc_k = self%osc_data(:, t)
             else

@@ -36,7 +36,8 @@ module twomem_estimate_raviart_thomas
       procedure :: element_matrices
    end type rt_space_t
 
-   !> Where the monomials of one triangle live.
+   !> Where the monomials of one triangle live: its vertices, barycentre, scale (its diameter,
+   !> the longest edge, as mesh_t%diameter_of computes it) and area.
    type :: rt_frame_t
       real(dp) :: vertices(2, 3) = 0.0_dp
       real(dp) :: centre(2) = 0.0_dp, scale = 1.0_dp, area = 0.0_dp
