@@ -240,10 +240,8 @@ contains
       integer(ip) :: n
       logical :: ok, with_fields, with_alg
 
-      if (self%ended) then
-         call make_error(err, exit_io, 'estimators', 'internal: an evaluation after end_evaluations')
-         return
-      end if
+      call refuse_after_end(self, err)
+      if (allocated(err)) return
       with_alg = .true.
       if (present(algebraic)) with_alg = algebraic
       with_fields = with_alg
@@ -287,10 +285,8 @@ contains
       type(error_t), allocatable, intent(out) :: err
       logical, intent(in) :: fields
 
-      if (self%ended) then
-         call make_error(err, exit_io, 'estimators', 'internal: an evaluation after end_evaluations')
-         return
-      end if
+      call refuse_after_end(self, err)
+      if (allocated(err)) return
       call self%alg%compute(self%shapes, hierarchy, self%iterate, self%single, self%refined, err)
       call self%comm%agree(err)
       if (allocated(err)) return
@@ -333,6 +329,14 @@ contains
       call self%alg%drop_solvers()
       call self%shapes%keep_mass_only()
    end subroutine end_evaluations
+
+   !> After `end_evaluations` an evaluation is a caller's mistake, not a numerical failure.
+   subroutine refuse_after_end(self, err)
+      type(estimator_t), intent(in) :: self
+      type(error_t), allocatable, intent(inout) :: err
+
+      if (self%ended) call make_error(err, exit_io, 'estimators', 'internal: an evaluation after end_evaluations')
+   end subroutine refuse_after_end
 
    !> Whether the workspaces' nodal copies are those of iterate x (this rank's unknowns), as after
    !> an evaluation of x: the test by which a caller reuses an evaluation without keeping a copy

@@ -138,6 +138,6 @@ contains
    subroutine free_stiffness(self)
       class(discrete_problem_t), intent(inout) :: self
 
-      if (allocated(self%stiffness%val)) deallocate (self%stiffness%row_ptr, self%stiffness%col, self%stiffness%val)
+      call self%stiffness%free()
    end subroutine free_stiffness
 end module twomem_fem_discrete

@@ -26,6 +26,7 @@ module twomem_linalg_csr
       procedure :: subtract_product
       procedure :: diagonal
       procedure :: transposed
+      procedure :: free => csr_free
    end type csr_t
 
 contains
@@ -55,6 +56,17 @@ contains
       end do
       !$omp end parallel do
    end subroutine init_pattern
+
+   !> The matrix goes: no rows, no entries.
+   subroutine csr_free(self)
+      class(csr_t), intent(inout) :: self
+
+      if (allocated(self%row_ptr)) deallocate (self%row_ptr)
+      if (allocated(self%col)) deallocate (self%col)
+      if (allocated(self%val)) deallocate (self%val)
+      self%n = 0
+      self%ncol = 0
+   end subroutine csr_free
 
    pure integer(ip) function nnz(self)
       class(csr_t), intent(in) :: self

@@ -246,7 +246,7 @@ contains
       class(gathered_solver_t), intent(inout) :: self
 
       call self%direct%free()
-      if (allocated(self%whole%val)) deallocate (self%whole%row_ptr, self%whole%col, self%whole%val)
+      call self%whole%free()
       if (allocated(self%slots)) deallocate (self%slots)
       self%local_nnz = -1
       self%analysed = .false.
