@@ -114,7 +114,23 @@ def test_help_and_version(work, args, expect):
     assert proc.stdout.startswith(expect)
     no_noise(proc)
     if expect == "twomem ":
-        assert re.fullmatch(r"twomem \d+\.\d+\.\d+\S*\nMPI: [^\n]+\n", proc.stdout)
+        m = re.fullmatch(r"twomem \d+\.\d+\.\d+\S*\nMPI: [^\n]+\nUMFPACK: \d+\.\d+\.\d+, BLAS (\S+)[^\n]*\n", proc.stdout)
+        assert m, proc.stdout
+        assert Path(m.group(1)).is_file(), f"the BLAS named is not a file: {m.group(1)}"
+
+
+REFERENCE_BLAS = Path("/usr/lib/x86_64-linux-gnu/blas")
+
+
+@pytest.mark.skipif(not (REFERENCE_BLAS / "libblas.so.3").exists(), reason="no Debian reference BLAS here")
+def test_version_names_the_blas_the_process_loaded(work):
+    """The BLAS line names the library whose dgemm_ UMFPACK calls, not the one the build saw:
+    with the reference BLAS put first on the library path, that is the one named."""
+    env = dict(os.environ, LD_LIBRARY_PATH=str(REFERENCE_BLAS))
+    proc = subprocess.run([EXE, "--version"], capture_output=True, text=True, timeout=60, env=env, cwd=work)
+    assert proc.returncode == 0, proc.stderr
+    line = [l for l in proc.stdout.splitlines() if l.startswith("UMFPACK: ")]
+    assert line and f"BLAS {REFERENCE_BLAS}/libblas.so.3" in line[0] and "OpenBLAS" not in line[0], proc.stdout
 
 
 # --- namelist files: (text, line, group, key, fragment) ---------------------------------------
@@ -327,6 +343,7 @@ def test_successful_run_writes_result_and_sidecar(work):
         status = f.attrs["status"]
         assert "converged" in status and "not" not in status.lower(), status
         assert f.attrs["version"] and "/mesh/vertices" in f and "/solution/u1" in f
+        assert re.match(r"\d+\.\d+\.\d+, BLAS /", f.attrs["umfpack"]), f.attrs["umfpack"]
 
 
 def test_default_output_file_is_relative_to_cwd(work):

@@ -16,6 +16,7 @@ module twomem_app_run
    use twomem_base_comm, only: comm_t
    use omp_lib, only: omp_get_max_threads
    use twomem_base_version, only: twomem_version
+   use twomem_linalg_umfpack, only: umfpack_library
    use twomem_base_text, only: fixed
    use twomem_input_config, only: config_t, config_echo
    use twomem_mesh_hierarchy, only: mesh_hierarchy_t
@@ -240,6 +241,7 @@ contains
          rec%lambda = plan%nodal(p%to_nodal(newton%x(2*p%n + 1:), 0.0_dp))
       end associate
       rec%version = twomem_version
+      rec%umfpack = umfpack_library()
       rec%input_text = config_echo(cfg)
       rec%status = newton%status
       rec%levels = hierarchy%levels

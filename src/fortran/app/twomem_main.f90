@@ -8,6 +8,7 @@ program twomem_main
    use twomem_base_errors, only: error_t, make_error, exit_ok, exit_bad_input
    use twomem_base_system, only: exit_program, install_guards, keep_freed_memory
    use twomem_base_version, only: twomem_version
+   use twomem_linalg_umfpack, only: umfpack_library
    use twomem_input_config, only: config_t, string_t, load_config
    use twomem_app_run, only: run_case, check_case
    use twomem_base_comm, only: comm_t, comm_start, comm_stop, mpi_library
@@ -35,7 +36,8 @@ program twomem_main
       if (comm%is_root()) call usage(output_unit)
       call finish(exit_ok)
    case ('--version', '-V')
-      if (comm%is_root()) write (output_unit, '(a)') 'twomem '//twomem_version, 'MPI: '//mpi_library()
+      if (comm%is_root()) write (output_unit, '(a)') 'twomem '//twomem_version, 'MPI: '//mpi_library(), &
+         'UMFPACK: '//umfpack_library()
       call finish(exit_ok)
    case ('run', 'check')
       if (n_args < 2) then

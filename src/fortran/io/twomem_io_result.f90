@@ -19,6 +19,8 @@ module twomem_io_result
    !> What the run produced, independent of how it is stored.
    type :: result_record_t
       character(len=:), allocatable :: version, input_text, status
+      !> the UMFPACK and BLAS the run solved with (twomem_linalg_umfpack's umfpack_library)
+      character(len=:), allocatable :: umfpack
       !> the finest mesh, whole: vertices (2, nv), triangles (3, nt)
       real(dp), allocatable :: vertices(:, :)
       integer(ip), allocatable :: triangles(:, :)
@@ -134,6 +136,7 @@ contains
       call h5%write_attr('/', 'version', rec%version, err)
       if (.not. allocated(err)) call h5%write_attr('/', 'input', rec%input_text, err)
       if (.not. allocated(err)) call h5%write_attr('/', 'status', rec%status, err)
+      if (.not. allocated(err)) call h5%write_attr('/', 'umfpack', rec%umfpack, err)
       if (allocated(err)) return
       if (with_mesh) then
          call h5%write_real('/mesh/vertices', rec%vertices, err)

@@ -3,14 +3,15 @@
 !> values, which is exactly what Newton needs: the Newton matrix keeps its pattern (the
 !> C-function rows carry all three diagonal entries, some of them zero) while its values change.
 module twomem_linalg_umfpack
-   use, intrinsic :: iso_c_binding, only: c_int, c_double, c_ptr, c_null_ptr, c_associated
+   use, intrinsic :: iso_c_binding, only: c_int, c_double, c_ptr, c_null_ptr, c_associated, c_char, c_size_t, &
+      c_null_char
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_io
    use twomem_linalg_csr, only: csr_t
    implicit none
    private
 
-   public :: umfpack_solver_t, ordering_nested_dissection, ordering_minimum_degree
+   public :: umfpack_solver_t, ordering_nested_dissection, ordering_minimum_degree, umfpack_library
 
    !> Fill-reducing orderings. Nested dissection (METIS) is the default: on the Newton systems,
    !> refactorized at every step, its smaller factors won (see src/c/twomem_umfpack.c). A matrix
@@ -66,9 +67,34 @@ module twomem_linalg_umfpack
          import :: c_ptr
          type(c_ptr), intent(inout) :: handle
       end subroutine twomem_umf_free
+
+      subroutine twomem_umf_library(text, cap) bind(C)
+         import :: c_char, c_size_t
+         character(kind=c_char), intent(out) :: text(*)
+         integer(c_size_t), value :: cap
+      end subroutine twomem_umf_library
    end interface
 
 contains
+
+   !> UMFPACK's version and the BLAS it runs on ('5.7.9, BLAS /usr/lib/…/libblas.so.3 (OpenBLAS
+   !> 0.3.21 …)'), as `--version` and the result file report it: the BLAS sets the speed of the
+   !> direct method.
+   function umfpack_library() result(text)
+      character(len=:), allocatable :: text
+
+      integer, parameter :: cap = 512
+      character(kind=c_char) :: buffer(cap)
+      integer :: i
+
+      buffer = c_null_char
+      call twomem_umf_library(buffer, int(cap, c_size_t))
+      text = ''
+      do i = 1, cap
+         if (buffer(i) == c_null_char) exit
+         text = text//buffer(i)
+      end do
+   end function umfpack_library
 
    !> The ordering of the next symbolic analysis (one of the ordering_* values).
    subroutine set_ordering(self, ordering)
