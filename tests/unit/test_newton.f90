@@ -8,6 +8,7 @@ module test_newton
    use twomem_newton_cfun, only: cfun_min, cfun_fb
    use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_solve
    use twomem_newton_inner, only: check_schedule_t, newton_observer_t
+   use twomem_newton_fb_finish, only: fb_finish_t
    use twomem_newton_history, only: history_row_t, not_computed
    use twomem_testing, only: unittest_t, new_unittest, check, check_close, error_t
    use test_refinement, only: square_problem
@@ -40,7 +41,8 @@ contains
                new_unittest('discrete_equations_roundoff', test_discrete_equations), &
                new_unittest('iteration_limit_reported', test_limit), &
                new_unittest('check_schedule_predicts_the_newton_test', test_check_schedule), &
-               new_unittest('check_schedule_stages', test_check_stages)]
+               new_unittest('check_schedule_stages', test_check_stages), &
+               new_unittest('fb_finish_schedule', test_fb_finish)]
    end subroutine collect_newton
 
    subroutine test_cfun_min(err)
@@ -169,6 +171,36 @@ contains
       call check(err, .not. res%converged, 'one step is not enough')
       call check(err, index(res%status, 'iteration limit') > 0, 'status names the limit: '//res%status)
    end subroutine test_limit
+
+   !> Fischer–Burmeister's step kinds: FB until a step moves at most 1% of the contact set, then
+   !> active-set steps while they move it, at most three in a row, then FB again; never when
+   !> disabled (newton.fb_finish = 'none').
+   subroutine test_fb_finish(err)
+      type(error_t), allocatable, intent(out) :: err
+      type(fb_finish_t) :: fb
+      logical :: kinds(8)
+      integer :: k
+      !> vertices moved by steps 1..8 of a contact set of 10 000
+      integer, parameter :: moved(8) = [500, 100, 40, 7, 3, 2, 0, 0]
+
+      fb%enabled = .true.
+      do k = 1, size(moved)
+         call fb%next_step()
+         kinds(k) = fb%active_set_step
+         call fb%step_moved(moved(k), 10000)
+      end do
+      ! 500 > 1%: FB; 100 = 1%: active-set from step 3 on, while the set moves (40, 7, 3), at
+      ! most three in a row; step 6 is FB, and its 2 vertices start another streak of active-set
+      ! steps, which ends once a step moves none
+      call check(err, all(kinds .eqv. [.false., .false., .true., .true., .true., .false., .true., .false.]), &
+                 'FB, FB, three active-set steps, FB, one active-set step until the set settles, FB')
+      fb = fb_finish_t()
+      do k = 1, 3
+         call fb%next_step()
+         call check(err, .not. fb%active_set_step, 'disabled: FB at every step')
+         call fb%step_moved(0, 10000)
+      end do
+   end subroutine test_fb_finish
 
    !> The adaptive method's checks: the first evaluates; a later one only where its η_lin passes
    !> γ_lin times the last η_disc; an evaluation that failed (NaN) or a NaN η_lin makes the check

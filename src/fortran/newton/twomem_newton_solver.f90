@@ -9,20 +9,11 @@
 !> limit, when exact Newton-min revisits an active set (`twomem_newton_cycling`) or when the
 !> active set stops changing with the residual above the tolerance (round-off floor).
 !>
-!> Fischer–Burmeister finishes with active-set steps unless told not to (`fb_active_set`, input
-!> newton.fb_finish; docs/method.md §2): once an FB step moves the contact set {a ≤ b} by at most
-!> `fb_settle_fraction` of its size, the next step linearizes min instead, which imposes u1 = u2
-!> on that set and λ = 0 off it and so lands on the discrete solution at once when the set is
-!> right. FB alone converges there only quadratically with a constant ~1/|(a, b)| of the
-!> solution, and the first free layer beside the contact zone has a ~ h², b = 0: four or five
-!> steps of the tail measured at every mesh size. A nearly biactive vertex may be guessed on the
-!> wrong side (measured at 1.1e6 vertices: 13 vertices, the residual rose to 3e-3); the next
-!> step, again an active-set step (a primal–dual active set update), corrects the guess.
-!> Active-set steps go on while they change the set, at most three in a row, then FB resumes.
-!> They are judged by the FB merit like any other step (line search) and the stopping test is
-!> FB's. Waiting for an FB step that moves no vertex at all cost two steps at 1.1e6 vertices
-!> (99, 4, 0 vertices moved by FB's 2nd to 4th steps, each quadratically closer), which the
-!> active-set steps do in one.
+!> Fischer–Burmeister finishes with Newton-min (active-set) steps once its contact set settles,
+!> unless told not to (`twomem_newton_fb_finish`). The loop reads as the method: linearize,
+!> solve (`linear_step`), step (line search), record (`record`, which asks the observer and, in
+!> the adaptive method, lets `check_schedule_t` decide what a check computes) and decide
+!> (`decide_stop`).
 module twomem_newton_solver
    use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
    use twomem_base_kinds, only: dp, ip
@@ -39,6 +30,7 @@ module twomem_newton_solver
    use twomem_newton_linear, only: linear_step_t, solver_direct, solver_gmres, precond_mg, needs_matrix
    use twomem_newton_line_search, only: line_search_t
    use twomem_newton_cycling, only: active_set_watch_t
+   use twomem_newton_fb_finish, only: fb_finish_t
    use twomem_newton_inner, only: newton_observer_t, inner_observer_t, lin_criterion
    use twomem_newton_history, only: history_t, history_row_t, not_computed, print_progress
    implicit none
@@ -51,13 +43,6 @@ module twomem_newton_solver
    !> the method (newton.linear) and the GMRES forcing (gmres.forcing)
    integer, parameter :: method_direct = 1, method_gmres = 2, method_adaptive = 3
    integer, parameter :: forcing_paper = 1, forcing_fixed = 2, forcing_finish = 3
-   !> FB's contact set counts as settled when a step moves at most this share of it. The first
-   !> step from nested iteration's interpolated start moves about 0.7% of it (1913 of 269620
-   !> vertices at 1.1e6 vertices, 1084 of 67613 at 2.9e5), the next ones a few dozen vertices:
-   !> at 1% the active-set steps begin after the first FB step there (bench/scaling.py at 1.1e6
-   !> vertices: 4 Newton steps instead of 6 for `membranes`, 4 instead of 5 for `bbbv`).
-   real(dp), parameter :: fb_settle_fraction = 0.01_dp
-
    type :: newton_options_t
       !> c_function_min or c_function_fb
       integer :: cfun = c_function_min
@@ -169,6 +154,7 @@ contains
       type(line_search_t) :: search
       type(multigrid_transfer_t), target :: no_transfer
       type(active_set_watch_t) :: watch
+      type(fb_finish_t) :: fb
       type(inner_observer_t) :: inner
       type(history_row_t) :: row
       real(dp), allocatable, target :: x(:), x_new(:)
@@ -179,11 +165,11 @@ contains
       real(dp), pointer, contiguous :: trial(:)
       real(dp), allocatable, target :: c(:), da(:), db(:)
       logical, allocatable :: active(:), previous(:)
-      integer(ip) :: n, i
-      integer :: k, kind, streak
-      real(dp) :: t0, step, b_norm
+      integer(ip) :: n
+      integer :: k, kind
+      real(dp) :: t0, step
       character(len=:), allocatable :: why
-      logical :: adaptive, active_set_step, settled, nearly_settled, in_place
+      logical :: adaptive, in_place
 
       call move_alloc(x0, x)
       n = p%n
@@ -217,6 +203,7 @@ contains
          trial => x_new
       end if
       call watch%init(options%max_it)
+      fb%enabled = options%cfun == c_function_fb .and. options%fb_active_set
       t0 = wall_time()
       ! before the first linearization no vertex is in contact
       previous = .false.
@@ -226,45 +213,77 @@ contains
       call record(0, row, .false.)
       previous = active
       if (row%lin_residual <= options%tol) why = 'converged'
-
-      inner%residual => residual
-      inner%c => c
-      inner%da => da
-      inner%db => db
-      inner%history => result%history
-      if (present(observer)) inner%user => observer
-      inner%paper_forcing = options%forcing /= forcing_fixed .and. .not. adaptive
-      inner%finish = options%forcing == forcing_finish
-      inner%adaptive = adaptive
-      inner%local_criteria = options%local_criteria
-      inner%gamma_alg = options%gamma_alg
-      inner%schedule%predict = options%predicted_checks
-      inner%schedule%gamma_lin = options%gamma_lin
-      inner%newton_tol = options%tol
-      inner%t0 = t0
-      if (allocated(solver%prec)) inner%prec => solver%prec
+      call configure_inner()
 
       k = 0
-      active_set_step = .false.
-      settled = .false.
-      nearly_settled = .false.
-      streak = 0
       do while (.not. allocated(why))
          if (k == options%max_it) then
             why = 'not converged: iteration limit newton.max_it reached'
             exit
          end if
          k = k + 1
-         ! FB: after an FB step that (nearly) kept the contact set, active-set (Newton-min) steps
-         ! while they correct the set, at most three in a row
-         if (active_set_step) then
-            streak = streak + 1
-            active_set_step = .not. settled .and. streak < 3
+         call fb%next_step()
+         if (fb%active_set_step) call cfun_eval(c_function_min, x, c, da, db)
+         call linear_step(k, row)
+         if (allocated(err)) return
+         if (allocated(why)) exit
+         step = 1.0_dp
+         if (options%line_search) step = search%step(residual, k, x, x_new)
+         if (step < 1.0_dp) call watch%damped(k)
+         ! a full step takes GMRES's iterate itself: x + (x_new − x) differs from it by round-off,
+         ! and the observer's evaluation at x_new (the last inner row) must be of this very iterate
+         if (in_place) then
+            continue
+         else if (step == 1.0_dp) then
+            x = x_new
          else
-            streak = 0
-            active_set_step = options%cfun == c_function_fb .and. options%fb_active_set .and. nearly_settled
+            x = x + step*(x_new - x)
          end if
-         if (active_set_step) call cfun_eval(c_function_min, x, c, da, db)
+         call residual%relative(x, row%lin_residual, c, da, db)
+         row%step = step
+         call record(k, row, reuses_inner_row(step))
+         call fb%step_moved(row%active_changed, row%active)
+         call decide_stop(row, k, why)
+         previous = active
+      end do
+
+      call move_alloc(x, result%x)
+      result%iterations = k
+      result%converged = why == 'converged'
+      if (.not. result%converged) why = why//solver%failure_note()
+      result%status = why
+
+   contains
+
+      !> GMRES's observer: the iterate's residuals, the run's observer and the forcing.
+      subroutine configure_inner()
+         inner%residual => residual
+         inner%c => c
+         inner%da => da
+         inner%db => db
+         inner%history => result%history
+         if (present(observer)) inner%user => observer
+         inner%paper_forcing = options%forcing /= forcing_fixed .and. .not. adaptive
+         inner%finish = options%forcing == forcing_finish
+         inner%adaptive = adaptive
+         inner%local_criteria = options%local_criteria
+         inner%gamma_alg = options%gamma_alg
+         inner%schedule%predict = options%predicted_checks
+         inner%schedule%gamma_lin = options%gamma_lin
+         inner%newton_tol = options%tol
+         inner%t0 = t0
+         if (allocated(solver%prec)) inner%prec => solver%prec
+      end subroutine configure_inner
+
+      !> Newton step k's linear solve, from the Jacobian in da, db into `trial`: its row with the
+      !> algebraic residual, or `why` when GMRES broke down (`err` when a solver failed).
+      subroutine linear_step(k, row)
+         integer, intent(in) :: k
+         type(history_row_t), intent(out) :: row
+
+         real(dp) :: b_norm
+         integer(ip) :: i
+
          ! B = [F; J_C X − C(X)] with the Jacobian of the previous iterate
          call sys%set_jacobian(da, db)
          ! (an evaluation of the estimators between the steps may have taken its memory)
@@ -281,7 +300,7 @@ contains
             inner%newton_it = k
             ! (a check put off by a GMRES solve that then failed is not this step's)
             call inner%forget_pending()
-            inner%linearized = merge(c_function_min, options%cfun, active_set_step)
+            inner%linearized = merge(c_function_min, options%cfun, fb%active_set_step)
             inner%gmres_before = result%linear_iterations
             inner%b_norm = b_norm
             call solver%solve(sys, b, trial, err, observer=inner)
@@ -289,10 +308,10 @@ contains
             result%linear_iterations = result%linear_iterations + solver%monitor%iterations
             if (solver%monitor%reason == 'non-finite correction') then
                why = 'not converged: GMRES broke down with a non-finite correction (the iterate before it is kept)'
-               exit
+               return
             else if (p%halo%comm%any_true(.not. all(ieee_is_finite(trial)))) then
                why = 'not converged: GMRES broke down ('//solver%monitor%reason//') with a non-finite iterate'
-               exit
+               return
             end if
          else
             call solver%solve(sys, b, trial, err)
@@ -309,34 +328,7 @@ contains
             ax = b - ax
             row%alg_residual = sys%dot%norm(ax)/b_norm
          end if
-         step = 1.0_dp
-         if (options%line_search) step = search%step(residual, k, x, x_new)
-         if (step < 1.0_dp) call watch%damped(k)
-         ! a full step takes GMRES's iterate itself: x + (x_new − x) differs from it by round-off,
-         ! and the observer's evaluation at x_new (the last inner row) must be of this very iterate
-         if (in_place) then
-            continue
-         else if (step == 1.0_dp) then
-            x = x_new
-         else
-            x = x + step*(x_new - x)
-         end if
-         call residual%relative(x, row%lin_residual, c, da, db)
-         row%step = step
-         call record(k, row, reuses_inner_row(step))
-         settled = row%active_changed == 0
-         nearly_settled = row%active_changed <= fb_settle_fraction*row%active
-         call decide_stop(row, k, why)
-         previous = active
-      end do
-
-      call move_alloc(x, result%x)
-      result%iterations = k
-      result%converged = why == 'converged'
-      if (.not. result%converged) why = why//solver%failure_note()
-      result%status = why
-
-   contains
+      end subroutine linear_step
 
       !> GMRES stopped by the forcing at a full step: its last inner row saw this very iterate,
       !> so the Newton row replaces it and reuses what the observer computed there.
@@ -380,8 +372,7 @@ contains
          type(history_row_t), intent(inout) :: row
          logical, intent(in) :: reuse
 
-         real(dp) :: eta_lin
-         logical :: estimates, last
+         logical :: estimates
 
          ! contact where u1 − u2 ≤ λ: for Newton-min exactly the vertices with the a-row
          active = x(1:n) - x(n + 1:2*n) <= x(2*n + 1:)
@@ -397,21 +388,7 @@ contains
             ! Algorithm 1 reads the estimators from the first step on: at the initial iterate
             ! (at 10^6 vertices, a fifth of the adaptive run's evaluations) no test needs them
             estimates = .not. adaptive
-            if (adaptive .and. k > 0) then
-               estimates = inner%schedule%screen(observer, x, row, eta_lin)
-               if (estimates) then
-                  ! η_disc at least: the idle Krylov workspace and right-hand side make room
-                  ! for the evaluation's arrays (the next step allocates them again)
-                  call solver%workspace%free()
-                  deallocate (b)
-                  call return_freed_memory()
-                  estimates = inner%schedule%decide(observer, x, row, last, screened=eta_lin)
-                  ! a whole evaluation expected to end the run: the preconditioner's hierarchies
-                  ! make room for its algebraic flux too (the next solve, if any, builds them
-                  ! again)
-                  if (estimates .and. last .and. associated(inner%prec)) call inner%prec%release()
-               end if
-            end if
+            if (adaptive .and. k > 0) estimates = check_evaluates(row)
             call observer%observe(x, row, estimates=estimates)
             if (adaptive .and. estimates) call inner%schedule%remember(row)
          end if
@@ -419,5 +396,26 @@ contains
          call result%history%append(row)
          if (options%verbose) call print_progress(row)
       end subroutine record
+
+      !> Whether the adaptive method's check at the new iterate x evaluates the estimators
+      !> (check_schedule_t; a check that does not keeps what it computed in `row`).
+      logical function check_evaluates(row) result(estimates)
+         type(history_row_t), intent(inout) :: row
+
+         real(dp) :: eta_lin
+         logical :: last
+
+         estimates = inner%schedule%screen(observer, x, row, eta_lin)
+         if (.not. estimates) return
+         ! η_disc at least: the idle Krylov workspace and right-hand side make room for the
+         ! evaluation's arrays (the next step allocates them again)
+         call solver%workspace%free()
+         deallocate (b)
+         call return_freed_memory()
+         estimates = inner%schedule%decide(observer, x, row, last, screened=eta_lin)
+         ! a whole evaluation expected to end the run: the preconditioner's hierarchies make room
+         ! for its algebraic flux too (the next solve, if any, builds them again)
+         if (estimates .and. last .and. associated(inner%prec)) call inner%prec%release()
+      end function check_evaluates
    end subroutine newton_solve
 end module twomem_newton_solver
