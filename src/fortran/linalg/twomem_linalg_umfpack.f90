@@ -3,10 +3,10 @@
 !> values, which is exactly what Newton needs: the Newton matrix keeps its pattern (the
 !> C-function rows carry all three diagonal entries, some of them zero) while its values change.
 module twomem_linalg_umfpack
-   use, intrinsic :: iso_c_binding, only: c_int, c_double, c_ptr, c_null_ptr, c_associated, c_char, c_size_t, &
-      c_null_char
+   use, intrinsic :: iso_c_binding, only: c_int, c_double, c_ptr, c_null_ptr, c_associated, c_char, c_size_t
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_io
+   use twomem_base_system, only: c_text
    use twomem_linalg_csr, only: csr_t
    implicit none
    private
@@ -83,17 +83,10 @@ contains
    function umfpack_library() result(text)
       character(len=:), allocatable :: text
 
-      integer, parameter :: cap = 512
-      character(kind=c_char) :: buffer(cap)
-      integer :: i
+      character(len=512) :: buffer
 
-      buffer = c_null_char
-      call twomem_umf_library(buffer, int(cap, c_size_t))
-      text = ''
-      do i = 1, cap
-         if (buffer(i) == c_null_char) exit
-         text = text//buffer(i)
-      end do
+      call twomem_umf_library(buffer, len(buffer, c_size_t))
+      text = c_text(buffer)
    end function umfpack_library
 
    !> The ordering of the next symbolic analysis (one of the ordering_* values).
