@@ -135,7 +135,7 @@ contains
       type(mesh_hierarchy_t) :: h
       type(poly_data_t) :: data
       type(discrete_problem_t) :: p
-      real(dp), allocatable :: x(:), r1(:), r2(:), sx(:, :), d(:), u(:, :), expected(:), r(:, :, :), moment(:), &
+      real(dp), allocatable :: x(:), work(:), r1(:), r2(:), sx(:, :), d(:), u(:, :), expected(:), r(:, :, :), moment(:), &
                                nodal(:, :)
       logical, allocatable :: off_unknowns(:)
       type(evaluated_iterate_t) :: iterate
@@ -149,7 +149,8 @@ contains
       associate (mesh => h%meshes(1))
          ! (filled first: the zeros off the unknowns must be written, not found)
          allocate (nodal(mesh%nv, 2), source=1.0_dp)
-         call algebraic_residuals(p, x, nodal)
+         allocate (work(n))
+         call algebraic_residuals(p, x, nodal, work)
          r1 = nodal(p%interior, 1)
          r2 = nodal(p%interior, 2)
          allocate (sx(mesh%nv, 2), d(mesh%nv), u(mesh%nv, 2), r(3, mesh%nt, 2), moment(mesh%nv))
@@ -500,7 +501,7 @@ contains
       real(dp), allocatable, intent(out) :: lambda(:), grad_u(:, :, :), residual(:, :), r(:, :, :)
       type(evaluated_iterate_t), intent(out) :: iterate
 
-      real(dp), allocatable :: u(:, :)
+      real(dp), allocatable :: u(:, :), work(:)
       integer(ip) :: n, t
       integer :: alpha
 
@@ -508,7 +509,8 @@ contains
       allocate (grad_u(2, mesh%nt, 2), residual(mesh%nv, 2), r(3, mesh%nt, 2))
       u = reshape([p%to_nodal(x(1:n), p%g), p%to_nodal(x(n + 1:2*n), 0.0_dp)], [mesh%nv, 2])
       lambda = p%to_nodal(x(2*n + 1:3*n), 0.0_dp)
-      call algebraic_residuals(p, x, residual)
+      allocate (work(n))
+      call algebraic_residuals(p, x, residual, work)
       do alpha = 1, 2
          do t = 1, mesh%nt
             grad_u(:, t, alpha) = matmul(p1_gradients(mesh, t), u(mesh%triangles(:, t), alpha))

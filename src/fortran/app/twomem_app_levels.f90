@@ -16,7 +16,7 @@ module twomem_app_levels
    use twomem_mesh_hierarchy, only: mesh_hierarchy_t
    use twomem_fem_problem, only: problem_data_t
    use twomem_fem_discrete, only: discrete_problem_t
-   use twomem_fem_transfer, only: interior_prolongations, interior_numbering, interior_halo
+   use twomem_fem_transfer, only: interior_prolongations, interior_numbering, interior_vertices, interior_halo
    use twomem_linalg_csr, only: csr_t
    use twomem_linalg_halo, only: halo_t
    use twomem_linalg_multigrid, only: multigrid_transfer_t
@@ -126,7 +126,6 @@ contains
       type(halo_t), allocatable :: halos(:)
       type(csr_t), allocatable :: prolongations(:)
       integer(ip), allocatable :: unknown(:), interior(:), keys(:)
-      integer(ip) :: a
       integer :: l, top
 
       ! the multigrid preconditioner of every level uses the levels below it
@@ -134,7 +133,7 @@ contains
       allocate (halos(0:top - bottom))
       do l = bottom, top
          unknown = interior_numbering(hierarchy%meshes(l))
-         interior = pack([(a, a=1, hierarchy%meshes(l)%nv)], unknown > 0)
+         interior = interior_vertices(unknown)
          call interior_halo(hierarchy%meshes(l), interior, comm, halos(l - bottom))
          if (l == bottom) keys = hierarchy%meshes(l)%global_vertex_of(interior)
       end do

@@ -256,7 +256,8 @@ contains
          call scatter(p, x(1:n), p%g, it%u(:, 1))
          call scatter(p, x(n + 1:2*n), 0.0_dp, it%u(:, 2))
          call scatter(p, x(2*n + 1:3*n), 0.0_dp, it%lambda)
-         call algebraic_residuals(p, x, it%residual, self%halo)
+         ! (the shares, set next from the residuals, are the scratch on their way)
+         call algebraic_residuals(p, x, it%residual, it%shares(:, 1), self%halo)
          call it%set_shares(mesh)
          ! a ghost triangle may have vertices outside this rank's unknowns: its owner's values
          call it%share_ghosts(self%ghosts, mesh, hierarchy%levels)

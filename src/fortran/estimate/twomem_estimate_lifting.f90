@@ -19,37 +19,36 @@ contains
    !> = R_α at the vertices of the unknowns, zero at the others (nv values per column). On a
    !> rank's piece of a distributed problem, `halo` (a copy of p%halo) sums the ranks' parts of
    !> S X_α at shared vertices (F_α and D hold full values already), so every local unknown gets
-   !> the full residual. No work vector: S X_α goes into the first n entries of column α, and
-   !> unknown i then moves to its vertex interior(i), from the last down (interior increases,
-   !> interior(i) ≥ i: no unknown below i reads it).
-   subroutine algebraic_residuals(p, x, residual, halo)
+   !> the full residual. `work` (at least n values) holds S X_α on its way to the vertices: the
+   !> unknowns are not numbered in vertex order (twomem_fem_transfer), so it cannot move within
+   !> `residual` itself.
+   subroutine algebraic_residuals(p, x, residual, work, halo)
       type(discrete_problem_t), intent(in) :: p
       real(dp), intent(in) :: x(:)
       real(dp), intent(out) :: residual(:, :)
+      real(dp), intent(inout) :: work(:)
       type(halo_t), intent(inout), optional :: halo
 
-      integer(ip) :: n, i, previous
+      integer(ip) :: n, i
       integer :: alpha
+      real(dp) :: mu, sign
 
       n = p%n
       do alpha = 1, 2
-         call p%stiffness%matvec(x((alpha - 1)*n + 1:alpha*n), residual(1:n, alpha))
-         if (present(halo)) call halo%add(residual(1:n, alpha))
-         if (alpha == 1) then
-            do i = n, 1, -1
-               residual(p%interior(i), 1) = p%f(i) - p%mu1*residual(i, 1) + p%mass(i)*x(2*n + i)
-            end do
-         else
-            do i = n, 1, -1
-               residual(p%interior(i), 2) = p%f(n + i) - p%mu2*residual(i, 2) - p%mass(i)*x(2*n + i)
-            end do
-         end if
-         previous = 0
+         call p%stiffness%matvec(x((alpha - 1)*n + 1:alpha*n), work(1:n))
+         if (present(halo)) call halo%add(work(1:n))
+         mu = merge(p%mu1, p%mu2, alpha == 1)
+         sign = merge(1.0_dp, -1.0_dp, alpha == 1)
+         !$omp parallel default(none) shared(p, x, residual, work, n, alpha, mu, sign) private(i)
+         !$omp workshare
+         residual(:, alpha) = 0.0_dp
+         !$omp end workshare
+         !$omp do schedule(static)
          do i = 1, n
-            residual(previous + 1:p%interior(i) - 1, alpha) = 0.0_dp
-            previous = p%interior(i)
+            residual(p%interior(i), alpha) = p%f((alpha - 1)*n + i) - mu*work(i) + (sign*p%mass(i))*x(2*n + i)
          end do
-         residual(previous + 1:, alpha) = 0.0_dp
+         !$omp end do
+         !$omp end parallel
       end do
    end subroutine algebraic_residuals
 

@@ -16,7 +16,7 @@ module twomem_fem_discrete
    use twomem_base_comm, only: comm_t
    use twomem_fem_problem, only: problem_data_t
    use twomem_fem_assembly, only: stiffness_rows, lumped_mass, assemble_loads
-   use twomem_fem_transfer, only: interior_numbering, interior_halo
+   use twomem_fem_transfer, only: interior_numbering, interior_vertices, interior_halo
    implicit none
    private
 
@@ -56,7 +56,6 @@ contains
       type(comm_t), intent(in), optional :: comm
 
       real(dp), allocatable :: d_full(:), f_full(:, :), coupling(:)
-      integer(ip) :: a
       type(comm_t) :: one_rank
 
       self%mu1 = data%mu1
@@ -68,7 +67,7 @@ contains
          call make_error(err, exit_bad_input, 'mesh', 'the mesh has no interior vertex: refine it')
          return
       end if
-      self%interior = pack([(a, a=1, mesh%nv)], self%unknown > 0)
+      self%interior = interior_vertices(self%unknown)
       self%global = mesh%global_vertex_of(self%interior)
       if (present(comm)) then
          call interior_halo(mesh, self%interior, comm, self%halo)

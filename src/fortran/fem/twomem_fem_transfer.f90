@@ -1,5 +1,6 @@
 !> Transfer between consecutive levels of the nested hierarchy, restricted to the unknowns of
-!> the discrete problem (interior vertices, numbered in vertex order). The prolongation P_l maps
+!> the discrete problem (interior vertices, numbered for locality: `interior_numbering`). The
+!> prolongation P_l maps
 !> a P1 function of level l−1 that vanishes on ∂Ω to level l exactly: an inherited vertex
 !> copies its value, a new vertex (an edge midpoint) takes the mean of the edge's ends, and
 !> boundary ends contribute zero. These matrices, with the interface of each level's unknowns
@@ -15,23 +16,32 @@ module twomem_fem_transfer
    implicit none
    private
 
-   public :: interior_numbering, interior_prolongation, interior_prolongations, interior_halo
+   public :: interior_numbering, interior_vertices, interior_prolongation, interior_prolongations, interior_halo
 
 contains
 
-   !> unknown(a): the number of vertex a among the interior vertices (in vertex order), 0 on ∂Ω
-   !> and, on a rank's piece of a distributed mesh, at vertices of its ghost layer only.
+   !> unknown(a): the number of vertex a among the interior vertices, 0 on ∂Ω and, on a rank's
+   !> piece of a distributed mesh, at vertices of its ghost layer only. The unknowns go in the
+   !> order of their vertex's first triangle (mesh_t%vertices_by_first_triangle), not in vertex
+   !> order: red refinement numbers the midpoints of a level after all the vertices of the level
+   !> below, so in vertex order every matrix row reaches into two distant ranges of a vector, and
+   !> above the cache's size each sparse product waited on memory. Along the triangles' tree a
+   !> row's neighbours are numbered close to it (the stiffness product at 4.5·10⁶ vertices took
+   !> half the time in a benchmark of both orders on the same mesh).
    function interior_numbering(mesh) result(unknown)
       type(mesh_t), intent(in) :: mesh
       integer(ip), allocatable :: unknown(:)
 
-      integer(ip) :: a, n
+      integer(ip), allocatable :: order(:)
+      integer(ip) :: a, k, n
       logical, allocatable :: inside(:)
 
       allocate (unknown(mesh%nv))
       inside = mesh%in_subdomain()
+      order = mesh%vertices_by_first_triangle()
       n = 0
-      do a = 1, mesh%nv
+      do k = 1, mesh%nv
+         a = order(k)
          if (mesh%boundary_vertex(a) .or. .not. inside(a)) then
             unknown(a) = 0
          else
@@ -40,6 +50,19 @@ contains
          end if
       end do
    end function interior_numbering
+
+   !> interior(i): the vertex of unknown i of the numbering `unknown` (its inverse).
+   pure function interior_vertices(unknown) result(interior)
+      integer(ip), intent(in) :: unknown(:)
+      integer(ip), allocatable :: interior(:)
+
+      integer(ip) :: a
+
+      allocate (interior(count(unknown > 0, kind=ip)))
+      do a = 1, size(unknown, kind=ip)
+         if (unknown(a) > 0) interior(unknown(a)) = a
+      end do
+   end function interior_vertices
 
    !> P_l from level l−1 to level l of `hierarchy` (l ≥ 1), on interior unknowns.
    function interior_prolongation(hierarchy, l) result(p)
@@ -57,26 +80,37 @@ contains
       fine(:) = interior_numbering(hierarchy%meshes(l))
       coarse(:) = interior_numbering(hierarchy%meshes(l - 1))
       nf = maxval(fine)
+      ! rows in unknown order, which is not vertex order: each row's length first
       allocate (row_ptr(nf + 1), col(2*nf), val(2*nf))
-      row_ptr(1) = 1
-      nnz = 0
+      row_ptr = 0
       associate (parents => hierarchy%maps(l)%vertex_parents)
          do a = 1, hierarchy%meshes(l)%nv
             if (fine(a) == 0) cycle
             if (parents(1, a) == parents(2, a)) then
-               nnz = nnz + 1
-               col(nnz) = coarse(parents(1, a))
-               val(nnz) = 1.0_dp
+               row_ptr(fine(a) + 1) = 1
+            else
+               row_ptr(fine(a) + 1) = count(coarse(parents(:, a)) > 0)
+            end if
+         end do
+         row_ptr(1) = 1
+         do m = 1, nf
+            row_ptr(m + 1) = row_ptr(m + 1) + row_ptr(m)
+         end do
+         nnz = row_ptr(nf + 1) - 1
+         do a = 1, hierarchy%meshes(l)%nv
+            if (fine(a) == 0) cycle
+            m = row_ptr(fine(a))
+            if (parents(1, a) == parents(2, a)) then
+               col(m) = coarse(parents(1, a))
+               val(m) = 1.0_dp
             else
                do k = 1, 2
-                  m = coarse(parents(k, a))
-                  if (m == 0) cycle
-                  nnz = nnz + 1
-                  col(nnz) = m
-                  val(nnz) = 0.5_dp
+                  if (coarse(parents(k, a)) == 0) cycle
+                  col(m) = coarse(parents(k, a))
+                  val(m) = 0.5_dp
+                  m = m + 1
                end do
             end if
-            row_ptr(fine(a) + 1) = nnz + 1
          end do
       end associate
       call p%init_pattern(row_ptr, col(1:nnz), ncol=maxval(coarse))

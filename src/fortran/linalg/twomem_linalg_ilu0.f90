@@ -19,9 +19,16 @@
 !> An inactive row [0, 0, 1] keeps the pivot 1. For Fischer–Burmeister rows (da, −da, db) with
 !> da, db ≤ 0 and not both zero the pivot is db + da D_i (1/μ1 + 1/μ2)/s_i < 0, again nonzero.
 !> So the explicit zero on the diagonal is filled by elimination and block order works as is.
+!>
+!> Within a block, though, ILU(0) depends on the order of the unknowns, and the discrete
+!> problem numbers them for the locality of its sparse products (twomem_fem_transfer), an order
+!> that the paper's comparison should not depend on. `set_order` fixes the factorization's own
+!> order by keys (the Newton solver gives the mesh's vertex order within each block, as the
+!> direct solver's), and `setup` then factorizes the permuted matrix; `apply` permutes in and out.
 module twomem_linalg_ilu0
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_not_converged
+   use twomem_base_sort, only: sorting_permutation, sort_pairs
    use twomem_linalg_csr, only: csr_t
    use twomem_linalg_operators, only: preconditioner_t
    implicit none
@@ -47,11 +54,18 @@ module twomem_linalg_ilu0
       integer(ip), allocatable :: diag(:)
       !> L strictly below the diagonal, U on and above it, on the pattern of A
       real(dp), allocatable :: lu(:)
-      !> 1 / u_ii: the backward sweep multiplies instead of dividing
+      !> 1 / u_ii: the backward sweep multiplies instead of dividing (all in the factorization's
+      !> order, which factor_entry's indices refer to)
       real(dp), allocatable :: inv_pivot(:)
       !> scratch for setup: position in the current row of each column, 0 if absent
       integer(ip), allocatable :: marker(:)
+      !> with `set_order`: row k of the factorization is row order(k) of A (position is the
+      !> inverse), its entry m is A's entry value_map(m); work holds a permuted vector in apply
+      logical :: ordered = .false.
+      integer(ip), allocatable :: order(:), position(:), value_map(:)
+      real(dp), allocatable :: work(:)
    contains
+      procedure :: set_order
       procedure :: setup => ilu0_setup
       procedure :: apply => ilu0_apply
       procedure :: free => ilu0_free
@@ -61,19 +75,52 @@ module twomem_linalg_ilu0
 
 contains
 
-   !> Factorize A ≈ L U on A's pattern. The pattern data is kept when A's pattern equals the
-   !> previous one (checked in O(nnz), cheap next to the factorization).
+   !> Factorize the matrices of later setups in the order of ascending `keys` (one per row, all
+   !> different) instead of their own.
+   subroutine set_order(self, keys)
+      class(ilu0_preconditioner_t), intent(inout) :: self
+      integer(ip), intent(in) :: keys(:)
+
+      integer(ip) :: k
+
+      call self%free()
+      self%order = sorting_permutation(keys)
+      allocate (self%position(size(keys)))
+      do k = 1, size(keys, kind=ip)
+         self%position(self%order(k)) = k
+      end do
+      self%ordered = .true.
+   end subroutine set_order
+
+   !> Factorize A ≈ L U on A's pattern (permuted, after `set_order`). The pattern data is kept
+   !> when A's pattern equals the previous one (checked in O(nnz), cheap next to the
+   !> factorization).
    subroutine ilu0_setup(self, a, err)
       class(ilu0_preconditioner_t), intent(inout) :: self
       type(csr_t), intent(in) :: a
       type(error_t), allocatable, intent(out) :: err
 
+      character(len=32) :: rows
+
       self%ready = .false.
+      if (self%ordered) then
+         ! (no short circuit in Fortran: the size is asked only of an order that is there)
+         if (size(self%order, kind=ip) /= a%n) then
+            write (rows, '(i0)') a%n
+            call make_error(err, exit_not_converged, 'ilu0 setup', 'the order set has '// &
+                            'another size than the matrix''s '//trim(rows)//' rows')
+            return
+         end if
+      end if
       if (.not. same_pattern(self, a)) then
          call analyse(self, a, err)
          if (allocated(err)) return
       end if
-      self%lu(:) = a%val(1:size(self%lu))
+      if (self%ordered) then
+         self%lu(:) = a%val(self%value_map)
+      else
+         self%lu(:) = a%val(1:size(self%lu))
+      end if
       call factorize(self%n, self%row_ptr, self%col, self%diag, self%lu, self%inv_pivot, &
                      self%marker, err)
       if (allocated(err)) return
@@ -84,15 +131,27 @@ contains
       type(ilu0_preconditioner_t), intent(in) :: self
       type(csr_t), intent(in) :: a
 
-      integer(ip) :: nnz
+      integer(ip) :: nnz, k, m, i
 
       same_pattern = .false.
       if (.not. self%analysed) return
       if (a%n /= self%n) return
       nnz = a%row_ptr(a%n + 1) - 1
       if (nnz /= size(self%col)) return
-      if (any(a%row_ptr(1:a%n + 1) /= self%row_ptr)) return
-      if (any(a%col(1:nnz) /= self%col)) return
+      if (.not. self%ordered) then
+         if (any(a%row_ptr(1:a%n + 1) /= self%row_ptr)) return
+         if (any(a%col(1:nnz) /= self%col)) return
+      else
+         ! entry m of permuted row k must come from row order(k) of A, at column order(col(m))
+         do k = 1, self%n
+            i = self%order(k)
+            if (a%row_ptr(i + 1) - a%row_ptr(i) /= self%row_ptr(k + 1) - self%row_ptr(k)) return
+            do m = self%row_ptr(k), self%row_ptr(k + 1) - 1
+               if (self%value_map(m) < a%row_ptr(i) .or. self%value_map(m) >= a%row_ptr(i + 1)) return
+               if (a%col(self%value_map(m)) /= self%order(self%col(m))) return
+            end do
+         end do
+      end if
       same_pattern = .true.
    end function same_pattern
 
@@ -102,19 +161,28 @@ contains
       type(csr_t), intent(in) :: a
       type(error_t), allocatable, intent(out) :: err
 
-      integer(ip) :: i, nnz
+      integer(ip) :: i, nnz, m
       character(len=32) :: row
 
       call self%free()
       self%n = a%n
       nnz = a%row_ptr(a%n + 1) - 1
-      self%row_ptr = a%row_ptr(1:a%n + 1)
-      self%col = a%col(1:nnz)
+      if (self%ordered) then
+         call permuted_pattern(a, self%order, self%position, self%row_ptr, self%col, self%value_map)
+         allocate (self%work(self%n))
+      else
+         self%row_ptr = a%row_ptr(1:a%n + 1)
+         self%col = a%col(1:nnz)
+      end if
       allocate (self%diag(self%n), self%lu(nnz), self%inv_pivot(self%n), self%marker(self%n))
       self%marker = 0
       self%analyses = self%analyses + 1
       do i = 1, self%n
-         self%diag(i) = a%find(i, i)
+         ! (in the factorization's own pattern, which may be A's permuted)
+         self%diag(i) = 0
+         do m = self%row_ptr(i), self%row_ptr(i + 1) - 1
+            if (self%col(m) == i) self%diag(i) = m
+         end do
          if (self%diag(i) == 0) then
             write (row, '(i0)') i
             call make_error(err, exit_not_converged, 'ilu0 setup', &
@@ -125,6 +193,50 @@ contains
       end do
       self%analysed = .true.
    end subroutine analyse
+
+   !> The pattern of P A Pᵀ, row k being row order(k) of A with columns position(j), sorted; its
+   !> entry m is A's entry value_map(m).
+   subroutine permuted_pattern(a, order, position, row_ptr, col, value_map)
+      type(csr_t), intent(in) :: a
+      integer(ip), intent(in) :: order(:), position(:)
+      integer(ip), allocatable, intent(out) :: row_ptr(:), col(:), value_map(:)
+
+      integer(ip) :: k, i, m0, length
+
+      allocate (row_ptr(a%n + 1), col(a%row_ptr(a%n + 1) - 1), value_map(a%row_ptr(a%n + 1) - 1))
+      row_ptr(1) = 1
+      do k = 1, a%n
+         i = order(k)
+         m0 = a%row_ptr(i)
+         length = a%row_ptr(i + 1) - m0
+         row_ptr(k + 1) = row_ptr(k) + length
+         col(row_ptr(k):row_ptr(k + 1) - 1) = position(a%col(m0:m0 + length - 1))
+         value_map(row_ptr(k):row_ptr(k + 1) - 1) = [(m0 + i - 1, i=1, length)]
+         call sort_row(col(row_ptr(k):row_ptr(k + 1) - 1), value_map(row_ptr(k):row_ptr(k + 1) - 1))
+      end do
+   end subroutine permuted_pattern
+
+   !> cols ascending, with `map` moved alike (a row's handful of entries: insertion sort).
+   pure subroutine sort_row(cols, map)
+      integer(ip), intent(inout) :: cols(:), map(:)
+
+      integer(ip) :: j, c, v
+      integer :: k
+
+      do k = 2, size(cols)
+         c = cols(k)
+         v = map(k)
+         j = k - 1
+         do while (j >= 1)
+            if (cols(j) <= c) exit
+            cols(j + 1) = cols(j)
+            map(j + 1) = map(j)
+            j = j - 1
+         end do
+         cols(j + 1) = c
+         map(j + 1) = v
+      end do
+   end subroutine sort_row
 
    !> IKJ ILU(0) in place on lu (which holds A's values on entry). Row i is only changed while
    !> it is the current row, so its original values, hence its norm, are at hand when it
@@ -183,18 +295,41 @@ contains
       real(dp), intent(in) :: r(:)
       real(dp), intent(out) :: z(:)
 
-      integer(ip) :: i, p
-      real(dp) :: s
+      integer(ip) :: i
 
       if (.not. self%ready) then
          z = r
          return
       end if
+      if (self%ordered) then
+         ! z in the factorization's order, then back
+         do i = 1, self%n
+            z(i) = r(self%order(i))
+         end do
+         call solve_in_place(self, z)
+         self%work = z
+         do i = 1, self%n
+            z(self%order(i)) = self%work(i)
+         end do
+      else
+         z = r
+         call solve_in_place(self, z)
+      end if
+   end subroutine ilu0_apply
+
+   !> z = (L U)⁻¹ z in the factorization's order.
+   subroutine solve_in_place(self, z)
+      type(ilu0_preconditioner_t), intent(in) :: self
+      real(dp), intent(inout) :: z(:)
+
+      integer(ip) :: i, p
+      real(dp) :: s
+
       associate (row_ptr => self%row_ptr, col => self%col, diag => self%diag, lu => self%lu, &
                  inv_pivot => self%inv_pivot)
          ! serial: z(i) needs z(1:i-1)
          do i = 1, self%n
-            s = r(i)
+            s = z(i)
             do p = row_ptr(i), diag(i) - 1
                s = s - lu(p)*z(col(p))
             end do
@@ -209,9 +344,10 @@ contains
             z(i) = s*inv_pivot(i)
          end do
       end associate
-   end subroutine ilu0_apply
+   end subroutine solve_in_place
 
-   !> Forget factors and pattern; the analysis count survives (it describes the history).
+   !> Forget factors and pattern; the analysis count (it describes the history) and the order of
+   !> `set_order` (a setting) survive.
    subroutine ilu0_free(self)
       class(ilu0_preconditioner_t), intent(inout) :: self
 
@@ -224,6 +360,8 @@ contains
       if (allocated(self%lu)) deallocate (self%lu)
       if (allocated(self%inv_pivot)) deallocate (self%inv_pivot)
       if (allocated(self%marker)) deallocate (self%marker)
+      if (allocated(self%value_map)) deallocate (self%value_map)
+      if (allocated(self%work)) deallocate (self%work)
    end subroutine ilu0_free
 
    !> Entry (i, j) of the combined factor: l_ij below the diagonal, u_ij on and above it; 0 when

@@ -108,6 +108,11 @@ contains
          end select
       case (precond_ilu0)
          allocate (ilu0_preconditioner_t :: self%prec)
+         select type (prec => self%prec)
+         type is (ilu0_preconditioner_t)
+            ! the paper's preconditioner in the mesh's vertex order, whatever the unknowns' order
+            call prec%set_order(block_vertex_keys(problem))
+         end select
       case (precond_jacobi)
          allocate (jacobi_preconditioner_t :: self%prec)
       case (precond_none)
@@ -117,19 +122,27 @@ contains
       end select
    end subroutine linear_init
 
-   !> The gathered direct solver of the Newton system: unknown i of block k is keyed
-   !> (k − 1) M + (whole-mesh vertex of i), M the largest vertex number, so the whole system
-   !> keeps the block order (X1, X2, X3) and, within a block, the vertex order of the whole mesh.
+   !> The gathered direct solver of the Newton system, its unknowns keyed by block_vertex_keys.
    subroutine init_direct(direct, problem)
       type(gathered_solver_t), intent(inout) :: direct
       type(discrete_problem_t), intent(in) :: problem
 
+      call direct%init(problem%halo%comm, block_vertex_keys(problem), &
+                       [problem%halo%owned, problem%halo%owned, problem%halo%owned])
+   end subroutine init_direct
+
+   !> Unknown i of block k of the Newton system is keyed (k − 1) M + (whole-mesh vertex of i),
+   !> M the largest vertex number: in key order the system keeps the block order (X1, X2, X3)
+   !> and, within a block, the vertex order of the whole mesh. Collective.
+   function block_vertex_keys(problem) result(keys)
+      type(discrete_problem_t), intent(in) :: problem
+      integer(ip), allocatable :: keys(:)
+
       integer(ip) :: m
 
       m = problem%halo%comm%max(maxval([0_ip, problem%global]))
-      call direct%init(problem%halo%comm, [problem%global, m + problem%global, 2*m + problem%global], &
-                       [problem%halo%owned, problem%halo%owned, problem%halo%owned])
-   end subroutine init_direct
+      keys = [problem%global, m + problem%global, 2*m + problem%global]
+   end function block_vertex_keys
 
    !> Solve A x = b for the current linearization of `sys`; x holds the initial guess on entry
    !> (used by GMRES). `atol` > 0 adds an absolute target on ‖b − A x‖ for GMRES; the observer
