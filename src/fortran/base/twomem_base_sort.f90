@@ -9,6 +9,12 @@ module twomem_base_sort
 
    public :: sort_ints, sorting_permutation, sort_pairs, sort_row
 
+   !> Insertion sort of `key` (a row's handful of columns), applying the same moves to `other`:
+   !> the row's values, or where its entries come from.
+   interface sort_pairs
+      module procedure sort_pairs_values, sort_pairs_positions
+   end interface sort_pairs
+
 contains
 
    !> a in ascending order.
@@ -84,13 +90,23 @@ contains
       other(j) = t
    end subroutine swap
 
-   !> Insertion sort of `key` (a row's handful of columns), applying the same moves to `other`.
-   pure subroutine sort_pairs(key, other)
+   pure subroutine sort_pairs_values(key, other)
       integer(ip), intent(inout) :: key(:)
       real(dp), intent(inout) :: other(:)
 
+      integer(ip) :: positions(size(key)), i
+
+      positions = [(i, i=1, size(key, kind=ip))]
+      call sort_pairs_positions(key, positions)
+      other = other(positions)
+   end subroutine sort_pairs_values
+
+   pure subroutine sort_pairs_positions(key, other)
+      integer(ip), intent(inout) :: key(:)
+      integer(ip), intent(inout) :: other(:)
+
       integer(ip) :: i, j, k
-      real(dp) :: o
+      integer(ip) :: o
 
       do i = 2, size(key)
          k = key(i)
@@ -105,7 +121,7 @@ contains
          key(j + 1) = k
          other(j + 1) = o
       end do
-   end subroutine sort_pairs
+   end subroutine sort_pairs_positions
 
    !> Insertion sort of `key` (a row's handful of columns).
    pure subroutine sort_row(key)

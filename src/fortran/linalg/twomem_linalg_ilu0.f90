@@ -212,31 +212,9 @@ contains
          row_ptr(k + 1) = row_ptr(k) + length
          col(row_ptr(k):row_ptr(k + 1) - 1) = position(a%col(m0:m0 + length - 1))
          value_map(row_ptr(k):row_ptr(k + 1) - 1) = [(m0 + i - 1, i=1, length)]
-         call sort_row(col(row_ptr(k):row_ptr(k + 1) - 1), value_map(row_ptr(k):row_ptr(k + 1) - 1))
+         call sort_pairs(col(row_ptr(k):row_ptr(k + 1) - 1), value_map(row_ptr(k):row_ptr(k + 1) - 1))
       end do
    end subroutine permuted_pattern
-
-   !> cols ascending, with `map` moved alike (a row's handful of entries: insertion sort).
-   pure subroutine sort_row(cols, map)
-      integer(ip), intent(inout) :: cols(:), map(:)
-
-      integer(ip) :: j, c, v
-      integer :: k
-
-      do k = 2, size(cols)
-         c = cols(k)
-         v = map(k)
-         j = k - 1
-         do while (j >= 1)
-            if (cols(j) <= c) exit
-            cols(j + 1) = cols(j)
-            map(j + 1) = map(j)
-            j = j - 1
-         end do
-         cols(j + 1) = c
-         map(j + 1) = v
-      end do
-   end subroutine sort_row
 
    !> IKJ ILU(0) in place on lu (which holds A's values on entry). Row i is only changed while
    !> it is the current row, so its original values, hence its norm, are at hand when it
