@@ -201,7 +201,7 @@ contains
       integer(ip), intent(in) :: order(:), position(:)
       integer(ip), allocatable, intent(out) :: row_ptr(:), col(:), value_map(:)
 
-      integer(ip) :: k, i, m0, length
+      integer(ip) :: k, i, j, m0, length
 
       allocate (row_ptr(a%n + 1), col(a%row_ptr(a%n + 1) - 1), value_map(a%row_ptr(a%n + 1) - 1))
       row_ptr(1) = 1
@@ -211,7 +211,7 @@ contains
          length = a%row_ptr(i + 1) - m0
          row_ptr(k + 1) = row_ptr(k) + length
          col(row_ptr(k):row_ptr(k + 1) - 1) = position(a%col(m0:m0 + length - 1))
-         value_map(row_ptr(k):row_ptr(k + 1) - 1) = [(m0 + i - 1, i=1, length)]
+         value_map(row_ptr(k):row_ptr(k + 1) - 1) = [(m0 + j - 1, j=1, length)]
          call sort_pairs(col(row_ptr(k):row_ptr(k + 1) - 1), value_map(row_ptr(k):row_ptr(k + 1) - 1))
       end do
    end subroutine permuted_pattern
