@@ -70,15 +70,21 @@ contains
       integer, intent(in) :: l
       type(csr_t) :: p
 
-      integer(ip), allocatable :: fine(:), coarse(:), row_ptr(:), col(:)
+      p = prolongation_between(hierarchy, l, interior_numbering(hierarchy%meshes(l)), &
+                               interior_numbering(hierarchy%meshes(l - 1)))
+   end function interior_prolongation
+
+   !> P_l for the numberings `fine` of level l and `coarse` of level l − 1 (interior_numbering).
+   function prolongation_between(hierarchy, l, fine, coarse) result(p)
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
+      integer, intent(in) :: l
+      integer(ip), intent(in) :: fine(:), coarse(:)
+      type(csr_t) :: p
+
+      integer(ip), allocatable :: row_ptr(:), col(:)
       real(dp), allocatable :: val(:)
       integer(ip) :: a, k, nf, nnz, m
 
-      ! allocated first: assigning the result to an unallocated array trips gfortran 12's
-      ! -Wuninitialized at -O0
-      allocate (fine(hierarchy%meshes(l)%nv), coarse(hierarchy%meshes(l - 1)%nv))
-      fine(:) = interior_numbering(hierarchy%meshes(l))
-      coarse(:) = interior_numbering(hierarchy%meshes(l - 1))
       nf = maxval(fine)
       ! rows in unknown order, which is not vertex order: each row's length first
       allocate (row_ptr(nf + 1), col(2*nf), val(2*nf))
@@ -116,19 +122,23 @@ contains
       call p%init_pattern(row_ptr, col(1:nnz), ncol=maxval(coarse))
       ! sorting may swap the two entries of a midpoint row, which are equal: values keep their place
       p%val = val(1:nnz)
-   end function interior_prolongation
+   end function prolongation_between
 
-   !> P_1 .. P_L for levels 0..L of `hierarchy` (L = `finest`).
+   !> P_1 .. P_L for levels 0..L of `hierarchy` (L = `finest`), each level's numbering made once.
    function interior_prolongations(hierarchy, finest) result(p)
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       integer, intent(in) :: finest
       type(csr_t), allocatable :: p(:)
 
+      integer(ip), allocatable :: fine(:), coarse(:)
       integer :: l
 
       allocate (p(finest))
+      if (finest > 0) coarse = interior_numbering(hierarchy%meshes(0))
       do l = 1, finest
-         p(l) = interior_prolongation(hierarchy, l)
+         fine = interior_numbering(hierarchy%meshes(l))
+         p(l) = prolongation_between(hierarchy, l, fine, coarse)
+         call move_alloc(fine, coarse)
       end do
    end function interior_prolongations
    !> The interface of the unknowns at vertices `interior` of a rank's piece of a distributed
