@@ -59,10 +59,10 @@ module twomem_linalg_ilu0
       real(dp), allocatable :: inv_pivot(:)
       !> scratch for setup: position in the current row of each column, 0 if absent
       integer(ip), allocatable :: marker(:)
-      !> with `set_order`: row k of the factorization is row order(k) of A (position is the
-      !> inverse), its entry m is A's entry value_map(m); work holds a permuted vector in apply
+      !> with `set_order`: row k of the factorization is row order(k) of A, its entry m is A's
+      !> entry value_map(m); work holds a permuted vector in apply
       logical :: ordered = .false.
-      integer(ip), allocatable :: order(:), position(:), value_map(:)
+      integer(ip), allocatable :: order(:), value_map(:)
       real(dp), allocatable :: work(:)
    contains
       procedure :: set_order
@@ -81,14 +81,8 @@ contains
       class(ilu0_preconditioner_t), intent(inout) :: self
       integer(ip), intent(in) :: keys(:)
 
-      integer(ip) :: k
-
       call self%free()
       self%order = sorting_permutation(keys)
-      allocate (self%position(size(keys)))
-      do k = 1, size(keys, kind=ip)
-         self%position(self%order(k)) = k
-      end do
       self%ordered = .true.
    end subroutine set_order
 
@@ -168,7 +162,7 @@ contains
       self%n = a%n
       nnz = a%row_ptr(a%n + 1) - 1
       if (self%ordered) then
-         call permuted_pattern(a, self%order, self%position, self%row_ptr, self%col, self%value_map)
+         call permuted_pattern(a, self%order, self%row_ptr, self%col, self%value_map)
          allocate (self%work(self%n))
       else
          self%row_ptr = a%row_ptr(1:a%n + 1)
@@ -194,16 +188,20 @@ contains
       self%analysed = .true.
    end subroutine analyse
 
-   !> The pattern of P A Pᵀ, row k being row order(k) of A with columns position(j), sorted; its
-   !> entry m is A's entry value_map(m).
-   subroutine permuted_pattern(a, order, position, row_ptr, col, value_map)
+   !> The pattern of P A Pᵀ, row k being row order(k) of A with column j at position(j), order's
+   !> inverse, sorted; its entry m is A's entry value_map(m).
+   subroutine permuted_pattern(a, order, row_ptr, col, value_map)
       type(csr_t), intent(in) :: a
-      integer(ip), intent(in) :: order(:), position(:)
+      integer(ip), intent(in) :: order(:)
       integer(ip), allocatable, intent(out) :: row_ptr(:), col(:), value_map(:)
 
+      integer(ip), allocatable :: position(:)
       integer(ip) :: k, i, j, m0, length
 
-      allocate (row_ptr(a%n + 1), col(a%row_ptr(a%n + 1) - 1), value_map(a%row_ptr(a%n + 1) - 1))
+      allocate (position(a%n), row_ptr(a%n + 1), col(a%row_ptr(a%n + 1) - 1), value_map(a%row_ptr(a%n + 1) - 1))
+      do k = 1, a%n
+         position(order(k)) = k
+      end do
       row_ptr(1) = 1
       do k = 1, a%n
          i = order(k)
