@@ -58,11 +58,8 @@ contains
       real(dp), intent(in) :: values(:)
       real(dp), allocatable :: whole(:)
 
-      real(dp), allocatable :: gathered(:)
-
-      allocate (gathered(size(self%vertex_slots)), whole(merge(self%nv, 0_ip, self%comm%is_root())))
-      call self%comm%gatherv(values(self%my_vertices), self%vertex_counts, gathered)
-      if (self%comm%is_root()) whole(self%vertex_slots) = gathered
+      allocate (whole(merge(self%nv, 0_ip, self%comm%is_root())))
+      call gather_reals(self, values, self%my_vertices, self%vertex_counts, self%vertex_slots, whole)
    end function nodal
 
    !> The whole per-triangle field (rank 0) from this rank's values on its triangles. Collective.
@@ -71,12 +68,36 @@ contains
       real(dp), intent(in) :: values(:)
       real(dp), allocatable :: whole(:)
 
-      real(dp), allocatable :: gathered(:)
-
-      allocate (gathered(size(self%triangle_slots)), whole(merge(self%nt, 0_ip, self%comm%is_root())))
-      call self%comm%gatherv(values(self%my_triangles), self%triangle_counts, gathered)
-      if (self%comm%is_root()) whole(self%triangle_slots) = gathered
+      allocate (whole(merge(self%nt, 0_ip, self%comm%is_root())))
+      call gather_reals(self, values, self%my_triangles, self%triangle_counts, self%triangle_slots, whole)
    end function cells
+
+   !> whole(slots) on rank 0 = every rank's values(mine), in rank order. One rank moves each
+   !> value straight to its place, threaded: at 4.5·10^6 vertices the result's copies through a
+   !> gathered buffer, made by one thread, took a few tenths of a second. Collective.
+   subroutine gather_reals(self, values, mine, counts, slots, whole)
+      type(gather_plan_t), intent(in) :: self
+      real(dp), intent(in) :: values(:)
+      integer(ip), intent(in) :: mine(:), slots(:)
+      integer, intent(in) :: counts(:)
+      real(dp), intent(inout) :: whole(:)
+
+      real(dp), allocatable :: gathered(:)
+      integer(ip) :: i
+
+      if (self%comm%size == 1) then
+         !$omp parallel do default(none) shared(whole, slots, values, mine) private(i) schedule(static) &
+         !$omp if(size(mine) > 4096)
+         do i = 1, size(mine, kind=ip)
+            whole(slots(i)) = values(mine(i))
+         end do
+         !$omp end parallel do
+         return
+      end if
+      allocate (gathered(size(slots)))
+      call self%comm%gatherv(values(mine), counts, gathered)
+      if (self%comm%is_root()) whole(slots) = gathered
+   end subroutine gather_reals
 
    !> The whole mesh's vertices (2, nv) and triangles (3, nt) on rank 0. Collective.
    subroutine mesh_arrays(self, mesh, vertices, triangles)

@@ -14,6 +14,7 @@ module twomem_linalg_chebyshev
    use twomem_base_kinds, only: dp, ip
    use twomem_linalg_csr, only: csr_t, cut_entry
    use twomem_linalg_halo, only: halo_t
+   use twomem_linalg_vectors, only: copy_allocated
    implicit none
    private
 
@@ -30,6 +31,7 @@ module twomem_linalg_chebyshev
       real(dp), allocatable :: part_diag(:), part_sum(:)
    contains
       procedure :: setup
+      procedure :: copy_from
       procedure :: smooth
    end type chebyshev_t
 
@@ -97,8 +99,8 @@ contains
          end do
          !$omp end parallel do
       end if
-      diag = self%part_diag
-      row_sum = self%part_sum
+      call copy_allocated(self%part_diag, diag)
+      call copy_allocated(self%part_sum, row_sum)
       call halo%add(diag)
       call halo%add(row_sum)
       if (allocated(self%inv_diag)) then
@@ -119,6 +121,22 @@ contains
       !$omp end parallel do
       self%upper = max(halo%comm%max(bound), 1.0_dp)
    end subroutine setup
+
+   !> self becomes a copy of source, its arrays written by the threads (`copy_allocated`).
+   subroutine copy_from(self, source)
+      class(chebyshev_t), intent(inout) :: self
+      type(chebyshev_t), intent(in) :: source
+
+      self%degree = source%degree
+      self%ratio = source%ratio
+      self%upper = source%upper
+      if (allocated(self%inv_diag)) deallocate (self%inv_diag)
+      if (allocated(self%part_diag)) deallocate (self%part_diag)
+      if (allocated(self%part_sum)) deallocate (self%part_sum)
+      if (allocated(source%inv_diag)) call copy_allocated(source%inv_diag, self%inv_diag)
+      if (allocated(source%part_diag)) call copy_allocated(source%part_diag, self%part_diag)
+      if (allocated(source%part_sum)) call copy_allocated(source%part_sum, self%part_sum)
+   end subroutine copy_from
 
    !> Row i's diagonal entry and sum of absolute values (of `a` cut, given `diagonal` and `fixed`).
    pure subroutine row_parts(a, i, diag, row_sum, diagonal, fixed)

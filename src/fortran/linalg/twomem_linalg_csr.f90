@@ -6,6 +6,7 @@
 module twomem_linalg_csr
    use twomem_base_kinds, only: dp, ip
    use twomem_base_sort, only: sort_row
+   use twomem_linalg_vectors, only: copy_allocated
    implicit none
    private
 
@@ -18,6 +19,7 @@ module twomem_linalg_csr
       real(dp), allocatable :: val(:)
    contains
       procedure :: init_pattern
+      procedure :: copy_from
       procedure :: nnz
       procedure :: find
       procedure :: matvec
@@ -56,6 +58,20 @@ contains
       end do
       !$omp end parallel do
    end subroutine init_pattern
+
+   !> self becomes a copy of source, its arrays written by the threads (`copy_allocated`): a
+   !> plain assignment would leave the first touch of every fresh page to one core.
+   subroutine copy_from(self, source)
+      class(csr_t), intent(inout) :: self
+      type(csr_t), intent(in) :: source
+
+      call self%free()
+      self%n = source%n
+      self%ncol = source%ncol
+      if (allocated(source%row_ptr)) call copy_allocated(source%row_ptr, self%row_ptr)
+      if (allocated(source%col)) call copy_allocated(source%col, self%col)
+      if (allocated(source%val)) call copy_allocated(source%val, self%val)
+   end subroutine copy_from
 
    !> The matrix goes: no rows, no entries.
    subroutine csr_free(self)

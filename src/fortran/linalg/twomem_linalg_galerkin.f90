@@ -18,6 +18,7 @@ module twomem_linalg_galerkin
    use twomem_base_sort, only: sort_pairs
    use twomem_linalg_csr, only: csr_t
    use twomem_linalg_halo, only: halo_t
+   use twomem_linalg_vectors, only: copy_allocated
    implicit none
    private
 
@@ -353,15 +354,26 @@ contains
       logical, allocatable :: moved(:), reach(:)
       integer(ip) :: i, k
 
-      moved = flipped
+      ! (the full-length copies threaded: their first touch is most of this routine's time)
+      call copy_allocated(flipped, moved)
       do i = 1, r%n
          if (coarse_flipped(i)) moved(r%col(r%row_ptr(i):r%row_ptr(i + 1) - 1)) = .true.
       end do
-      reach = flipped .or. changed
+      allocate (reach(a%n))
+      !$omp parallel do default(none) shared(a, reach, flipped, changed) private(i) schedule(static) if(a%n > 4096)
+      do i = 1, a%n
+         reach(i) = flipped(i) .or. changed(i)
+      end do
+      !$omp end parallel do
       do i = 1, a%n
          if (changed(i) .or. moved(i)) reach(a%col(a%row_ptr(i):a%row_ptr(i + 1) - 1)) = .true.
       end do
-      touched = coarse_flipped
+      !$omp parallel do default(none) shared(touched, coarse_flipped) private(i) schedule(static) &
+      !$omp if(size(touched) > 4096)
+      do i = 1, size(touched, kind=ip)
+         touched(i) = coarse_flipped(i)
+      end do
+      !$omp end parallel do
       do i = 1, p%n
          if (reach(i)) then
             do k = p%row_ptr(i), p%row_ptr(i + 1) - 1

@@ -12,6 +12,7 @@ module twomem_linalg_gmres
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_bad_input
    use twomem_linalg_operators, only: linear_operator_t, preconditioner_t, inner_product_t
+   use twomem_linalg_vectors, only: copy_into
    implicit none
    private
 
@@ -453,7 +454,7 @@ contains
          outcome = cycle_nonfinite
          return
       end if
-      call copy(ws%xc, x)
+      call copy_into(ws%xc, x)
       if (outcome == cycle_pending) call ws%release_basis()
    end subroutine arnoldi_cycle
 
@@ -538,7 +539,7 @@ contains
          ws%y(i) = (ws%g(i) - sum(ws%h(i, i + 1:k)*ws%y(i + 1:k)))/ws%h(i, i)
       end do
       if (.not. allocated(ws%xc)) allocate (ws%xc(ws%n))
-      call copy(x, ws%xc)
+      call copy_into(x, ws%xc)
       do i = 1, k
          call axpy(ws%y(i), ws%z(i)%x, ws%xc)
       end do
@@ -573,19 +574,6 @@ contains
       end do
       !$omp end parallel do
    end subroutine axpy
-
-   subroutine copy(x, y)
-      real(dp), intent(in) :: x(:)
-      real(dp), intent(out) :: y(:)
-
-      integer(ip) :: i
-
-      !$omp parallel do default(none) shared(x, y) private(i) schedule(static) if(size(y) > 4096)
-      do i = 1, size(y, kind=ip)
-         y(i) = x(i)
-      end do
-      !$omp end parallel do
-   end subroutine copy
 
    !> x = x / a (a division, as the textbook normalization: the same bits as before threading)
    subroutine divide(x, a)

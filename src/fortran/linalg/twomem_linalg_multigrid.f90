@@ -31,6 +31,7 @@ module twomem_linalg_multigrid
    use twomem_linalg_chebyshev, only: chebyshev_t, level_product
    use twomem_linalg_halo, only: halo_t
    use twomem_linalg_gathered_solve, only: gathered_solver_t
+   use twomem_linalg_vectors, only: copy_allocated, fill
    use twomem_base_comm, only: comm_t
    implicit none
    private
@@ -262,7 +263,8 @@ contains
       if (.not. fused) then
          do l = top, 1, -1
             if (present(start_from)) then
-               self%levels(l - 1)%a = start_from%levels(l - 1)%a
+               ! pattern and values (`start_as` keeps the values when the start can serve)
+               call self%levels(l - 1)%a%copy_from(start_from%levels(l - 1)%a)
             else if (l == top) then
                call galerkin_pattern(transfer%r(l), finest, transfer%p(l), self%levels(l - 1)%a)
             else
@@ -277,8 +279,8 @@ contains
             allocate (lev%fixed(n))
             if (l < top) allocate (lev%part_diag(n), lev%cut(n))
             allocate (lev%updated(n))
-            lev%fixed = .false.
-            if (l < top) lev%cut = .false.
+            call fill(lev%fixed, .false.)
+            if (l < top) call fill(lev%cut, .false.)
          end associate
       end do
       if (present(base) .and. top > 0) then
@@ -351,22 +353,22 @@ contains
          end associate
       end if
       if (self%transfer%halos(top)%comm%any_true(.not. usable)) return
+      ! (init copied the coarse operators, values included)
       do l = 0, top
          associate (lev => self%levels(l), src => start%levels(l))
             if (l < top) then
-               lev%a%val = src%a%val
-               lev%part_diag = src%part_diag
-               lev%cut = src%cut
+               call copy_allocated(src%part_diag, lev%part_diag)
+               call copy_allocated(src%cut, lev%cut)
             end if
-            if (l > 0) lev%smoother = src%smoother
+            if (l > 0) call lev%smoother%copy_from(src%smoother)
          end associate
       end do
       if (associated(self%base)) then
          associate (below => start%levels(top - 1))
             if (allocated(below%base_part)) then
-               self%levels(top - 1)%base_part = below%base_part
+               call copy_allocated(below%base_part, self%levels(top - 1)%base_part)
             else
-               self%levels(top - 1)%base_part = below%a%val
+               call copy_allocated(below%a%val, self%levels(top - 1)%base_part)
             end if
          end associate
       end if

@@ -28,6 +28,7 @@ module twomem_newton_elimination
    use twomem_base_system, only: return_freed_memory
    use twomem_linalg_csr, only: csr_t
    use twomem_linalg_halo, only: halo_t
+   use twomem_linalg_vectors, only: fill
    use twomem_linalg_operators, only: preconditioner_t
    use twomem_linalg_multigrid, only: multigrid_t, multigrid_options_t, multigrid_transfer_t, multigrid_work_t
    use twomem_fem_discrete, only: discrete_problem_t
@@ -141,9 +142,11 @@ contains
       allocate (self%cycle_work)
       call self%cycle_work%init(self%s_mg)
       allocate (self%k_diag(n))
+      !$omp parallel do default(none) shared(self, p, n) private(i) schedule(static) if(n > 4096)
       do i = 1, n
          self%k_diag(i) = p%stiffness%val(p%stiffness%find(i, i))
       end do
+      !$omp end parallel do
       call self%halo%add(self%k_diag)
       if (top == 0) then
          allocate (self%diag(n), self%flipped(n), self%refill(n))
@@ -153,8 +156,8 @@ contains
       end if
       allocate (self%a(n), self%b(n), self%fixed(n), self%row_changed(n), self%by_balance(n), self%shift(n), &
                 self%rhs_w(n), self%w_fixed(n), self%kw(n))
-      self%fixed = .false.
-      self%shift = 0.0_dp
+      call fill(self%fixed, .false.)
+      call fill(self%shift, 0.0_dp)
       self%built = self%w_mg%valid
    end subroutine init
 
