@@ -25,7 +25,10 @@ in vertex order, but every sparse product now sums its rows in another order, wh
 GMRES iterates by round-off; in the L-shape GMRES cases the paper's test then meets its tie
 (algebraic = linearization residual) on the other side at Newton step 10 (12 steps instead of
 10), and the adaptive cases' converged η_lin moved by up to 2e-6 relative. The direct cases,
-whose iterates do not depend on GMRES, still reproduce 30774a0's estimator code. The command runs each case of CASES below with OMP_NUM_THREADS=1 and stores the `/history` and
+whose iterates do not depend on GMRES, still reproduce 30774a0's estimator code. The two
+L-shape cases were regenerated again when nested iteration began to settle the contact set of
+its interpolated start (twomem_newton_settle): their iterates changed (10 Newton steps instead
+of 12), not the estimator code. The command runs each case of CASES below with OMP_NUM_THREADS=1 and stores the `/history` and
 `/estimators` groups of its result file as tests/regression/reference/estimators_<case>.h5. Regenerate
 only where round-off moves a value beyond the tolerance, and say so in the commit.
 

@@ -91,10 +91,16 @@ def test_adaptive_method_stops_on_the_estimators():
     h, s = history(path), summary(path)
     last = np.flatnonzero(h["inner"] == 0)[-1]
     assert h["eta_lin"][last] <= 0.3 * h["eta_disc"][last]
-    # every GMRES solve ended on the algebraic criterion (63a)
+    # every GMRES solve that evaluated the algebraic flux ended on the algebraic criterion (63a);
+    # the default schedule (estimate.checks = 'predicted') leaves the flux out where η_lin
+    # exceeds γ_lin η_disc, as Newton cannot stop there, but never at the last step
     newton_rows = np.flatnonzero((h["inner"] == 0) & (h["newton_it"] > 0))
+    assert np.isfinite(h["eta_alg"][newton_rows[-1]])
     for row in newton_rows:
-        assert h["eta_alg"][row] <= 0.3 * max(h["eta_disc"][row], h["eta_lin"][row])
+        if np.isfinite(h["eta_alg"][row]):
+            assert h["eta_alg"][row] <= 0.3 * max(h["eta_disc"][row], h["eta_lin"][row])
+        else:
+            assert h["eta_lin"][row] > 0.3 * h["eta_disc"][row]
     assert 1.0 <= s["effectivity"] <= 1.15
 
 
@@ -157,8 +163,9 @@ def test_gmres_goes_on_after_a_predicted_last_evaluation():
     """A whole evaluation that the Newton test predicts to be the last releases the multigrid
     hierarchies first (twomem_newton_inner); with a strict γ_alg its algebraic test fails there,
     GMRES goes on with the hierarchies rebuilt, and the run still ends on the direct method's
-    solution."""
-    common = ("problem.exact=bbbv", "mesh.levels=2")
+    solution. From (g, 0, 0): nested iteration's start, settled, leaves this mesh a single
+    Newton step, whose last evaluation ends the run."""
+    common = ("problem.exact=bbbv", "mesh.levels=2", "newton.initial=paper")
     strict = solve("release-strict", *common, "newton.linear=adaptive", "estimate.gamma_alg=1e-6")
     direct = solve("release-direct", *common, "newton.linear=direct")
     h = history(strict)

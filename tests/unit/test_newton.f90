@@ -10,6 +10,7 @@ module test_newton
    use twomem_newton_inner, only: check_schedule_t, newton_observer_t
    use twomem_newton_fb_finish, only: fb_finish_t
    use twomem_newton_history, only: history_row_t, not_computed
+   use twomem_newton_settle, only: settle_contact
    use twomem_testing, only: unittest_t, new_unittest, check, check_close, error_t
    use test_refinement, only: square_problem
    implicit none
@@ -42,7 +43,8 @@ contains
                new_unittest('iteration_limit_reported', test_limit), &
                new_unittest('check_schedule_predicts_the_newton_test', test_check_schedule), &
                new_unittest('check_schedule_stages', test_check_stages), &
-               new_unittest('fb_finish_schedule', test_fb_finish)]
+               new_unittest('fb_finish_schedule', test_fb_finish), &
+               new_unittest('settle_restores_the_discrete_solution', test_settle)]
    end subroutine collect_newton
 
    subroutine test_cfun_min(err)
@@ -160,6 +162,39 @@ contains
       call check(err, count(lam > 0) > 0 .and. count(w > 0) > 0, 'both contact and no contact')
       call check(err, res%history%rows(res%history%n)%lin_residual <= 1.0e-10_dp, 'paper stopping test')
    end subroutine test_discrete_equations
+
+   !> The discrete solution (UMFPACK, checked against its equations above) is a fixed point of
+   !> the settling, and a vertex whose multiplier alone breaks complementarity (its neighbours'
+   !> rows do not read it) gets its solution values back from its own local problem.
+   subroutine test_settle(err)
+      type(error_t), allocatable, intent(out) :: err
+      type(discrete_problem_t) :: p
+      type(newton_result_t) :: res
+      real(dp), allocatable :: x(:)
+      integer(ip) :: n, free, contact, settled
+      real(dp) :: scale
+
+      call solve_square(4, 100, p, res, err)
+      if (allocated(err)) return
+      call check(err, res%converged, 'converged: '//res%status)
+      if (allocated(err)) return
+      n = p%n
+      scale = maxval(abs(res%x))
+      x = res%x
+      call settle_contact(p, x, settled)
+      call check(err, maxval(abs(x - res%x)) <= 1.0e-12_dp*scale, 'the solution is a fixed point')
+      ! a free vertex with a multiplier, a contact vertex with a negative one
+      free = findloc(res%x(1:n) - res%x(n + 1:2*n) > 0.1_dp*scale, .true., dim=1, kind=ip)
+      contact = findloc(res%x(2*n + 1:) > 0.0_dp, .true., dim=1, kind=ip)
+      call check(err, free > 0 .and. contact > 0, 'the case has free and contact vertices')
+      if (allocated(err)) return
+      x = res%x
+      x(2*n + free) = 1.0_dp
+      x(2*n + contact) = -1.0_dp
+      call settle_contact(p, x, settled)
+      call check(err, settled >= 2, 'the broken vertices were relaxed')
+      call check(err, maxval(abs(x - res%x)) <= 1.0e-12_dp*scale, 'both vertices restored')
+   end subroutine test_settle
 
    subroutine test_limit(err)
       type(error_t), allocatable, intent(out) :: err

@@ -1,7 +1,8 @@
 !> Newton on the levels of the hierarchy: on the finest level alone from the paper's initial
 !> guess (g, 0, 0), or by nested iteration, from T_0 up, each level's solution interpolated as
-!> the next one's initial guess, which keeps the Newton count on the finest level nearly
-!> independent of the mesh (the contact front starts one layer from its place). The multigrid
+!> the next one's initial guess, its contact set settled vertex by vertex where interpolation
+!> broke complementarity (`twomem_newton_settle`), which keeps the Newton count on the finest
+!> level nearly independent of the mesh. The multigrid
 !> transfers of the whole hierarchy (prolongations, each level's interface in a distributed run,
 !> the keys of the coarsest level's gathered solve) are built once here and serve every level.
 module twomem_app_levels
@@ -23,6 +24,7 @@ module twomem_app_levels
    use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_observer_t, newton_solve, &
       method_direct, method_gmres, method_adaptive, forcing_finish, automatic_every
    use twomem_newton_linear, only: precond_mg
+   use twomem_newton_settle, only: settle_contact
    implicit none
    private
 
@@ -93,6 +95,7 @@ contains
                x0 = [spread(data%g, 1, pl%n), spread(0.0_dp, 1, 2*pl%n)]
             else
                x0 = interior_values(pl, fine)
+               call settle_contact(pl, x0)
             end if
             call newton_solve(pl, quiet, x0, step, err, transfer=transfer, level=l - bottom)
             if (allocated(err)) return
@@ -109,6 +112,7 @@ contains
       end do
       ! the interpolated nodal fields are not kept through the finest solve
       x0 = interior_values(p, fine)
+      call settle_contact(p, x0)
       deallocate (fine)
       call newton_solve(p, options, x0, newton, err, observer, transfer, finest - bottom)
    end subroutine solve_levels
