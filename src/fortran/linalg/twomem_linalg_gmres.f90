@@ -134,7 +134,7 @@ contains
       nothing_pending = .false.
    end function nothing_pending
 
-   !> Free the Krylov basis and the observed iterate but v(1), which the next residual needs;
+   !> Free the Krylov basis and the observed iterate but v(1), which holds the residual;
    !> the iteration allocates them again as it reaches them. Between solves, the caller may do
    !> the same before it needs the memory.
    subroutine release_basis(self)
@@ -294,10 +294,15 @@ contains
          observed = .false.
          if (outcome == cycle_pending) then
             ! the cycle ended at the iterate the observer put its work off for: it finishes now,
-            ! with the basis freed
+            ! with the basis freed and the residual too (its norm is beta; an evaluation that
+            ! ends the run then peaks 3n values lower), formed again, the same bits, if GMRES
+            ! goes on
+            deallocate (ws%v(1)%x)
             call observer%observe(it, x, beta, stop)
             observed = .true.
             outcome = merge(cycle_stopped, cycle_full, stop)
+            call reach(ws%v, 1, ws%n)
+            if (.not. stop) call residual(op, b, x, ws%v(1)%x)
          end if
          if (.not. ieee_is_finite(beta)) then
             call finish(mon, 'breakdown')
