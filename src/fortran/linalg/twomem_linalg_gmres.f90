@@ -293,16 +293,10 @@ contains
       do
          observed = .false.
          if (outcome == cycle_pending) then
-            ! the cycle ended at the iterate the observer put its work off for: it finishes now,
-            ! with the basis freed and the residual too (its norm is beta; an evaluation that
-            ! ends the run then peaks 3n values lower), formed again, the same bits, if GMRES
-            ! goes on
-            deallocate (ws%v(1)%x)
-            call observer%observe(it, x, beta, stop)
+            ! the cycle ended at the iterate the observer put its work off for: it finishes now
+            call finish_put_off(stop)
             observed = .true.
             outcome = merge(cycle_stopped, cycle_full, stop)
-            call reach(ws%v, 1, ws%n)
-            if (.not. stop) call residual(op, b, x, ws%v(1)%x)
          end if
          if (.not. ieee_is_finite(beta)) then
             call finish(mon, 'breakdown')
@@ -338,11 +332,8 @@ contains
             end if
             if (present(observer) .and. .not. observed) then
                call observer%observe(it, x, beta, stop)
-               if (.not. stop .and. observer%pending()) then
-                  ! x is the iterate already: only the basis goes before the observer finishes
-                  call ws%release_basis()
-                  call observer%observe(it, x, beta, stop)
-               end if
+               ! x is the iterate already
+               if (.not. stop .and. observer%pending()) call finish_put_off(stop)
                if (stop) then
                   call finish(mon, 'stopped by observer')
                   exit
@@ -363,6 +354,23 @@ contains
       mon%final_residual = beta
       mon%iterations = it
       mon%residual_history = history(0:it)
+
+   contains
+
+      !> The observer finishes the check it put off at x, with the Krylov basis freed and the
+      !> residual too (its norm is beta: an evaluation that ends the run then peaks 3n values
+      !> lower); the residual is formed again, the same bits, if GMRES goes on.
+      subroutine finish_put_off(stop)
+         logical, intent(out) :: stop
+
+         call ws%release_basis()
+         if (allocated(ws%v(1)%x)) deallocate (ws%v(1)%x)
+         call observer%observe(it, x, beta, stop)
+         ! (after a stop the evaluation's arrays are still there: the column waits for the next solve)
+         if (stop) return
+         call reach(ws%v, 1, ws%n)
+         call residual(op, b, x, ws%v(1)%x)
+      end subroutine finish_put_off
    end subroutine run_gmres
 
    subroutine finish(mon, reason)
