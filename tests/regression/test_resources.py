@@ -229,7 +229,10 @@ def test_sigterm_under_mpirun_stops_every_rank(work):
                 proc.kill()
     # mpirun's own exit status is its business (Open MPI 4: 1); what matters is below
     assert proc.returncode != 0
-    assert err.count("twomem: interrupted by SIGTERM") == 1, err
+    # rank 0 alone prints the line (never one per rank); mpirun relays it, but a mpirun that is
+    # ending on the same signal may close the relay first (seen once in a CI run under load,
+    # with every rank stopped and the old result intact): the line is not required
+    assert err.count("twomem: interrupted by SIGTERM") <= 1, err
     for _ in range(100):
         if not ranks_of(target):
             break
