@@ -202,8 +202,9 @@ def ranks_of(target: Path) -> list[int]:
     return found
 
 
-@pytest.mark.skipif(shutil.which("mpirun") is None, reason="no mpirun")
-def test_sigterm_under_mpirun_stops_every_rank(work):
+def sigterm_under_mpirun(work: Path) -> str:
+    """SIGTERM to mpirun mid-solve of a 2-rank run that would overwrite an old result: every rank
+    stops, the old result and the output directory are untouched. Returns mpirun's stderr."""
     target, before = old_result(work)
     out = work / "stdout.txt"
     env = {**UNBUFFERED, "OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
@@ -229,10 +230,6 @@ def test_sigterm_under_mpirun_stops_every_rank(work):
                 proc.kill()
     # mpirun's own exit status is its business (Open MPI 4: 1); what matters is below
     assert proc.returncode != 0
-    # rank 0 alone prints the line (never one per rank); mpirun relays it, but a mpirun that is
-    # ending on the same signal may close the relay first (seen once in a CI run under load,
-    # with every rank stopped and the old result intact): the line is not required
-    assert err.count("twomem: interrupted by SIGTERM") <= 1, err
     for _ in range(100):
         if not ranks_of(target):
             break
@@ -240,3 +237,17 @@ def test_sigterm_under_mpirun_stops_every_rank(work):
     assert ranks_of(target) == [], "a rank outlived mpirun"
     assert digest(target) == before
     assert files(work / "out") == ["result.h5", "result.xdmf"]
+    return err
+
+
+@pytest.mark.skipif(shutil.which("mpirun") is None, reason="no mpirun")
+def test_sigterm_under_mpirun_stops_every_rank(work):
+    err = sigterm_under_mpirun(work)
+    if not err:
+        # mpirun, ending on the same signal, may close its relay of rank 0's stderr before the
+        # line passes (seen once in a CI run under load, every other check held): the scenario,
+        # all its checks included, runs once more, and that run must print the line
+        shutil.rmtree(work / "out")
+        err = sigterm_under_mpirun(work)
+    # rank 0 alone prints it: one line per run, not one per rank
+    assert err.count("twomem: interrupted by SIGTERM") == 1, err
