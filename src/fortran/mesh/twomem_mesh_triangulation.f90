@@ -19,13 +19,13 @@ module twomem_mesh_triangulation
       real(dp), allocatable :: vertices(:, :)
       !> triangle vertices, (3, nt), counter-clockwise
       integer(ip), allocatable :: triangles(:, :)
-      !> edge end points, (2, ne), first < second (not kept on a run's finest mesh: see
+      !> edge end points, (2, ne), first < second (not kept once a run's hierarchy is built: see
       !> drop_refinement_tables)
       integer(ip), allocatable :: edges(:, :)
       !> edge of triangle t opposite its local vertex i, (3, nt)
       integer(ip), allocatable :: triangle_edges(:, :)
       !> triangles on either side of an edge, (2, ne); the second is 0 on the boundary (not kept
-      !> on a run's finest mesh: see drop_refinement_tables)
+      !> once a run's hierarchy is built: see drop_refinement_tables)
       integer(ip), allocatable :: edge_triangles(:, :)
       logical, allocatable :: boundary_vertex(:), boundary_edge(:)
       !> vertex patches in CSR form: the triangles around vertex a are
@@ -492,8 +492,9 @@ contains
    end function boundary_diameter
 
    !> Free what only building, refining or partitioning this mesh reads: the edges' end points,
-   !> the triangles on either side of each edge and the global edge numbers. A run's finest mesh
-   !> is neither refined nor partitioned, and these are 61 MB of it at 10⁶ vertices.
+   !> the triangles on either side of each edge and the global edge numbers. Once a run's
+   !> hierarchy is built no level is refined or partitioned again, and these are 61 MB of the
+   !> finest mesh at 10⁶ vertices (77 MB over all levels).
    subroutine drop_refinement_tables(self)
       class(mesh_t), intent(inout) :: self
 
