@@ -35,16 +35,15 @@ module twomem_estimate_patch
    !> the same classes, edges and relative trace signs (twomem_estimate_patch_classes): H does
    !> not depend on the ratio of the triangles nor on the data, only the right-hand side does.
    !> d: the inverses of the n_blocks leading diagonal blocks (size g), x = D⁻¹ H_bt on the
-   !> tail columns cols(1:n_cols) each block touches and xt its transpose (zero beyond n_cols),
-   !> s: the inverse of the tail's Schur complement (of the whole H when n_blocks = 0).
-   !> Inverses, not Cholesky factors: the factor serves thousands of patches, and a product with
-   !> an inverse has no chain of dependent operations, unlike the two triangular substitutions
-   !> (which took a tenth of an evaluation). Both products of block_apply with x run down
-   !> columns (x for the back substitution, xt for the tail update), the loops the compiler
-   !> vectorizes.
+   !> tail columns cols(1:n_cols) each block touches, s: the inverse of the tail's Schur
+   !> complement (of the whole H when n_blocks = 0). Inverses, not Cholesky factors: the factor
+   !> serves thousands of patches, and a product with an inverse has no chain of dependent
+   !> operations, unlike the two triangular substitutions (which took a tenth of an evaluation).
+   !> Both products of block_apply with x take its columns whole, times both membranes' values
+   !> at once (a transposed copy of x for the tail update held 13 MB at 10⁶ vertices).
    type :: patch_factor_t
       integer :: n_theta = 0, n_blocks = 0, g = 0
-      real(dp), allocatable :: d(:, :, :), x(:, :, :), xt(:, :, :), s(:, :)
+      real(dp), allocatable :: d(:, :, :), x(:, :, :), s(:, :)
       integer, allocatable :: cols(:, :), n_cols(:)
       !> per patch triangle: its inner trace rows and their multipliers (inner_rows), and the
       !> relative trace sign of each (the signature's, which every patch of it has: see
@@ -437,9 +436,8 @@ contains
          f%n_cols(ib) = count([(any(h(r0 + 1:r0 + g, nb + j) /= 0.0_dp), j=1, ns)])
          max_cpl = max(max_cpl, f%n_cols(ib))
       end do
-      allocate (f%d(g, g, n_blocks), f%x(g, max_cpl, n_blocks), f%xt(max_cpl, g, n_blocks), f%cols(max_cpl, n_blocks), &
+      allocate (f%d(g, g, n_blocks), f%x(g, max_cpl, n_blocks), f%cols(max_cpl, n_blocks), &
                 f%s(ns, ns))
-      f%xt = 0.0_dp
       f%s = h(nb + 1:, nb + 1:)
       ok = .true.
       do ib = 1, n_blocks
@@ -456,7 +454,6 @@ contains
             end if
          end do
          call chol_solve(g, f%d(:, :, ib), n_cpl, f%x(:, :, ib))
-         f%xt(1:n_cpl, :, ib) = transpose(f%x(:, 1:n_cpl, ib))
          call chol_invert(g, f%d(:, :, ib))
          ! S = H_tt − H_tb D⁻¹ H_bt on the touched tail entries
          do j = 1, n_cpl
@@ -481,21 +478,23 @@ contains
       type(patch_factor_t), intent(in) :: f
       real(dp), intent(inout) :: b(2, max_theta)
 
-      integer :: nb, ns, ib, r0, i, g, nc, m
-      real(dp) :: t(2, max_theta), u(2, max_theta)
+      integer :: nb, ns, ib, r0, i, q, g, nc
+      real(dp) :: t(2, max_theta), u(2, max_theta), acc(2)
 
       g = f%g
       nb = f%n_blocks*g
       ns = f%n_theta - nb
-      m = 0
-      if (f%n_blocks > 0) m = size(f%xt, 1)
-      ! b_t − H_tb D⁻¹ b_b = b_t − xᵀ b_b (xt's rows past n_cols are zero), and D⁻¹ b_b kept in
-      ! place of b_b
+      ! b_t − H_tb D⁻¹ b_b = b_t − xᵀ b_b on the tail unknowns each block touches (each entry of
+      ! xᵀ b_b summed over the block's rows in order, as a product with a stored transpose
+      ! would), and D⁻¹ b_b kept in place of b_b
       do ib = 1, f%n_blocks
          r0 = (ib - 1)*g
-         call mat_vec(m, g, f%xt(:, :, ib), b(:, r0 + 1:r0 + g), t)
          do i = 1, f%n_cols(ib)
-            b(:, nb + f%cols(i, ib)) = b(:, nb + f%cols(i, ib)) - t(:, i)
+            acc = 0.0_dp
+            do q = 1, g
+               acc = acc + f%x(q, i, ib)*b(:, r0 + q)
+            end do
+            b(:, nb + f%cols(i, ib)) = b(:, nb + f%cols(i, ib)) - acc
          end do
          call inverse_apply(g, f%d(:, :, ib), b(:, r0 + 1:r0 + g))
       end do
