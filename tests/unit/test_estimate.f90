@@ -175,7 +175,7 @@ contains
 
          ! the lifting as the fluxes read it, triangle by triangle
          call iterate%init(mesh)
-         iterate%residual = nodal
+         iterate%shares = nodal
          call iterate%set_shares(mesh)
          do t = 1, mesh%nt
             call lifting_on(iterate, mesh, t, r(:, t, :))
@@ -345,6 +345,7 @@ contains
                if (allocated(err)) return
                call shapes%init(space, h, err)
                if (allocated(err)) return
+               call alg%take_residual(h, residual)
                call alg%compute(shapes, h, iterate, no_signatures, no_signatures, err)
                if (allocated(err)) return
                call check(err, size(alg%levels) == max(1, n_meshes - 1), 'one flux part per level with patches')
@@ -520,7 +521,7 @@ contains
       call iterate%init(mesh)
       iterate%u = u
       iterate%lambda = lambda
-      iterate%residual = residual
+      iterate%shares = residual
       call iterate%set_shares(mesh)
    end subroutine iterate_fields
 

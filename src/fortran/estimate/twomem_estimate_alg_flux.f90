@@ -82,12 +82,18 @@ module twomem_estimate_alg_flux
       type(level_flux_t), allocatable :: levels(:)
       type(p2_field_t), allocatable :: p2(:)
       real(dp), allocatable :: grad_rho(:, :, :)
-      !> workspaces of the coarse Riesz representer: R_α restricted to T_l (l = b..J−1), the
+      !> R_α of the evaluated iterate (`take_residual`), both membranes: restricted to T_{J−1},
+      !> or at the unknowns of T_J when b = J; the nodal residuals themselves are not kept (the
+      !> evaluated iterate turns them into their patch shares in place: 16 MB at 10⁶ vertices)
+      real(dp), allocatable :: top(:, :)
+      logical :: has_residual = .false.
+      !> workspaces of the coarse Riesz representer: R_α restricted to T_l (l = b..J−2), the
       !> coarse right-hand side and solution, ρ_α at the vertices of T_b
       type(vector_t), allocatable :: restricted(:)
       real(dp), allocatable :: coarse_rhs(:), rho(:), nodal(:)
    contains
       procedure :: init
+      procedure :: take_residual
       procedure :: compute
       procedure :: first
       procedure :: free_levels
@@ -145,10 +151,15 @@ contains
          end do
          allocate (self%nodal(base_mesh%nv))
       end associate
-      allocate (self%restricted(self%base:self%finest - 1))
-      do j = self%base, self%finest - 1
+      allocate (self%restricted(self%base:self%finest - 2))
+      do j = self%base, self%finest - 2
          allocate (self%restricted(j)%v(hierarchy%meshes(j)%nv))
       end do
+      if (self%base == self%finest) then
+         allocate (self%top(self%coarse%n, 2))
+      else
+         allocate (self%top(hierarchy%meshes(self%finest - 1)%nv, 2))
+      end if
       allocate (self%coarse_rhs(size(self%rho_vertices)), self%rho(size(self%rho_vertices)))
       self%coarse_rhs = 0.0_dp
       call self%coarse_solver%factor(self%coarse%stiffness, err)
@@ -171,7 +182,11 @@ contains
       integer :: j, first
       logical :: ok
 
-      call coarse_representer(self, hierarchy, iterate%residual, err)
+      if (.not. self%has_residual) then
+         call make_error(err, exit_io, 'algebraic flux', 'internal: compute before take_residual')
+         return
+      end if
+      call coarse_representer(self, hierarchy, err)
       if (allocated(err)) return
       first = self%first()
       ! at the first computation: the solver may have released its memory for them by then
@@ -242,6 +257,8 @@ contains
          end do
       end if
       if (allocated(self%restricted)) deallocate (self%restricted)
+      if (allocated(self%top)) deallocate (self%top)
+      self%has_residual = .false.
       if (allocated(self%colors)) deallocate (self%colors)
       if (allocated(self%grad_rho)) deallocate (self%grad_rho)
    end subroutine drop_solvers
@@ -253,13 +270,44 @@ contains
       first = min(self%base + 1, self%finest)
    end function first
 
-   !> ∇ρ_α on the triangles of T_b: (∇ρ_α, ∇v) = (r_α, v) for the P1 functions v of T_b vanishing
-   !> on ∂Ω. Since (r_α, ψ_{J,l}) = R_α(l), the right-hand side is R_α restricted level by level
-   !> (the transpose of prolongation).
-   subroutine coarse_representer(self, hierarchy, residual, err)
+   !> Keep what the algebraic flux needs of the nodal residuals R_α (zero off the unknowns) of
+   !> the iterate of this evaluation, before the iterate turns them into patch shares: their
+   !> restriction to T_{J−1} (the transpose of prolongation; each finest vertex counted on the
+   !> rank that owns it, so the coarser sums are parts over the ranks), or their values at the
+   !> unknowns of T_J for a single mesh. A later `compute` is for this iterate.
+   subroutine take_residual(self, hierarchy, residual)
       class(algebraic_flux_t), intent(inout) :: self
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       real(dp), intent(in) :: residual(:, :)
+
+      integer :: alpha
+      integer(ip) :: v, i
+
+      do alpha = 1, 2
+         if (self%base == self%finest) then
+            do i = 1, self%coarse%n
+               self%top(i, alpha) = residual(self%coarse%interior(i), alpha)
+            end do
+            cycle
+         end if
+         associate (parents => hierarchy%maps(self%finest)%vertex_parents, coarse => self%top(:, alpha))
+            coarse = 0.0_dp
+            do v = 1, hierarchy%meshes(self%finest)%nv
+               if (.not. self%fine_owned(v)) cycle
+               coarse(parents(1, v)) = coarse(parents(1, v)) + 0.5_dp*residual(v, alpha)
+               coarse(parents(2, v)) = coarse(parents(2, v)) + 0.5_dp*residual(v, alpha)
+            end do
+         end associate
+      end do
+      self%has_residual = .true.
+   end subroutine take_residual
+
+   !> ∇ρ_α on the triangles of T_b: (∇ρ_α, ∇v) = (r_α, v) for the P1 functions v of T_b vanishing
+   !> on ∂Ω. Since (r_α, ψ_{J,l}) = R_α(l), the right-hand side is R_α restricted level by level
+   !> (the transpose of prolongation), from its restriction to T_{J−1} (`take_residual`).
+   subroutine coarse_representer(self, hierarchy, err)
+      class(algebraic_flux_t), intent(inout) :: self
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
       type(error_t), allocatable, intent(out) :: err
 
       integer :: alpha, l
@@ -268,15 +316,13 @@ contains
       associate (base_mesh => hierarchy%meshes(self%base))
          do alpha = 1, 2
             ! R_α restricted level by level into the kept workspaces (restricted(l) on T_l)
-            do l = self%finest - 1, self%base, -1
+            do l = self%finest - 2, self%base, -1
                associate (parents => hierarchy%maps(l + 1)%vertex_parents, coarse => self%restricted(l)%v)
                   coarse = 0.0_dp
-                  if (l == self%finest - 1) then
+                  if (l == self%finest - 2) then
                      do v = 1, hierarchy%meshes(l + 1)%nv
-                        ! each finest vertex once over the ranks: the coarser sums are parts
-                        if (.not. self%fine_owned(v)) cycle
-                        coarse(parents(1, v)) = coarse(parents(1, v)) + 0.5_dp*residual(v, alpha)
-                        coarse(parents(2, v)) = coarse(parents(2, v)) + 0.5_dp*residual(v, alpha)
+                        coarse(parents(1, v)) = coarse(parents(1, v)) + 0.5_dp*self%top(v, alpha)
+                        coarse(parents(2, v)) = coarse(parents(2, v)) + 0.5_dp*self%top(v, alpha)
                      end do
                   else
                      do v = 1, hierarchy%meshes(l + 1)%nv
@@ -288,7 +334,9 @@ contains
             end do
             do i = 1, self%coarse%n
                if (self%base == self%finest) then
-                  self%coarse_rhs(i) = residual(self%coarse%interior(i), alpha)
+                  self%coarse_rhs(i) = self%top(i, alpha)
+               else if (self%base == self%finest - 1) then
+                  self%coarse_rhs(i) = self%top(self%coarse%interior(i), alpha)
                else
                   self%coarse_rhs(i) = self%restricted(self%base)%v(self%coarse%interior(i))
                end if

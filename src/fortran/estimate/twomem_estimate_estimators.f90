@@ -253,12 +253,15 @@ contains
       end if
       if (.not. allocated(self%sigma)) call allocate_workspaces(self, hierarchy%meshes(hierarchy%levels))
       associate (mesh => hierarchy%meshes(hierarchy%levels), it => self%iterate)
+         ! the residuals R_α go where their patch shares will be, with u_1's room (set next) as
+         ! the scratch on their way; the algebraic flux keeps what it needs of them before
+         ! set_shares turns them into their shares in place
+         call algebraic_residuals(p, x, it%shares, it%u(:, 1), self%halo)
+         call self%alg%take_residual(hierarchy, it%shares)
+         call it%set_shares(mesh)
          call scatter(p, x(1:n), p%g, it%u(:, 1))
          call scatter(p, x(n + 1:2*n), 0.0_dp, it%u(:, 2))
          call scatter(p, x(2*n + 1:3*n), 0.0_dp, it%lambda)
-         ! (the shares, set next from the residuals, are the scratch on their way)
-         call algebraic_residuals(p, x, it%residual, it%shares(:, 1), self%halo)
-         call it%set_shares(mesh)
          ! a ghost triangle may have vertices outside this rank's unknowns: its owner's values
          call it%share_ghosts(self%ghosts, mesh, hierarchy%levels)
 

@@ -1,6 +1,6 @@
-!> The iterate an estimator evaluation works on: nodal u_αh and λ_h, the nodal algebraic residuals
-!> R_α (twomem_estimate_lifting), and per triangle of the finest mesh ∇u_αh and the residual
-!> lifting r_α. The two per-triangle fields are not stored (they held 0.16 KiB per vertex at the
+!> The iterate an estimator evaluation works on: nodal u_αh and λ_h, the patch shares of the nodal
+!> algebraic residuals R_α (twomem_estimate_lifting), and per triangle of the finest mesh ∇u_αh
+!> and the residual lifting r_α. The two per-triangle fields are not stored (they held 0.16 KiB per vertex at the
 !> peak of a run): each is computed where it is read, in a few operations on nodal values at the
 !> triangle's vertices, which the reading patch has in cache: u_αh, and for r_α the shares
 !> R_α(a)/N_a, so that the division is made once per vertex rather than once per triangle and
@@ -21,9 +21,11 @@ module twomem_estimate_evaluated_iterate
    public :: evaluated_iterate_t, gradients_on, lifting_on
 
    type :: evaluated_iterate_t
-      !> u(:, α) = u_αh with its boundary values, lambda = λ_h, residual(:, α) = R_α (zero off
-      !> the unknowns) and its patch shares (`set_shares`), on this rank's vertices
-      real(dp), allocatable :: u(:, :), lambda(:), residual(:, :), shares(:, :)
+      !> u(:, α) = u_αh with its boundary values, lambda = λ_h and shares(:, α) = the patch shares
+      !> of R_α, on this rank's vertices: the caller writes R_α there (zero off the unknowns), and
+      !> `set_shares` turns it into its shares in place (R_α itself is not kept: what the
+      !> algebraic flux needs of it, it takes before)
+      real(dp), allocatable :: u(:, :), lambda(:), shares(:, :)
       !> the owners' ∇u_α (ghost_grad(:, α, t − nt_owned)) and r_α (ghost_lift(:, α, ...)) on
       !> the ghost triangles t > nt_owned of the finest mesh (none on one rank)
       real(dp), allocatable :: ghost_grad(:, :, :), ghost_lift(:, :, :)
@@ -46,14 +48,14 @@ contains
 
       self%nt_owned = mesh%nt_owned
       n_ghost = mesh%nt - mesh%nt_owned
-      allocate (self%u(mesh%nv, 2), self%lambda(mesh%nv), self%residual(mesh%nv, 2), self%shares(mesh%nv, 2), &
+      allocate (self%u(mesh%nv, 2), self%lambda(mesh%nv), self%shares(mesh%nv, 2), &
                 self%ghost_grad(2, 2, n_ghost), self%ghost_lift(3, 2, n_ghost))
    end subroutine init
 
    subroutine free(self)
       class(evaluated_iterate_t), intent(inout) :: self
 
-      if (allocated(self%u)) deallocate (self%u, self%lambda, self%residual, self%shares, self%ghost_grad, &
+      if (allocated(self%u)) deallocate (self%u, self%lambda, self%shares, self%ghost_grad, &
                                          self%ghost_lift)
       self%nt_owned = 0
    end subroutine free
@@ -98,12 +100,12 @@ contains
       end if
    end subroutine lifting_on
 
-   !> The residuals' patch shares, once `residual` is set (before any lifting_on).
+   !> The residuals written into `shares` become their patch shares (before any lifting_on).
    subroutine set_shares(self, mesh)
       class(evaluated_iterate_t), intent(inout) :: self
       type(mesh_t), intent(in) :: mesh
 
-      call patch_shares(mesh, self%residual, self%shares)
+      call patch_shares(mesh, self%shares)
    end subroutine set_shares
 
    !> The ghost triangles' ∇u_α and r_α from their owners, once the nodal fields are set (level:

@@ -52,23 +52,22 @@ contains
       end do
    end subroutine algebraic_residuals
 
-   !> shares(a, j) = residual(a, j)/N_a, the part of R(a) that each of the N_a triangles of the
-   !> patch of a carries (zero at boundary vertices, where r vanishes).
-   subroutine patch_shares(mesh, residual, shares)
+   !> In place, residual(a, j) = R(a)/N_a for each column j: the part of R(a) that each of the N_a
+   !> triangles of the patch of a carries (zero at boundary vertices, where r vanishes).
+   subroutine patch_shares(mesh, residual)
       type(mesh_t), intent(in) :: mesh
-      real(dp), intent(in) :: residual(:, :)
-      real(dp), intent(out) :: shares(:, :)
+      real(dp), intent(inout) :: residual(:, :)
 
       integer(ip) :: a
       real(dp) :: patch_size
 
-      !$omp parallel do default(none) shared(mesh, residual, shares) private(a, patch_size) schedule(static)
+      !$omp parallel do default(none) shared(mesh, residual) private(a, patch_size) schedule(static)
       do a = 1, mesh%nv
          if (mesh%boundary_vertex(a)) then
-            shares(a, :) = 0.0_dp
+            residual(a, :) = 0.0_dp
          else
             patch_size = mesh%patch_ptr(a + 1) - mesh%patch_ptr(a)
-            shares(a, :) = residual(a, :)/patch_size
+            residual(a, :) = residual(a, :)/patch_size
          end if
       end do
       !$omp end parallel do
