@@ -21,7 +21,7 @@ module test_estimate
    use twomem_estimate_shapes, only: shape_classes_t
    use twomem_estimate_coloring, only: coloring_t
    use twomem_estimate_alg_flux, only: algebraic_flux_t, level_flux_t
-   use twomem_estimate_patch_classes, only: patch_table_t
+   use twomem_estimate_patch_classes, only: patch_table_t, patch_order, stored_order, no_code
    use twomem_testing, only: unittest_t, new_unittest, check, check_close, error_t
    implicit none
    private
@@ -50,7 +50,8 @@ contains
                new_unittest('residual_and_lifting', test_lifting), &
                new_unittest('disc_flux_equilibrium_continuity', test_disc_flux), &
                new_unittest('alg_flux_divergence_continuity', test_alg_flux), &
-               new_unittest('block_colouring', test_block_colouring)]
+               new_unittest('block_colouring', test_block_colouring), &
+               new_unittest('stored_patch_order', test_stored_order)]
    end subroutine collect_estimate
 
    !> Green's formula per basis function, (∇·φ_i, q) + (φ_i, ∇q) = ⟨φ_i·n, q⟩_∂K, for q = 1 and
@@ -368,6 +369,60 @@ contains
          end do
       end associate
    end subroutine test_alg_flux
+
+   !> The canonical order of a patch's triangles as the patch tables store it (3 bits per
+   !> position) is the order patch_order sorts, for every patch of the finest mesh (`single`) and
+   !> of the coarse mesh of a refined level (`refined`), RT0 and RT1; it lists each patch triangle
+   !> once; and the same order comes back for a patch without a stored code (a patch of more
+   !> than 8 triangles), which is sorted on the spot. A disk refined twice.
+   subroutine test_stored_order(err)
+      type(error_t), allocatable, intent(out) :: err
+
+      type(poly_data_t) :: data
+      type(mesh_hierarchy_t) :: h
+      type(discrete_problem_t) :: p
+      type(rt_space_t) :: space
+      type(patch_table_t) :: table
+      integer(ip) :: a, expected(64), got(64)
+      integer :: order, level, n, coded, code, k
+      logical :: refined
+
+      call mesh_problem('disk', 0.4_dp, 2, data, h, p, err)
+      if (allocated(err)) return
+      do order = 0, 1
+         call space%init(order)
+         do level = 1, 2
+            ! level 2: the finest mesh's own patches; level 1: its patches on their refinement
+            refined = level == 1
+            call table%init(refined, 2)
+            call table%add_mesh(space, h%meshes(level), h%meshes(merge(2, level, refined)), level)
+            coded = 0
+            associate (mesh => h%meshes(level))
+               do a = 1, mesh%nv
+                  if (table%levels(level)%id(a) == 0) cycle
+                  n = int(mesh%patch_ptr(a + 1) - mesh%patch_ptr(a))
+                  code = table%levels(level)%order(a)
+                  if (code /= no_code) coded = coded + 1
+                  call patch_order(mesh, level, a, expected(1:n))
+                  call stored_order(mesh, level, a, code, got(1:n))
+                  call check(err, all(got(1:n) == expected(1:n)), 'stored order = patch_order')
+                  if (allocated(err)) return
+                  call stored_order(mesh, level, a, no_code, got(1:n))
+                  call check(err, all(got(1:n) == expected(1:n)), 'no code: sorted on the spot')
+                  if (allocated(err)) return
+                  do k = 1, n
+                     call check(err, count(got(1:n) == mesh%patch_triangles(mesh%patch_ptr(a) + k - 1)) == 1, &
+                                'each patch triangle once')
+                  end do
+                  if (allocated(err)) return
+               end do
+            end associate
+            call check(err, coded > 0, 'some patches coded')
+            if (allocated(err)) return
+            call table%free()
+         end do
+      end do
+   end subroutine test_stored_order
 
    ! ---- fixtures and helpers ----
 

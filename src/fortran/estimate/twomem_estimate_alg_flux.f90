@@ -42,7 +42,7 @@ module twomem_estimate_alg_flux
    use twomem_estimate_coloring, only: coloring_t
    use twomem_estimate_patch, only: solve_patch, solve_condensed_factored, inner_edge, on_opposite_edge, edge_free, &
                                     edge_neumann
-   use twomem_estimate_patch_classes, only: patch_table_t, patch_order, edge_signs
+   use twomem_estimate_patch_classes, only: patch_table_t, stored_order, edge_signs
    use twomem_estimate_evaluated_iterate, only: evaluated_iterate_t, lifting_on
    implicit none
    private
@@ -488,7 +488,7 @@ contains
       id = 0
       if (allocated(table%levels)) id = table%levels(coarse_level)%id(a)
       if (id > 0) then
-         call patch_order(coarse, coarse_level, a, order)
+         call stored_order(coarse, coarse_level, a, table%levels(coarse_level)%order(a), order)
       else
          order = coarse%patch_triangles(coarse%patch_ptr(a):coarse%patch_ptr(a + 1) - 1)
       end if

@@ -15,7 +15,7 @@ module twomem_estimate_disc_flux
    use twomem_estimate_shapes, only: shape_classes_t, triangle_class, trace_signs
    use twomem_estimate_coloring, only: coloring_t
    use twomem_estimate_patch, only: solve_patch, solve_condensed_factored, inner_edge, edge_free, edge_neumann
-   use twomem_estimate_patch_classes, only: patch_table_t, patch_signature_t, patch_order, max_patch
+   use twomem_estimate_patch_classes, only: patch_table_t, patch_signature_t, stored_order, max_patch
    use twomem_estimate_evaluated_iterate, only: evaluated_iterate_t, gradients_on, lifting_on
    implicit none
    private
@@ -137,7 +137,8 @@ contains
                id = 0
                if (signatures) id = table%levels(level)%id(a)
                if (id > 0) then
-                  call interior_patch(space, shapes, table%sig(id), mesh, level, a, mu, loads, iterate, sigma)
+                  call interior_patch(space, shapes, table%sig(id), table%levels(level)%order(a), mesh, level, a, mu, &
+                                      loads, iterate, sigma)
                else
                   call vertex_patch(space, shapes, mesh, level, a, mu, loads, iterate, sigma, patch_ok)
                   ok = ok .and. patch_ok
@@ -219,10 +220,12 @@ contains
    end subroutine vertex_patch
    !> The patch of an interior vertex a with its signature's factor (twomem_estimate_patch_classes):
    !> the data of vertex_patch in the signature's order of the triangles.
-   subroutine interior_patch(space, shapes, sig, mesh, level, a, mu, loads, iterate, sigma)
+   subroutine interior_patch(space, shapes, sig, order_code, mesh, level, a, mu, loads, iterate, sigma)
       type(rt_space_t), intent(in) :: space
       type(shape_classes_t), intent(in) :: shapes
       type(patch_signature_t), intent(in) :: sig
+      !> the canonical order of the patch's triangles as its table stores it (stored_order)
+      integer, intent(in) :: order_code
       type(mesh_t), intent(in) :: mesh
       integer, intent(in) :: level
       integer(ip), intent(in) :: a
@@ -242,7 +245,7 @@ contains
       ne = size(sig%classes)
       lambda_a = iterate%lambda(a)
       nd = space%n_div
-      call patch_order(mesh, level, a, order(1:ne))
+      call stored_order(mesh, level, a, order_code, order(1:ne))
       ratio = 2.0_dp**level
       area_factor = 1/ratio**2
       do k = 1, ne
