@@ -1,12 +1,12 @@
 !> The iterate an estimator evaluation works on: nodal u_αh and λ_h, the patch shares of the nodal
 !> algebraic residuals R_α (twomem_estimate_lifting), and per triangle of the finest mesh ∇u_αh
-!> and the residual lifting r_α. The two per-triangle fields are not stored (they held 0.16 KiB per vertex at the
-!> peak of a run): each is computed where it is read, in a few operations on nodal values at the
-!> triangle's vertices, which the reading patch has in cache: u_αh, and for r_α the shares
-!> R_α(a)/N_a, so that the division is made once per vertex rather than once per triangle and
-!> reading patch. A ghost triangle of a rank's piece of a distributed mesh is the exception:
-!> some of its vertices may lie outside the rank's unknowns, so its values are copies of its
-!> owner's, exchanged once per evaluation (`share_ghosts`). Ghost triangles are the tail
+!> and the residual lifting r_α. The two per-triangle fields are not stored (they held 0.16 KiB
+!> per vertex at the peak of a run): each is computed where it is read, in a few operations on
+!> nodal values at the triangle's vertices, which the reading patch has in cache: u_αh, and for
+!> r_α the shares R_α(a)/N_a, so that the division is made once per vertex rather than once per
+!> triangle and reading patch. A ghost triangle of a rank's piece of a distributed mesh is the
+!> exception: some of its vertices may lie outside the rank's unknowns, so its values are copies
+!> of its owner's, exchanged once per evaluation (`share_ghosts`). Ghost triangles are the tail
 !> t > nt_owned of every level (twomem_mesh_hierarchy numbers the descendants of the coarse
 !> ghosts last).
 module twomem_estimate_evaluated_iterate

@@ -195,7 +195,7 @@ contains
       integer(ip), parameter :: chunk = 2048
       integer(ip) :: first, a, k, n
       integer :: width, n_coarse, n_children
-      integer, allocatable :: keys(:, :), lengths(:), ids(:)
+      integer, allocatable :: keys(:, :), lengths(:), ids(:), codes(:)
       integer(i8), allocatable :: hashes(:)
       integer(ip), allocatable :: order(:)
 
@@ -205,7 +205,7 @@ contains
       n_children = merge(4, 1, self%refined)
       n_coarse = min(int(maxval(coarse%patch_ptr(2:) - coarse%patch_ptr(:coarse%nv))), max_patch/n_children)
       width = 1 + n_coarse + n_children*n_coarse*(5 + 3*space%n_trace)
-      allocate (keys(width, chunk), lengths(chunk), hashes(chunk), ids(chunk))
+      allocate (keys(width, chunk), lengths(chunk), hashes(chunk), ids(chunk), codes(chunk))
       allocate (self%levels(level)%id(coarse%nv), self%levels(level)%order(coarse%nv))
       self%levels(level)%id = 0
       self%levels(level)%order = no_code
@@ -213,11 +213,12 @@ contains
       n = size(order, kind=ip)
       do first = 1, n, chunk
          !$omp parallel do default(none) shared(self, space, coarse, fine, level, order, keys, lengths, hashes, ids) &
-         !$omp shared(first, n) private(k) schedule(dynamic, 64)
+         !$omp shared(first, n, codes) private(k) schedule(dynamic, 64)
          do k = 1, min(chunk, n - first + 1)
             ids(k) = 0
             call patch_key(space, coarse, fine, level, self%refined, order(first + k - 1), keys(:, k), lengths(k))
             if (lengths(k) == 0) cycle
+            codes(k) = order_code(coarse, level, order(first + k - 1))
             hashes(k) = key_hash(keys(1:lengths(k), k))
             ids(k) = self%hash(find(self%hash, self%sig, keys(1:lengths(k), k), hashes(k)))
          end do
@@ -227,7 +228,7 @@ contains
             a = order(first + k - 1)
             if (ids(k) == 0) ids(k) = lookup(self, keys(1:lengths(k), k), hashes(k), n_children)
             self%levels(level)%id(a) = ids(k)
-            self%levels(level)%order(a) = order_code(coarse, level, a)
+            self%levels(level)%order(a) = codes(k)
          end do
       end do
    end subroutine add_mesh
