@@ -96,10 +96,12 @@ int twomem_umf_factor(void *handle, const double *val) {
   return umfpack_di_numeric(h->ap, h->ai, val, h->symbolic, &h->numeric, h->control, h->info);
 }
 
-/* Solve A x = b with the last factorization (val must be the factored values, for refinement). */
-int twomem_umf_solve(void *handle, const double *val, const double *b, double *x) {
+/* Solve A x = b with the last factorization and at most refinement_steps steps of iterative
+ * refinement (UMFPACK's default is 2; val must be the factored values, which refinement reads). */
+int twomem_umf_solve(void *handle, const double *val, const double *b, double *x, int refinement_steps) {
   twomem_umf_t *h = handle;
   if (!h || !h->numeric) return UMFPACK_ERROR_argument_missing;
+  h->control[UMFPACK_IRSTEP] = refinement_steps;
   return umfpack_di_solve(UMFPACK_At, h->ap, h->ai, val, x, b, h->numeric, h->control, h->info);
 }
 

@@ -49,19 +49,21 @@ module twomem_linalg_gathered_solve
 contains
 
    !> The unknowns: key(i) of local unknown i, owned(i) if this rank owns it (each key is owned
-   !> by exactly one rank), and the fill-reducing ordering of rank 0's factorization
-   !> (twomem_linalg_umfpack; nested dissection if absent). Collective.
-   subroutine init(self, comm, key, owned, ordering)
+   !> by exactly one rank), and the fill-reducing ordering and refinement steps of rank 0's
+   !> factorization (twomem_linalg_umfpack; nested dissection and UMFPACK's default if absent).
+   !> Collective.
+   subroutine init(self, comm, key, owned, ordering, refinement_steps)
       class(gathered_solver_t), intent(out) :: self
       type(comm_t), intent(in) :: comm
       integer(ip), intent(in) :: key(:)
       logical, intent(in) :: owned(:)
-      integer, intent(in), optional :: ordering
+      integer, intent(in), optional :: ordering, refinement_steps
 
       integer(ip), allocatable :: mine(:)
       integer(ip) :: k
 
       if (present(ordering)) call self%direct%set_ordering(ordering)
+      if (present(refinement_steps)) call self%direct%set_refinement(refinement_steps)
       self%comm = comm
       self%global = key
       self%owned = owned
