@@ -51,7 +51,8 @@ contains
                new_unittest('disc_flux_equilibrium_continuity', test_disc_flux), &
                new_unittest('alg_flux_divergence_continuity', test_alg_flux), &
                new_unittest('block_colouring', test_block_colouring), &
-               new_unittest('stored_patch_order', test_stored_order)]
+               new_unittest('stored_patch_order', test_stored_order), &
+               new_unittest('alg_flux_signatures', test_alg_signatures)]
    end subroutine collect_estimate
 
    !> Green's formula per basis function, (∇·φ_i, q) + (φ_i, ∇q) = ⟨φ_i·n, q⟩_∂K, for q = 1 and
@@ -369,6 +370,69 @@ contains
          end do
       end associate
    end subroutine test_alg_flux
+
+   !> σ_alg with the patch tables (factors shared by signature, the boundary vertices' patches
+   !> of the refined levels included, with their free edges on ∂Ω) equals σ_alg from every patch
+   !> assembled and factorized on its own, to round-off: a disk refined twice, three meshes (two
+   !> refined levels, the first with the coarse Riesz representer), RT0 and RT1.
+   subroutine test_alg_signatures(err)
+      type(error_t), allocatable, intent(out) :: err
+
+      type(mesh_hierarchy_t) :: h
+      type(poly_data_t) :: data
+      type(discrete_problem_t) :: p
+      type(rt_space_t) :: space
+      type(algebraic_flux_t) :: alg
+      type(shape_classes_t) :: shapes
+      type(patch_table_t) :: no_signatures, single, refined
+      type(evaluated_iterate_t) :: iterate
+      type(level_flux_t), allocatable :: general(:)
+      real(dp), allocatable :: lambda(:), grad_u(:, :, :), residual(:, :), r(:, :, :)
+      integer :: order, j, n_boundary
+      integer(ip) :: a
+      character(len=40) :: what
+
+      call mesh_problem('disk', 0.4_dp, 2, data, h, p, err)
+      if (allocated(err)) return
+      call iterate_fields(p, h%meshes(2), random_vector(3*p%n, 31), lambda, grad_u, residual, r, iterate)
+      do order = 0, 1
+         write (what, '("RT",i0)') order
+         call space%init(order)
+         call shapes%init(space, h, err)
+         if (allocated(err)) return
+         call alg%init(space, h, data, 3, err)
+         if (allocated(err)) return
+         call alg%take_residual(h, residual)
+         call alg%compute(shapes, h, iterate, no_signatures, no_signatures, err)
+         if (allocated(err)) return
+         general = alg%levels
+         call single%init(.false., 2)
+         call single%add_mesh(space, h%meshes(2), h%meshes(2), 2)
+         call single%finish(space, shapes, err)
+         if (allocated(err)) return
+         call refined%init(.true., 2)
+         n_boundary = 0
+         do j = alg%first(), 2
+            call refined%add_mesh(space, h%meshes(j - 1), h%meshes(j), j - 1)
+            do a = 1, h%meshes(j - 1)%nv
+               if (h%meshes(j - 1)%boundary_vertex(a) .and. refined%levels(j - 1)%id(a) > 0) n_boundary = n_boundary + 1
+            end do
+         end do
+         call refined%finish(space, shapes, err)
+         if (allocated(err)) return
+         call check(err, n_boundary > 0, 'boundary patches with signatures, '//trim(what))
+         call alg%take_residual(h, residual)
+         call alg%compute(shapes, h, iterate, single, refined, err)
+         if (allocated(err)) return
+         do j = 1, size(general)
+            call check(err, maxval(abs(alg%levels(j)%sigma - general(j)%sigma)) <= 1.0e-12_dp*maxval(abs(general(j)%sigma)), &
+                       'signatures = general path, '//trim(what))
+            if (allocated(err)) return
+         end do
+         call single%free()
+         call refined%free()
+      end do
+   end subroutine test_alg_signatures
 
    !> The canonical order of a patch's triangles as the patch tables store it (3 bits per
    !> position) is the order patch_order sorts, for every patch of the finest mesh (`single`) and

@@ -30,6 +30,10 @@ module twomem_estimate_patch
    !> the largest multiplier system of a factorized patch (larger ones take the general path),
    !> so that the per-patch work arrays have fixed sizes (no heap allocation per patch)
    integer, parameter :: max_theta = 192
+   !> the slot of solve_condensed_factored's multiplier vector that the trace rows of free edges
+   !> (on ∂Ω: no multiplier) point to: their products land there and are dropped, and zero is
+   !> read back, so the per-triangle loops have no branch
+   integer, parameter :: free_slot = max_theta + 1
 
    !> The multiplier matrix H of a condensed patch system, factorized once for every patch with
    !> the same classes, edges and relative trace signs (twomem_estimate_patch_classes): H does
@@ -43,6 +47,8 @@ module twomem_estimate_patch
    !> at once (a transposed copy of x for the tail update held 13 MB at 10⁶ vertices).
    type :: patch_factor_t
       integer :: n_theta = 0, n_blocks = 0, g = 0
+      !> the first multiplier is pinned to zero (no free edge: θ is defined up to a constant)
+      logical :: pinned = .true.
       real(dp), allocatable :: d(:, :, :), x(:, :, :), s(:, :)
       integer, allocatable :: cols(:, :), n_cols(:)
       !> per patch triangle: its inner trace rows and their multipliers (inner_rows), and the
@@ -267,13 +273,13 @@ contains
       end do
    end subroutine solve_patch
 
-   !> The factor of the multiplier matrix H of a patch without edges on ∂Ω (an interior
-   !> vertex's patch), with the triangles condensed by their class (twomem_estimate_shapes,
-   !> cond_*): neumann(k) is the edge of triangle k that carries zero flux, or 0 when all three
-   !> are inner edges; links(m, k) numbers every other edge. H is assembled with the patch's
-   !> relative trace signs (each multiplier oriented as in the first triangle that touches it,
-   !> so that H depends on the geometry only); the multipliers are defined up to a constant, so
-   !> the first one is pinned.
+   !> The factor of the multiplier matrix H of a patch, with the triangles condensed by their
+   !> class (twomem_estimate_shapes, cond_*): neumann(k) is the edge of triangle k that carries
+   !> zero flux, or 0 when none does; links(m, k) numbers the inner edges (edge_free: on ∂Ω, no
+   !> multiplier). H is assembled with the patch's relative trace signs (each multiplier
+   !> oriented as in the first triangle that touches it, so that H depends on the geometry
+   !> only). Without a free edge (an interior vertex's patch) the multipliers are defined up to
+   !> a constant, and the first one is pinned.
    pure subroutine condensed_factor(space, shapes, classes, signs, neumann, links, n_blocks, factor, ok)
       type(rt_space_t), intent(in) :: space
       type(shape_classes_t), intent(in) :: shapes
@@ -300,15 +306,20 @@ contains
             a_k(1:n_rows, 1:n_rows) = shapes%czc(:, :, c)
          end if
          do a = 1, n_rows
+            if (glob(a) == free_slot) cycle
             do q = 1, n_rows
+               if (glob(q) == free_slot) cycle
                h(glob(q), glob(a)) = h(glob(q), glob(a)) + sg(q)*sg(a)*a_k(q, a)
             end do
          end do
       end do
-      h(1, :) = 0.0_dp
-      h(:, 1) = 0.0_dp
-      h(1, 1) = 1.0_dp
+      if (.not. any(links == edge_free)) then
+         h(1, :) = 0.0_dp
+         h(:, 1) = 0.0_dp
+         h(1, 1) = 1.0_dp
+      end if
       call block_factor(h, n_blocks, 3*nt, factor, ok)
+      factor%pinned = .not. any(links == edge_free)
       allocate (factor%n_rows(size(classes)), factor%rows(3*nt, size(classes)), factor%glob(3*nt, size(classes)), &
                 factor%sg(3*nt, size(classes)))
       factor%rows = 0
@@ -348,7 +359,7 @@ contains
       integer, parameter :: max_rows = 6, max_flux = 8, max_div = 3
       integer :: nf, nd, nc, k, c, i, a, j, q, n_rows, n_theta, n_data
       integer(ip) :: t
-      real(dp) :: b(2, max_theta)
+      real(dp) :: b(2, free_slot)
       !> a triangle's data for the condensed operators, both membranes side by side:
       !> [g; ρ⁻¹ fgrad] and [ρ g; θ; fgrad]
       real(dp) :: rho, s, t1(2, max_rows), data_q(2, max_div + 2), data_r(2, max_div + max_rows + 2), f(2, max_flux)
@@ -361,6 +372,7 @@ contains
       n_theta = factor%n_theta
       rho = ratio
       b(:, 1:n_theta) = 0.0_dp
+      b(:, free_slot) = 0.0_dp
       do k = 1, size(classes)
          c = classes(k)
          n_rows = factor%n_rows(k)
@@ -383,8 +395,9 @@ contains
             b(:, j) = b(:, j) + factor%sg(a, k)*t1(:, a)
          end do
       end do
-      b(:, 1) = 0.0_dp
-      call block_apply(factor, b)
+      if (factor%pinned) b(:, 1) = 0.0_dp
+      call block_apply(factor, b(:, 1:max_theta))
+      b(:, free_slot) = 0.0_dp
       do k = 1, size(classes)
          c = classes(k)
          n_rows = factor%n_rows(k)
@@ -648,9 +661,9 @@ contains
       b = y(:, 1:n)
    end subroutine inverse_apply
 
-   !> The inner trace rows of a patch triangle whose edge `neumann` (0: none) carries zero flux:
-   !> in the order of the class's condensed operators (edges neumann+1, neumann+2), with their
-   !> patch unknowns glob.
+   !> The trace rows of a patch triangle whose edge `neumann` (0: none) carries zero flux: in
+   !> the order of the class's condensed operators (edges neumann+1, neumann+2), with their
+   !> patch unknowns glob (free_slot for a free edge's rows).
    pure subroutine inner_rows(nt, neumann, links, n_rows, rows, glob)
       integer, intent(in) :: nt, neumann, links(3)
       integer, intent(out) :: n_rows, rows(:), glob(:)
@@ -663,7 +676,7 @@ contains
          do l = 1, nt
             n_rows = n_rows + 1
             rows(n_rows) = (e - 1)*nt + l
-            glob(n_rows) = (links(e) - 1)*nt + l
+            glob(n_rows) = merge((links(e) - 1)*nt + l, free_slot, links(e) > 0)
          end do
       end do
    end subroutine inner_rows

@@ -8,11 +8,16 @@
 !> factor. A signature lists, with the patch triangles in a canonical order (by class and local
 !> index of the patch vertex, so that it does not depend on the mesh numbering), their classes,
 !> zero-flux edges, inner-edge numbering and relative trace signs: exactly what H is made of, so
-!> patches of one signature share H by construction, whatever the geometry. Patches of vertices
-!> on ∂Ω (O(√N) of them) keep the general path. Two tables: `single` for the patches of a
-!> mesh's own triangles (discretization flux, single-mesh algebraic flux), `refined` for the
-!> patches of a coarse vertex on the red refinement of its triangles (multilevel algebraic flux),
-!> whose multipliers inside each coarse triangle come first as a block (twomem_estimate_patch).
+!> patches of one signature share H by construction, whatever the geometry. Two tables: `single`
+!> for the patches of a mesh's own triangles (discretization flux, single-mesh algebraic flux),
+!> `refined` for the patches of a coarse vertex on the red refinement of its triangles
+!> (multilevel algebraic flux), whose multipliers inside each coarse triangle come first as a
+!> block (twomem_estimate_patch). `refined` holds the patches of vertices on ∂Ω too, whose
+!> edges on ∂Ω are free (no multiplier, nothing pinned); in `single` they keep the general path,
+!> as the discretization flux's datum ψ_a ∇u on a triangle without a zero-flux edge has no
+!> class operator. Boundary patches are O(√N) of all, but each took several times an interior
+!> one's time on the general path: on the refined levels they cost up to a tenth of an RT0
+!> evaluation at 2·10^4 vertices.
 module twomem_estimate_patch_classes
    use twomem_base_kinds, only: dp, ip, i8
    use twomem_base_errors, only: error_t, make_error, exit_io
@@ -20,7 +25,7 @@ module twomem_estimate_patch_classes
    use twomem_estimate_raviart_thomas, only: rt_space_t
    use twomem_estimate_shapes, only: shape_classes_t, triangle_class
    use twomem_estimate_patch, only: patch_factor_t, condensed_factor, inner_edge, on_opposite_edge, edge_neumann, &
-                                    max_theta
+                                    edge_free, max_theta
    implicit none
    private
 
@@ -178,8 +183,9 @@ contains
       end if
    end subroutine edge_signs
 
-   !> Signatures of the patches of the interior vertices of `coarse` (level `level`): on its own
-   !> triangles (`single`, with fine = coarse) or, for `refined`, on their children in `fine`.
+   !> Signatures of the patches of the interior vertices of `coarse` (level `level`) on its own
+   !> triangles (`single`, with fine = coarse), or of all its vertices on their children in
+   !> `fine` (`refined`).
    !> New signatures are factorized at `finish`. The vertices go in the order of their first
    !> patch triangle: red refinement numbers triangles along its tree, so consecutive patches
    !> in that order share their triangles' data in cache (key building waits on memory, not on
@@ -209,7 +215,7 @@ contains
       allocate (self%levels(level)%id(coarse%nv), self%levels(level)%order(coarse%nv))
       self%levels(level)%id = 0
       self%levels(level)%order = no_code
-      order = interior_by_first_triangle(coarse)
+      order = patch_vertices_by_first_triangle(coarse, self%refined)
       n = size(order, kind=ip)
       do first = 1, n, chunk
          !$omp parallel do default(none) shared(self, space, coarse, fine, level, order, keys, lengths, hashes, ids) &
@@ -233,13 +239,14 @@ contains
       end do
    end subroutine add_mesh
 
-   !> The interior vertices of the mesh whose patches are whole on this rank (on a rank's piece
-   !> of a distributed mesh, the patches outside its subdomain are not), in the order of their
-   !> first patch triangle (patches list their triangles in ascending order). Written as loops:
-   !> this file's array temporaries live on the stack (CMakeLists.txt), and a mesh-sized one
-   !> overflowed it at 4·10^6 vertices.
-   function interior_by_first_triangle(mesh) result(order)
+   !> The vertices of the mesh whose patches are whole on this rank (on a rank's piece of a
+   !> distributed mesh, the patches outside its subdomain are not), those on ∂Ω only
+   !> `with_boundary`, in the order of their first patch triangle (patches list their triangles
+   !> in ascending order). Written as loops: this file's array temporaries live on the stack
+   !> (CMakeLists.txt), and a mesh-sized one overflowed it at 4·10^6 vertices.
+   function patch_vertices_by_first_triangle(mesh, with_boundary) result(order)
       type(mesh_t), intent(in) :: mesh
+      logical, intent(in) :: with_boundary
       integer(ip), allocatable :: order(:)
 
       logical, allocatable :: inside(:)
@@ -250,7 +257,7 @@ contains
       all_vertices = mesh%vertices_by_first_triangle()
       n = 0
       do a = 1, mesh%nv
-         inside(a) = inside(a) .and. .not. mesh%boundary_vertex(a)
+         inside(a) = inside(a) .and. (with_boundary .or. .not. mesh%boundary_vertex(a))
          if (inside(a)) n = n + 1
       end do
       allocate (order(n))
@@ -261,12 +268,13 @@ contains
          n = n + 1
          order(n) = a
       end do
-   end function interior_by_first_triangle
+   end function patch_vertices_by_first_triangle
 
-   !> The key of the patch of interior vertex a (see add_mesh) in key(1:length): ne, the local
-   !> indices of a in the coarse triangles, then per patch triangle its class, zero-flux edge,
-   !> edge links and relative trace signs. length = 0: the patch takes the general path (too
-   !> many triangles or multipliers for the fixed-size factors).
+   !> The key of the patch of vertex a (see add_mesh; on ∂Ω only `refined`) in key(1:length):
+   !> ne, the local indices of a in the coarse triangles, then per patch triangle its class,
+   !> zero-flux edge, edge links (free ones included) and relative trace signs. length = 0: the
+   !> patch takes the general path (too many triangles or multipliers for the fixed-size
+   !> factors).
    pure subroutine patch_key(space, coarse, fine, level, refined, a, key, length)
       type(rt_space_t), intent(in) :: space
       type(mesh_t), intent(in) :: coarse, fine
@@ -279,6 +287,7 @@ contains
       integer(ip) :: order(max_patch), inner(9*max_patch), t, child
       integer :: classes(max_patch), neumann(max_patch), links(3, max_patch), local(max_patch)
       real(dp) :: signs(6, max_patch), o(2*9*max_patch), ratio
+      logical :: opposite
 
       length = 0
       n_children = merge(4, 1, refined)
@@ -307,9 +316,13 @@ contains
             call triangle_class(child_level, child, classes(ne), ratio)
             call edge_signs(nt, fine%triangles(:, child), signs(:, ne))
             do m = 1, 3
-               ! every other edge has an end point at a or inside a coarse edge at a, so it is
-               ! not on ∂Ω (a is not): no free edges
-               if (on_opposite_edge(refined, local(kc), c, m)) then
+               ! as the general path links them (twomem_estimate_alg_flux, coarse_patch): an
+               ! edge on ∂Ω is free unless it bounds an interior vertex's patch (only the
+               ! opposite edge can then lie on ∂Ω, and carries zero flux)
+               opposite = on_opposite_edge(refined, local(kc), c, m)
+               if (fine%boundary_edge(fine%triangle_edges(m, child))) then
+                  links(m, ne) = merge(edge_neumann, edge_free, opposite .and. .not. coarse%boundary_vertex(a))
+               else if (opposite) then
                   links(m, ne) = edge_neumann
                else
                   call inner_edge(inner, n_inner, fine%triangle_edges(m, child), links(m, ne))
