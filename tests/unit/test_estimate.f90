@@ -52,7 +52,7 @@ contains
                new_unittest('alg_flux_divergence_continuity', test_alg_flux), &
                new_unittest('block_colouring', test_block_colouring), &
                new_unittest('stored_patch_order', test_stored_order), &
-               new_unittest('alg_flux_signatures', test_alg_signatures)]
+               new_unittest('patch_signatures', test_signatures)]
    end subroutine collect_estimate
 
    !> Green's formula per basis function, (∇·φ_i, q) + (φ_i, ∇q) = ⟨φ_i·n, q⟩_∂K, for q = 1 and
@@ -371,68 +371,93 @@ contains
       end associate
    end subroutine test_alg_flux
 
-   !> σ_alg with the patch tables (factors shared by signature, the boundary vertices' patches
-   !> of the refined levels included, with their free edges on ∂Ω) equals σ_alg from every patch
-   !> assembled and factorized on its own, to round-off: a disk refined twice, three meshes (two
-   !> refined levels, the first with the coarse Riesz representer), RT0 and RT1.
-   subroutine test_alg_signatures(err)
+   !> Both fluxes with the patch tables (factors shared by signature, boundary vertices' patches
+   !> included, with their free edges on ∂Ω) equal the fluxes from every patch assembled and
+   !> factorized on its own, to round-off: σ_disc on the finest mesh, σ_alg with three meshes
+   !> (two refined levels, the first with the coarse Riesz representer), RT0 and RT1, on the
+   !> disk and on the square (3 × 3 cells: two corners cut off by a triangle with two edges on
+   !> ∂Ω, whose neighbours along ∂Ω have a triangle with its far edge on ∂Ω, and whose corner
+   !> vertex has a single-triangle patch), refined twice.
+   subroutine test_signatures(err)
       type(error_t), allocatable, intent(out) :: err
 
+      character(len=6), parameter :: domains(2) = ['disk  ', 'square']
       type(mesh_hierarchy_t) :: h
       type(poly_data_t) :: data
       type(discrete_problem_t) :: p
       type(rt_space_t) :: space
       type(algebraic_flux_t) :: alg
       type(shape_classes_t) :: shapes
+      type(coloring_t) :: colors
+      type(load_moments_t) :: loads
       type(patch_table_t) :: no_signatures, single, refined
       type(evaluated_iterate_t) :: iterate
       type(level_flux_t), allocatable :: general(:)
-      real(dp), allocatable :: lambda(:), grad_u(:, :, :), residual(:, :), r(:, :, :)
-      integer :: order, j, n_boundary
+      real(dp), allocatable :: lambda(:), grad_u(:, :, :), residual(:, :), r(:, :, :), sigma(:, :, :), sigma_general(:, :, :)
+      real(dp) :: mu(2)
+      integer :: domain, order, j, n_boundary
       integer(ip) :: a
+      logical :: ok
       character(len=40) :: what
 
-      call mesh_problem('disk', 0.4_dp, 2, data, h, p, err)
-      if (allocated(err)) return
-      call iterate_fields(p, h%meshes(2), random_vector(3*p%n, 31), lambda, grad_u, residual, r, iterate)
-      do order = 0, 1
-         write (what, '("RT",i0)') order
-         call space%init(order)
-         call shapes%init(space, h, err)
+      do domain = 1, 2
+         call mesh_problem(trim(domains(domain)), merge(0.4_dp, 0.7_dp, domain == 1), 2, data, h, p, err)
          if (allocated(err)) return
-         call alg%init(space, h, data, 3, err)
-         if (allocated(err)) return
-         call alg%take_residual(h, residual)
-         call alg%compute(shapes, h, iterate, no_signatures, no_signatures, err)
-         if (allocated(err)) return
-         general = alg%levels
-         call single%init(.false., 2)
-         call single%add_mesh(space, h%meshes(2), h%meshes(2), 2)
-         call single%finish(space, shapes, err)
-         if (allocated(err)) return
-         call refined%init(.true., 2)
-         n_boundary = 0
-         do j = alg%first(), 2
-            call refined%add_mesh(space, h%meshes(j - 1), h%meshes(j), j - 1)
-            do a = 1, h%meshes(j - 1)%nv
-               if (h%meshes(j - 1)%boundary_vertex(a) .and. refined%levels(j - 1)%id(a) > 0) n_boundary = n_boundary + 1
-            end do
-         end do
-         call refined%finish(space, shapes, err)
-         if (allocated(err)) return
-         call check(err, n_boundary > 0, 'boundary patches with signatures, '//trim(what))
-         call alg%take_residual(h, residual)
-         call alg%compute(shapes, h, iterate, single, refined, err)
-         if (allocated(err)) return
-         do j = 1, size(general)
-            call check(err, maxval(abs(alg%levels(j)%sigma - general(j)%sigma)) <= 1.0e-12_dp*maxval(abs(general(j)%sigma)), &
-                       'signatures = general path, '//trim(what))
+         call iterate_fields(p, h%meshes(2), random_vector(3*p%n, 30 + domain), lambda, grad_u, residual, r, iterate)
+         mu = [p%mu1, p%mu2]
+         call colors%init(h%meshes(2))
+         do order = 0, 1
+            write (what, '("RT",i0,", ",a)') order, trim(domains(domain))
+            call space%init(order)
+            call shapes%init(space, h, err)
             if (allocated(err)) return
+            call loads%init(space, h%meshes(2), data)
+            call alg%init(space, h, data, 3, err)
+            if (allocated(err)) return
+            call alg%take_residual(h, residual)
+            call alg%compute(shapes, h, iterate, no_signatures, no_signatures, err)
+            if (allocated(err)) return
+            general = alg%levels
+            if (allocated(sigma)) deallocate (sigma, sigma_general)
+            allocate (sigma(space%n_flux, h%meshes(2)%nt, 2), sigma_general(space%n_flux, h%meshes(2)%nt, 2))
+            call discretization_flux(space, shapes, no_signatures, h%meshes(2), 2, colors, mu, loads, iterate, &
+                                     sigma_general, ok)
+            call check(err, ok, 'patch systems regular, '//trim(what))
+            if (allocated(err)) return
+            ! the tables as the estimators build them, counting the boundary patches they factor
+            call single%init(.false., 2)
+            call single%add_mesh(space, h%meshes(2), h%meshes(2), 2)
+            call single%finish(space, shapes, err)
+            if (allocated(err)) return
+            n_boundary = count(h%meshes(2)%boundary_vertex .and. single%levels(2)%id > 0)
+            call refined%init(.true., 2)
+            do j = alg%first(), 2
+               call refined%add_mesh(space, h%meshes(j - 1), h%meshes(j), j - 1)
+               do a = 1, h%meshes(j - 1)%nv
+                  if (h%meshes(j - 1)%boundary_vertex(a) .and. refined%levels(j - 1)%id(a) > 0) n_boundary = n_boundary + 1
+               end do
+            end do
+            call refined%finish(space, shapes, err)
+            if (allocated(err)) return
+            call check(err, n_boundary > 0, 'boundary patches with signatures, '//trim(what))
+            if (allocated(err)) return
+            call discretization_flux(space, shapes, single, h%meshes(2), 2, colors, mu, loads, iterate, sigma, ok)
+            call check(err, maxval(abs(sigma - sigma_general)) <= 1.0e-12_dp*maxval(abs(sigma_general)), &
+                       'sigma_disc: signatures = general path, '//trim(what))
+            if (allocated(err)) return
+            call alg%take_residual(h, residual)
+            call alg%compute(shapes, h, iterate, single, refined, err)
+            if (allocated(err)) return
+            do j = 1, size(general)
+               call check(err, maxval(abs(alg%levels(j)%sigma - general(j)%sigma)) <= &
+                          1.0e-12_dp*maxval(abs(general(j)%sigma)), 'sigma_alg: signatures = general path, '//trim(what))
+            end do
+            if (allocated(err)) return
+            call single%free()
+            call refined%free()
          end do
-         call single%free()
-         call refined%free()
       end do
-   end subroutine test_alg_signatures
+   end subroutine test_signatures
 
    !> The canonical order of a patch's triangles as the patch tables store it (3 bits per
    !> position) is the order patch_order sorts, for every patch of the finest mesh (`single`) and

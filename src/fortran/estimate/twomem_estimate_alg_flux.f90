@@ -170,7 +170,7 @@ contains
 
    !> self%levels returns σ_alg level by level (levels b+1..J, or J alone with a single mesh)
    !> for the evaluated iterate: from its nodal algebraic residuals, zero at boundary vertices,
-   !> and their lifting r on T_J. The interior vertices' patches use the factors of their signatures
+   !> and their lifting r on T_J. The patches use the factors of their signatures
    !> (twomem_estimate_patch_classes) in `single` (the finest mesh) and `refined` (the coarse
    !> meshes of the refined levels); with tables that hold no signatures every patch is
    !> assembled and factorized on its own.
@@ -466,8 +466,8 @@ contains
       !$omp end parallel
    end subroutine level_patches
 
-   !> One patch of level_patches; an interior vertex's patch goes with its signature in `table`
-   !> (triangles in the signature's order, its edges and factor), one on ∂Ω the general way.
+   !> One patch of level_patches: with its signature in `table` (triangles in the signature's
+   !> order, its edges and factor), or the general way for a patch without one.
    subroutine coarse_patch(space, shapes, table, coarse, fine, level, a, n_children, first, grad_rho, p2_coarse, p2_fine, &
                            iterate, sigma, ok)
       type(rt_space_t), intent(in) :: space

@@ -100,8 +100,9 @@ contains
 
    !> sigma(:, t, α): coefficients of σ_α,disc on triangle t of `mesh`, level `level` of the
    !> hierarchy of `shapes`, whose vertex colouring is `colors`, for the evaluated iterate
-   !> (its ∇u_α, λ_h and residual lifting); loads: the load moments. `table` holds the patch signatures of `mesh`'s interior vertices
-   !> (twomem_estimate_patch_classes), whose patches use the signatures' factors; a table that
+   !> (its ∇u_α, λ_h and residual lifting); loads: the load moments. `table` holds the patch
+   !> signatures of `mesh`'s vertices (twomem_estimate_patch_classes), whose patches use the
+   !> signatures' factors; a table that
    !> holds none makes every patch assembled and factorized on its own. ok is .false. if some
    !> patch system is singular.
    subroutine discretization_flux(space, shapes, table, mesh, level, colors, mu, loads, iterate, sigma, ok)
@@ -137,7 +138,7 @@ contains
                id = 0
                if (signatures) id = table%levels(level)%id(a)
                if (id > 0) then
-                  call interior_patch(space, shapes, table%sig(id), table%levels(level)%order(a), mesh, level, a, mu, &
+                  call factored_patch(space, shapes, table%sig(id), table%levels(level)%order(a), mesh, level, a, mu, &
                                       loads, iterate, sigma)
                else
                   call vertex_patch(space, shapes, mesh, level, a, mu, loads, iterate, sigma, patch_ok)
@@ -212,15 +213,15 @@ contains
          end do
       end do
 
-      ! a vertex on ∂Ω (the interior ones go through interior_patch)
+      ! a patch without a signature (factored_patch takes the others)
       call solve_patch(space, shapes, classes, ratios, signs, links, rhs_flux, rhs_div, .true., 0, patch_sigma, ok)
       do k = 1, ne
          sigma(:, elements(k), :) = sigma(:, elements(k), :) + patch_sigma(:, k, :)
       end do
    end subroutine vertex_patch
-   !> The patch of an interior vertex a with its signature's factor (twomem_estimate_patch_classes):
-   !> the data of vertex_patch in the signature's order of the triangles.
-   subroutine interior_patch(space, shapes, sig, order_code, mesh, level, a, mu, loads, iterate, sigma)
+   !> The patch of vertex a with its signature's factor (twomem_estimate_patch_classes): the data
+   !> of vertex_patch in the signature's order of the triangles.
+   subroutine factored_patch(space, shapes, sig, order_code, mesh, level, a, mu, loads, iterate, sigma)
       type(rt_space_t), intent(in) :: space
       type(shape_classes_t), intent(in) :: shapes
       type(patch_signature_t), intent(in) :: sig
@@ -251,7 +252,7 @@ contains
       do k = 1, ne
          t = order(k)
          c = sig%classes(k)
-         i = sig%neumann(k)
+         i = sig%corners(k)
          hat_gradients = p1_gradients(mesh, t)
          grad_psi = hat_gradients(:, i)
          call gradients_on(iterate, mesh, t, hat_gradients, grad_u)
@@ -268,5 +269,5 @@ contains
       end do
       call solve_condensed_factored(space, shapes, sig%classes, ratio, sig%neumann, fgrad(:, 1:ne, :), &
                                     rhs_div(1:nd, 1:ne, :), .true., sig%factor, order(1:ne), sigma)
-   end subroutine interior_patch
+   end subroutine factored_patch
 end module twomem_estimate_disc_flux

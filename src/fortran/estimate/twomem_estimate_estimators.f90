@@ -58,7 +58,7 @@ module twomem_estimate_estimators
       type(algebraic_flux_t) :: alg
       !> the triangle operators of every level, per shape class
       type(shape_classes_t) :: shapes
-      !> the signatures of the interior vertices' patches: on the finest mesh's own triangles
+      !> the signatures of the vertices' patches: on the finest mesh's own triangles
       !> (discretization flux, single-mesh algebraic flux) and on refined coarse triangles
       type(patch_table_t) :: single, refined
       !> the finest mesh's vertex colouring for the discretization-flux patches

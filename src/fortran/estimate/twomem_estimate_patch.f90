@@ -332,14 +332,18 @@ contains
       end do
    end subroutine condensed_factor
 
-   !> solve_patch for an interior vertex's patch whose H was factorized beforehand
+   !> solve_patch for a patch whose H was factorized beforehand
    !> (condensed_factor, for a patch with the same classes, neumann, links and relative signs):
    !> only the right-hand sides and the triangles' fluxes are computed per patch, for both
    !> membranes at once (each class operator and each number of the factor is read once for
    !> the two, whose values sit side by side: mat_vec). All triangles are at ratio `ratio` (one
    !> level). The flux datum of triangle k is (σ_0, φ_j)_K = ρ⁻² Φ_i fgrad(:, k, r) with Φ_i =
    !> psi_phi(:, :, neumann(k)) of the class, i.e. σ_0 = fgrad ψ_i for the vertex opposite the
-   !> zero-flux edge (flux_data must be .false. when a triangle has no zero-flux edge). With the
+   !> zero-flux edge. A triangle without one takes no datum: in a discretization-flux patch it
+   !> is a boundary vertex's triangle whose far edge lies on ∂Ω, so all three of its vertices
+   !> do, where u_h is the constant Dirichlet value (g, or 0): its ∇u_h, hence its datum, is
+   !> zero up to round-off. Free edges (on ∂Ω) have no multiplier: their trace rows point to
+   !> free_slot (inner_rows). With the
    !> patch's own trace signs S and the orientation O of each multiplier (the sign of its first
    !> row), the patch's system is O H O; the products S O are the signature's relative signs
    !> (factor%sg), so neither the patch's signs nor O is needed: b = Σ_K (S O)_K t_K, and

@@ -12,12 +12,11 @@
 !> for the patches of a mesh's own triangles (discretization flux, single-mesh algebraic flux),
 !> `refined` for the patches of a coarse vertex on the red refinement of its triangles
 !> (multilevel algebraic flux), whose multipliers inside each coarse triangle come first as a
-!> block (twomem_estimate_patch). `refined` holds the patches of vertices on ∂Ω too, whose
-!> edges on ∂Ω are free (no multiplier, nothing pinned); in `single` they keep the general path,
-!> as the discretization flux's datum ψ_a ∇u on a triangle without a zero-flux edge has no
-!> class operator. Boundary patches are O(√N) of all, but each took several times an interior
-!> one's time on the general path: on the refined levels they cost up to a tenth of an RT0
-!> evaluation at 2·10^4 vertices.
+!> block (twomem_estimate_patch). The patches of vertices on ∂Ω have signatures too: their edges
+!> on ∂Ω are free (no multiplier, nothing pinned). Boundary patches are
+!> O(√N) of all, but each took several times an interior one's time on the general path: about
+!> a tenth of an RT0 evaluation at 2·10^4 vertices. Only patches too large for the fixed-size
+!> factors keep the general path.
 module twomem_estimate_patch_classes
    use twomem_base_kinds, only: dp, ip, i8
    use twomem_base_errors, only: error_t, make_error, exit_io
@@ -44,13 +43,16 @@ module twomem_estimate_patch_classes
    !> (twomem_estimate_patch), and the factor of H.
    type :: patch_signature_t
       integer, allocatable :: classes(:), neumann(:), links(:, :)
+      !> per coarse triangle (per triangle for `single`): the local index of the patch vertex
+      integer, allocatable :: corners(:)
       type(patch_factor_t) :: factor
       !> the key while the table is built
       integer, allocatable :: key(:)
    end type patch_signature_t
 
    type :: level_ids_t
-      !> per vertex of the patch mesh: its signature, 0 for a vertex on ∂Ω (general path)
+      !> per vertex of the patch mesh: its signature, 0 for a patch on the general path (too
+      !> large for the fixed-size factors, or outside this rank's subdomain)
       integer, allocatable :: id(:)
       !> per vertex with a signature: the canonical order of its patch triangles (patch_order)
       !> as their positions in the patch list, coded 3 bits each (stored_order); no_code for
@@ -183,9 +185,8 @@ contains
       end if
    end subroutine edge_signs
 
-   !> Signatures of the patches of the interior vertices of `coarse` (level `level`) on its own
-   !> triangles (`single`, with fine = coarse), or of all its vertices on their children in
-   !> `fine` (`refined`).
+   !> Signatures of the patches of the vertices of `coarse` (level `level`) on its own triangles
+   !> (`single`, with fine = coarse) or, for `refined`, on their children in `fine`.
    !> New signatures are factorized at `finish`. The vertices go in the order of their first
    !> patch triangle: red refinement numbers triangles along its tree, so consecutive patches
    !> in that order share their triangles' data in cache (key building waits on memory, not on
@@ -215,7 +216,7 @@ contains
       allocate (self%levels(level)%id(coarse%nv), self%levels(level)%order(coarse%nv))
       self%levels(level)%id = 0
       self%levels(level)%order = no_code
-      order = patch_vertices_by_first_triangle(coarse, self%refined)
+      order = patch_vertices_by_first_triangle(coarse)
       n = size(order, kind=ip)
       do first = 1, n, chunk
          !$omp parallel do default(none) shared(self, space, coarse, fine, level, order, keys, lengths, hashes, ids) &
@@ -240,13 +241,12 @@ contains
    end subroutine add_mesh
 
    !> The vertices of the mesh whose patches are whole on this rank (on a rank's piece of a
-   !> distributed mesh, the patches outside its subdomain are not), those on ∂Ω only
-   !> `with_boundary`, in the order of their first patch triangle (patches list their triangles
-   !> in ascending order). Written as loops: this file's array temporaries live on the stack
-   !> (CMakeLists.txt), and a mesh-sized one overflowed it at 4·10^6 vertices.
-   function patch_vertices_by_first_triangle(mesh, with_boundary) result(order)
+   !> distributed mesh, the patches outside its subdomain are not), in the order of their first
+   !> patch triangle (patches list their triangles in ascending order). Written as loops: this
+   !> file's array temporaries live on the stack (CMakeLists.txt), and a mesh-sized one
+   !> overflowed it at 4·10^6 vertices.
+   function patch_vertices_by_first_triangle(mesh) result(order)
       type(mesh_t), intent(in) :: mesh
-      logical, intent(in) :: with_boundary
       integer(ip), allocatable :: order(:)
 
       logical, allocatable :: inside(:)
@@ -257,7 +257,6 @@ contains
       all_vertices = mesh%vertices_by_first_triangle()
       n = 0
       do a = 1, mesh%nv
-         inside(a) = inside(a) .and. (with_boundary .or. .not. mesh%boundary_vertex(a))
          if (inside(a)) n = n + 1
       end do
       allocate (order(n))
@@ -270,7 +269,7 @@ contains
       end do
    end function patch_vertices_by_first_triangle
 
-   !> The key of the patch of vertex a (see add_mesh; on ∂Ω only `refined`) in key(1:length):
+   !> The key of the patch of vertex a (see add_mesh) in key(1:length):
    !> ne, the local indices of a in the coarse triangles, then per patch triangle its class,
    !> zero-flux edge, edge links (free ones included) and relative trace signs. length = 0: the
    !> patch takes the general path (too many triangles or multipliers for the fixed-size
@@ -394,6 +393,7 @@ contains
       ne = key(1)
       i = 1 + ne/n_children
       self%sig(id)%key = key
+      self%sig(id)%corners = key(2:i)
       self%sig(id)%classes = key(i + 1:i + ne)
       self%sig(id)%neumann = key(i + ne + 1:i + 2*ne)
       self%sig(id)%links = reshape(key(i + 2*ne + 1:i + 5*ne), [3, ne])
@@ -408,6 +408,7 @@ contains
       call move_alloc(from%classes, to%classes)
       call move_alloc(from%neumann, to%neumann)
       call move_alloc(from%links, to%links)
+      call move_alloc(from%corners, to%corners)
       call move_alloc(from%key, to%key)
    end subroutine move_signature
 
