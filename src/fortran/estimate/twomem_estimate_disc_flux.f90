@@ -102,9 +102,8 @@ contains
    !> hierarchy of `shapes`, whose vertex colouring is `colors`, for the evaluated iterate
    !> (its ∇u_α, λ_h and residual lifting); loads: the load moments. `table` holds the patch
    !> signatures of `mesh`'s vertices (twomem_estimate_patch_classes), whose patches use the
-   !> signatures' factors; a table that
-   !> holds none makes every patch assembled and factorized on its own. ok is .false. if some
-   !> patch system is singular.
+   !> signatures' factors; a table that holds none makes every patch assembled and factorized
+   !> on its own. ok is .false. if some patch system is singular.
    subroutine discretization_flux(space, shapes, table, mesh, level, colors, mu, loads, iterate, sigma, ok)
       type(rt_space_t), intent(in) :: space
       type(shape_classes_t), intent(in) :: shapes

@@ -343,12 +343,12 @@ contains
    !> is a boundary vertex's triangle whose far edge lies on ∂Ω, so all three of its vertices
    !> do, where u_h is the constant Dirichlet value (g, or 0): its ∇u_h, hence its datum, is
    !> zero up to round-off. Free edges (on ∂Ω) have no multiplier: their trace rows point to
-   !> free_slot (inner_rows). With the
-   !> patch's own trace signs S and the orientation O of each multiplier (the sign of its first
-   !> row), the patch's system is O H O; the products S O are the signature's relative signs
-   !> (factor%sg), so neither the patch's signs nor O is needed: b = Σ_K (S O)_K t_K, and
-   !> θ_K = (S O)_K θ back (±1 factors, exact). The patch's σ on triangle k is added to
-   !> sigma(:, triangles(k), :) (the caller's whole field: no copy of the patch's part).
+   !> free_slot (inner_rows). With the patch's own trace signs S and the orientation O of each
+   !> multiplier (the sign of its first row), the patch's system is O H O; the products S O are
+   !> the signature's relative signs (factor%sg), so neither the patch's signs nor O is needed:
+   !> b = Σ_K (S O)_K t_K, and θ_K = (S O)_K θ back (±1 factors, exact). The patch's σ on
+   !> triangle k is added to sigma(:, triangles(k), :) (the caller's whole field: no copy of the
+   !> patch's part).
    pure subroutine solve_condensed_factored(space, shapes, classes, ratio, neumann, fgrad, rhs_div, flux_data, factor, &
                                             triangles, sigma)
       type(rt_space_t), intent(in) :: space

@@ -13,10 +13,10 @@
 !> `refined` for the patches of a coarse vertex on the red refinement of its triangles
 !> (multilevel algebraic flux), whose multipliers inside each coarse triangle come first as a
 !> block (twomem_estimate_patch). The patches of vertices on ∂Ω have signatures too: their edges
-!> on ∂Ω are free (no multiplier, nothing pinned). Boundary patches are
-!> O(√N) of all, but each took several times an interior one's time on the general path: about
-!> a tenth of an RT0 evaluation at 2·10^4 vertices. Only patches too large for the fixed-size
-!> factors keep the general path.
+!> on ∂Ω are free (no multiplier, nothing pinned). Boundary patches are O(√N) of all, but each
+!> took several times an interior one's time on the general path: about a tenth of an RT0
+!> evaluation at 2·10^4 vertices. Only patches too large for the fixed-size factors keep the
+!> general path.
 module twomem_estimate_patch_classes
    use twomem_base_kinds, only: dp, ip, i8
    use twomem_base_errors, only: error_t, make_error, exit_io
@@ -269,11 +269,10 @@ contains
       end do
    end function patch_vertices_by_first_triangle
 
-   !> The key of the patch of vertex a (see add_mesh) in key(1:length):
-   !> ne, the local indices of a in the coarse triangles, then per patch triangle its class,
-   !> zero-flux edge, edge links (free ones included) and relative trace signs. length = 0: the
-   !> patch takes the general path (too many triangles or multipliers for the fixed-size
-   !> factors).
+   !> The key of the patch of vertex a (see add_mesh) in key(1:length): ne, the local indices of
+   !> a in the coarse triangles, then per patch triangle its class, zero-flux edge, edge links
+   !> (free ones included) and relative trace signs. length = 0: the patch takes the general
+   !> path (too many triangles or multipliers for the fixed-size factors).
    pure subroutine patch_key(space, coarse, fine, level, refined, a, key, length)
       type(rt_space_t), intent(in) :: space
       type(mesh_t), intent(in) :: coarse, fine
