@@ -40,8 +40,8 @@ module twomem_estimate_alg_flux
    use twomem_estimate_raviart_thomas, only: rt_space_t
    use twomem_estimate_shapes, only: shape_classes_t, triangle_class, n_p2
    use twomem_estimate_coloring, only: coloring_t
-   use twomem_estimate_patch, only: solve_patch, solve_condensed_factored, inner_edge, on_opposite_edge, edge_free, &
-                                    edge_neumann
+   use twomem_estimate_patch, only: solve_patch, inner_edge, on_opposite_edge, edge_free, edge_neumann
+   use twomem_estimate_patch_factor, only: solve_condensed_factored
    use twomem_estimate_patch_classes, only: patch_table_t, stored_order, edge_signs
    use twomem_estimate_evaluated_iterate, only: evaluated_iterate_t, lifting_on
    implicit none

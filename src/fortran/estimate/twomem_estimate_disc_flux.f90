@@ -14,7 +14,8 @@ module twomem_estimate_disc_flux
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, frame_of
    use twomem_estimate_shapes, only: shape_classes_t, triangle_class, trace_signs
    use twomem_estimate_coloring, only: coloring_t
-   use twomem_estimate_patch, only: solve_patch, solve_condensed_factored, inner_edge, edge_free, edge_neumann
+   use twomem_estimate_patch, only: solve_patch, inner_edge, edge_free, edge_neumann
+   use twomem_estimate_patch_factor, only: solve_condensed_factored
    use twomem_estimate_patch_classes, only: patch_table_t, patch_signature_t, stored_order, max_patch
    use twomem_estimate_evaluated_iterate, only: evaluated_iterate_t, gradients_on, lifting_on
    implicit none

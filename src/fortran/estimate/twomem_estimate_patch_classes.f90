@@ -23,8 +23,8 @@ module twomem_estimate_patch_classes
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_estimate_raviart_thomas, only: rt_space_t
    use twomem_estimate_shapes, only: shape_classes_t, triangle_class
-   use twomem_estimate_patch, only: patch_factor_t, condensed_factor, inner_edge, on_opposite_edge, edge_neumann, &
-                                    edge_free, max_theta
+   use twomem_estimate_patch, only: inner_edge, on_opposite_edge, edge_neumann, edge_free
+   use twomem_estimate_patch_factor, only: patch_factor_t, condensed_factor, max_theta
    implicit none
    private
 
