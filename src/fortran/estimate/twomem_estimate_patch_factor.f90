@@ -67,6 +67,7 @@ contains
       integer :: nt, k, c, i, a, q, n_rows, rows(3*space%n_trace), glob(3*space%n_trace)
       real(dp) :: h(space%n_trace*maxval(links), space%n_trace*maxval(links))
       real(dp) :: sg(3*space%n_trace), a_k(3*space%n_trace, 3*space%n_trace)
+      logical :: pinned
 
       nt = space%n_trace
       h = 0.0_dp
@@ -88,13 +89,14 @@ contains
             end do
          end do
       end do
-      if (.not. any(links == edge_free)) then
+      pinned = .not. any(links == edge_free)
+      if (pinned) then
          h(1, :) = 0.0_dp
          h(:, 1) = 0.0_dp
          h(1, 1) = 1.0_dp
       end if
       call block_factor(h, n_blocks, 3*nt, factor, ok)
-      factor%pinned = .not. any(links == edge_free)
+      factor%pinned = pinned
       allocate (factor%n_rows(size(classes)), factor%rows(3*nt, size(classes)), factor%glob(3*nt, size(classes)), &
                 factor%sg(3*nt, size(classes)))
       factor%rows = 0
