@@ -11,15 +11,17 @@ Each size COARSE_H:LEVELS is input/default.nml (radial on the disk, its exact er
 off) with mesh.coarse_h and mesh.levels set; the default sizes have 2.2e4, 1.5e5, 1.0e6 and
 4.1e6 vertices. Two runs per size, flux and thread count: the adaptive method (the estimators
 drive its GMRES stopping test, here at every check: estimate.checks=all) from (g, 0, 0) for
-one Newton step and for three, with the
+one Newton step and for S (--steps; by default 8 below 5·10^5 vertices and 3 above), with the
 fields, /estimators and the history written, as a real run writes them. From the results:
 - first s/eval = /summary estimator_time of the one-step run (its single evaluation, with the
   fields of the output): the evaluation alone (residual lifting, both flux reconstructions,
   every element estimator), not the set-up (init), but with the first touch of its arrays;
-- later s/eval = the three-step run's estimator_time minus the one-step run's, over the
+- later s/eval = the S-step run's estimator_time minus the one-step run's, over the
   difference of their evaluation counts: an evaluation into arrays already in use, which is
-  what every further Newton step of an adaptive run pays. On this virtual machine the first
-  touch of fresh memory costs 0.4–2.2 s per GiB, a large share of the first evaluation;
+  what every further Newton step of an adaptive run pays. Below 5·10^5 vertices an evaluation
+  takes tens of milliseconds, and two of them (S = 3) are a small difference of two noisy
+  totals (JSON: us_per_vertex_range, the spread over the repeats). On this virtual machine the
+  first touch of fresh memory costs 0.4–2.2 s per GiB, a large share of the first evaluation;
 - µs/vertex = s/eval / N · 1e6; the speed-up is that of the later evaluations;
 - peak KB/vertex = the whole run's peak resident memory (/performance: the largest phase peak)
   over N, in KiB; `est. KB/vertex` the same for the peak up to the estimator phase minus the
@@ -68,6 +70,8 @@ def main() -> int:
     ap.add_argument("--flux", default="rt1,rt0")
     ap.add_argument("--threads", default="1,2")
     ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("--steps", type=int, default=0,
+                    help="Newton steps of the second run (0: 8 below 5e5 vertices, 3 above)")
     ap.add_argument("-o", "--output", default=str(ROOT / "results" / "estimator_cost"))
     args = ap.parse_args()
     threads = [int(t) for t in args.threads.split(",")]
@@ -88,14 +92,16 @@ def main() -> int:
                     firsts, laters, peaks, added = [], [], [], []
                     for _ in range(args.repeat):
                         one = run(args.exe, coarse_h, levels, flux, t, Path(tmp) / "r.h5")
-                        three = run(args.exe, coarse_h, levels, flux, t, Path(tmp) / "r.h5", steps=3)
+                        steps = args.steps or (8 if one["nv"] < 500_000 else 3)
+                        three = run(args.exe, coarse_h, levels, flux, t, Path(tmp) / "r.h5", steps=steps)
                         if three["evaluations"] <= one["evaluations"]:
-                            sys.exit(f"estimator_cost: {size} {flux}: three Newton steps made no further evaluation")
+                            sys.exit(f"estimator_cost: {size} {flux}: {steps} Newton steps made no further evaluation")
                         firsts.append(one["seconds"] / one["evaluations"])
                         laters.append((three["seconds"] - one["seconds"]) / (three["evaluations"] - one["evaluations"]))
                         peaks.append(three["peak_mib"])
                         added.append(three["estimators_mib"])
                     per[t] = {"first": statistics.median(firsts), "later": statistics.median(laters),
+                              "later_range": [min(laters), max(laters)], "steps": steps,
                               "peak_mib": statistics.median(peaks), "estimators_mib": statistics.median(added),
                               "nv": one["nv"]}
                 nv = per[threads[0]]["nv"]
@@ -104,6 +110,8 @@ def main() -> int:
                        "s_later": {t: per[t]["later"] for t in threads},
                        "us_per_vertex_first": {t: 1e6 * per[t]["first"] / nv for t in threads},
                        "us_per_vertex": {t: 1e6 * per[t]["later"] / nv for t in threads},
+                       "us_per_vertex_range": {t: [1e6 * v / nv for v in per[t]["later_range"]] for t in threads},
+                       "steps": per[threads[0]]["steps"],
                        "peak_kb_per_vertex": 1024 * per[threads[-1]]["peak_mib"] / nv,
                        "estimators_kb_per_vertex": 1024 * per[threads[-1]]["estimators_mib"] / nv}
                 rows.append(row)

@@ -14,10 +14,11 @@ solution; its exact error is not computed here, as it is not part of a solve). T
 run's own phase clock (`/performance` of the result file), the median over `--repeat` runs;
 memory is the peak resident set of the run. Columns: Newton steps and GMRES iterations on the
 finest level, their ratio, seconds per phase, the total without estimators, µs per vertex of
-that total, peak MiB and bytes per vertex, and the share of the run's CPU time spent in the
-kernel (getrusage of the child: system over user + system), which is mostly the zeroing of
-pages the run touches for the first time: on a virtual machine whose first touch of fresh
-memory is slow, it is what bends the time per vertex at the largest sizes.
+that total, the user CPU time of all threads per vertex (getrusage of the child: the
+computation without the kernel's part), peak MiB and bytes per vertex, and the kernel's CPU
+time, in seconds and as a share of the run's (system over user + system), which is mostly the
+zeroing of pages the run touches for the first time: on a virtual machine whose first touch of
+fresh memory is slow, it is what bends the time per vertex at the largest sizes.
 """
 from __future__ import annotations
 
@@ -62,7 +63,7 @@ def run_once(exe: str, overrides: list[str], out: Path, threads: int) -> dict:
             "gmres_coarse": int(summary["gmres_iterations_coarse"]),
             **{p: float(perf[f"{p}_seconds"]) for p in PHASES},
             "peak_mib": max(float(v) for k, v in perf.items() if k.endswith("_peak_mib")),
-            "kernel_share": system/max(user + system, 1e-9)}
+            "user_s": user, "kernel_s": system, "kernel_share": system/max(user + system, 1e-9)}
 
 
 def measure(args, case: str, cfun: str, levels: int, tmp: Path) -> dict:
@@ -71,7 +72,7 @@ def measure(args, case: str, cfun: str, levels: int, tmp: Path) -> dict:
     runs = [run_once(args.exe, overrides, tmp / f"{case}_{cfun}_{levels}_{i}.h5", args.threads)
             for i in range(args.repeat)]
     row = dict(runs[0])
-    for key in (*PHASES, "peak_mib", "kernel_share"):
+    for key in (*PHASES, "peak_mib", "user_s", "kernel_s", "kernel_share"):
         row[key] = statistics.median(r[key] for r in runs)
     row["total"] = sum(row[p] for p in PHASES)
     row.update(case=case, cfun=cfun, levels=levels)
@@ -80,13 +81,14 @@ def measure(args, case: str, cfun: str, levels: int, tmp: Path) -> dict:
 
 def table(rows: list[dict]) -> str:
     lines = ["| case | cfun | vertices | Newton | GMRES | GMRES/Newton | mesh s | assembly s | solve s | output s "
-             "| total s | µs/vertex | peak MiB | B/vertex | kernel CPU |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+             "| total s | µs/vertex | user CPU µs/vertex | peak MiB | B/vertex | kernel CPU s | kernel CPU |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in rows:
         lines.append(f"| {r['case']} | {r['cfun']} | {r['nv']} | {r['newton']} | {r['gmres']} | "
                      f"{r['gmres'] / max(1, r['newton']):.1f} | {r['mesh']:.3f} | {r['assembly']:.3f} | "
                      f"{r['solve']:.3f} | {r['output']:.3f} | {r['total']:.3f} | {1e6 * r['total'] / r['nv']:.2f} | "
-                     f"{r['peak_mib']:.0f} | {r['peak_mib'] * 2**20 / r['nv']:.0f} | {100 * r['kernel_share']:.0f}% |")
+                     f"{1e6 * r['user_s'] / r['nv']:.2f} | {r['peak_mib']:.0f} | {r['peak_mib'] * 2**20 / r['nv']:.0f} | "
+                     f"{r['kernel_s']:.2f} | {100 * r['kernel_share']:.0f}% |")
     return "\n".join(lines)
 
 
@@ -102,7 +104,9 @@ def plot(rows: list[dict], out: Path) -> None:
         label = f"{key[0]}, {key[1]}"
         axes[0].loglog(nv, [r["total"] for r in sel], "o-", label=f"{label}: total")
         axes[0].loglog(nv, [r["solve"] for r in sel], "s--", label=f"{label}: solve")
-        axes[1].semilogx(nv, [1e6 * r["total"] / r["nv"] for r in sel], "o-", label=label)
+        line, = axes[1].semilogx(nv, [1e6 * r["total"] / r["nv"] for r in sel], "o-", label=f"{label}: wall")
+        axes[1].semilogx(nv, [1e6 * r["user_s"] / r["nv"] for r in sel], "^:", color=line.get_color(),
+                         label=f"{label}: user CPU (all threads)")
         axes[2].loglog(nv, [r["peak_mib"] for r in sel], "o-", label=label)
     nv_all = sorted({r["nv"] for r in rows})
     axes[0].loglog(nv_all, [1e-6 * n for n in nv_all], "k:", label="1 µs per vertex")
