@@ -5,7 +5,8 @@ it, against the number of vertices N: time per vertex per evaluation with RT1 an
 plot.
 
     .venv/bin/python bench/estimator_cost.py [--exe build/release/twomem] [--sizes 0.25:3,0.25:4,0.25:5,0.075:5]
-                                             [--flux rt1,rt0] [--threads 1,2] [--repeat 1] [-o results/estimator_cost]
+                                             [--flux rt1,rt0] [--threads 1,2] [--repeat 1] [--steps S]
+                                             [-o results/estimator_cost]
 
 Each size COARSE_H:LEVELS is input/default.nml (radial on the disk, its exact error switched
 off) with mesh.coarse_h and mesh.levels set; the default sizes have 2.2e4, 1.5e5, 1.0e6 and
