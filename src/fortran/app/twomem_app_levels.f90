@@ -77,7 +77,8 @@ contains
       if (quiet%linear == method_adaptive) then
          quiet%linear = method_gmres
          quiet%forcing = forcing_finish
-         if (cfg%estimate%every == 0) quiet%gmres%observe_every = automatic_every(quiet%linear, quiet%cfun, quiet%precond)
+         if (cfg%estimate%every == 0) &
+            quiet%gmres%observe_every = automatic_every(quiet%linear, quiet%cfun, quiet%precond, quiet%fb_active_set)
       end if
       do l = bottom, finest - 1
          t_level = wall_time()

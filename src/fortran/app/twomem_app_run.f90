@@ -335,7 +335,8 @@ contains
       options%gmres%rtol = cfg%gmres%rtol
       options%gmres%observe_every = cfg%estimate%every
       if (options%gmres%observe_every == 0) &
-         options%gmres%observe_every = automatic_every(options%linear, options%cfun, options%precond)
+         options%gmres%observe_every = automatic_every(options%linear, options%cfun, options%precond, &
+                                                         options%fb_active_set)
       options%gamma_lin = cfg%newton%gamma_lin
       options%gamma_alg = cfg%estimate%gamma_alg
       options%local_criteria = trim(cfg%estimate%criteria) == 'local'
