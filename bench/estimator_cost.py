@@ -94,13 +94,13 @@ def main() -> int:
                     for _ in range(args.repeat):
                         one = run(args.exe, coarse_h, levels, flux, t, Path(tmp) / "r.h5")
                         steps = args.steps or (8 if one["nv"] < 500_000 else 3)
-                        three = run(args.exe, coarse_h, levels, flux, t, Path(tmp) / "r.h5", steps=steps)
-                        if three["evaluations"] <= one["evaluations"]:
+                        longer = run(args.exe, coarse_h, levels, flux, t, Path(tmp) / "r.h5", steps=steps)
+                        if longer["evaluations"] <= one["evaluations"]:
                             sys.exit(f"estimator_cost: {size} {flux}: {steps} Newton steps made no further evaluation")
                         firsts.append(one["seconds"] / one["evaluations"])
-                        laters.append((three["seconds"] - one["seconds"]) / (three["evaluations"] - one["evaluations"]))
-                        peaks.append(three["peak_mib"])
-                        added.append(three["estimators_mib"])
+                        laters.append((longer["seconds"] - one["seconds"]) / (longer["evaluations"] - one["evaluations"]))
+                        peaks.append(longer["peak_mib"])
+                        added.append(longer["estimators_mib"])
                     per[t] = {"first": statistics.median(firsts), "later": statistics.median(laters),
                               "later_range": [min(laters), max(laters)], "steps": steps,
                               "peak_mib": statistics.median(peaks), "estimators_mib": statistics.median(added),

@@ -120,11 +120,12 @@ contains
    !> as soon as the algebraic residual is below the linearization residual took 6 GMRES
    !> iterations on the finest of 1.1e6 vertices instead of 13 with ν = 3, in as many Newton
    !> steps). So does Fischer–Burmeister finished by active-set steps (`fb_active_set`): its
-   !> inexact first steps hand over to active-set steps within one or two steps, and the runs
-   !> of bench/scaling.py took 6–20% less time than with ν = 3 at 1.1e6 and 4.5e6 vertices. Fischer–Burmeister throughout
-   !> keeps 3: its inexact steps wander between contact sets with ν = 1 (5 finest-level Newton
-   !> steps instead of 2 on the membranes case at 7e4 vertices), and so does the adaptive
-   !> method, whose checks may each be an evaluation of the estimators.
+   !> inexact first steps hand over to active-set steps within one or two steps, and
+   !> bench/scaling.py's cases took 6–20% less time than with ν = 3 at 1.1e6 and 4.5e6 vertices
+   !> (alternating runs). Fischer–Burmeister throughout keeps 3: its inexact steps wander
+   !> between contact sets with ν = 1 (5 finest-level Newton steps instead of 2 on the
+   !> membranes case at 7e4 vertices), and so does the adaptive method, whose checks may each
+   !> be an evaluation of the estimators.
    pure integer function automatic_every(linear, cfun, precond, fb_active_set) result(every)
       integer, intent(in) :: linear, cfun, precond
       logical, intent(in) :: fb_active_set
