@@ -40,7 +40,7 @@ module twomem_estimate_alg_flux
    use twomem_estimate_raviart_thomas, only: rt_space_t
    use twomem_estimate_shapes, only: shape_classes_t, triangle_class, n_p2
    use twomem_estimate_coloring, only: coloring_t
-   use twomem_estimate_patch, only: solve_patch, inner_edge, on_opposite_edge, edge_free, edge_neumann
+   use twomem_estimate_patch, only: solve_patch, link_edge, on_opposite_edge
    use twomem_estimate_patch_factor, only: solve_condensed_factored
    use twomem_estimate_patch_classes, only: patch_table_t, stored_order, edge_signs
    use twomem_estimate_evaluated_iterate, only: evaluated_iterate_t, lifting_on
@@ -489,7 +489,6 @@ contains
       integer :: n_coarse, ne, k, kc, c, m, i, alpha, local_a, n_inner, n_blocks
       integer(ip) :: t, child, e, v(3), children(n_children*(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a)))
       integer(ip) :: inner(max_inner_per_triangle*(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a)))
-      logical :: opposite
       integer :: links(3, size(children)), classes(size(children))
       real(dp) :: ratios(size(children)), signs(3*space%n_trace, size(children))
       real(dp) :: rhs_flux(space%n_flux, size(children), 2), rhs_div(space%n_div, size(children), 2)
@@ -558,14 +557,8 @@ contains
             do m = 1, 3
                if (id > 0) exit
                e = fine%triangle_edges(m, child)
-               opposite = on_opposite_edge(n_children == 4, local_a, c, m)
-               if (fine%boundary_edge(e)) then
-                  links(m, ne) = merge(edge_neumann, edge_free, opposite .and. .not. coarse%boundary_vertex(a))
-               else if (opposite) then
-                  links(m, ne) = edge_neumann
-               else
-                  call inner_edge(inner, n_inner, e, links(m, ne))
-               end if
+               call link_edge(fine%boundary_edge(e), on_opposite_edge(n_children == 4, local_a, c, m), &
+                              coarse%boundary_vertex(a), e, inner, n_inner, links(m, ne))
             end do
             ! the moments of r ψ_a on the child (r linear on T_J, P2 in the child's monomials
             ! above) and of the smooth part (∇ρ·∇ψ_a constant, or Π_coarse(r ψ_a) in t's q_l): the

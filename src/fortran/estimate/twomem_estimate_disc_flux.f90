@@ -14,7 +14,7 @@ module twomem_estimate_disc_flux
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, frame_of
    use twomem_estimate_shapes, only: shape_classes_t, triangle_class, trace_signs
    use twomem_estimate_coloring, only: coloring_t
-   use twomem_estimate_patch, only: solve_patch, inner_edge, edge_free, edge_neumann
+   use twomem_estimate_patch, only: solve_patch, link_edge
    use twomem_estimate_patch_factor, only: solve_condensed_factored
    use twomem_estimate_patch_classes, only: patch_table_t, patch_signature_t, stored_order, max_patch
    use twomem_estimate_evaluated_iterate, only: evaluated_iterate_t, gradients_on, lifting_on
@@ -187,14 +187,7 @@ contains
          i = findloc(v, a, dim=1)
          do m = 1, 3
             e = mesh%triangle_edges(m, t)
-            if (m == i) then
-               ! the patch boundary: closed, except where it is ∂Ω around a boundary vertex
-               links(m, k) = merge(edge_free, edge_neumann, mesh%boundary_vertex(a) .and. mesh%boundary_edge(e))
-            else if (mesh%boundary_edge(e)) then
-               links(m, k) = edge_free
-            else
-               call inner_edge(inner, n_inner, e, links(m, k))
-            end if
+            call link_edge(mesh%boundary_edge(e), m == i, mesh%boundary_vertex(a), e, inner, n_inner, links(m, k))
          end do
 
          ! right-hand sides: (−μ ψ_a ∇u, φ_j) and the moments of g^a; the class integrals scale
@@ -219,6 +212,7 @@ contains
          sigma(:, elements(k), :) = sigma(:, elements(k), :) + patch_sigma(:, k, :)
       end do
    end subroutine vertex_patch
+
    !> The patch of vertex a with its signature's factor (twomem_estimate_patch_classes): the data
    !> of vertex_patch in the signature's order of the triangles.
    subroutine factored_patch(space, shapes, sig, order_code, mesh, level, a, mu, loads, iterate, sigma)

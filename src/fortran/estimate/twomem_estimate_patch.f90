@@ -25,7 +25,7 @@ module twomem_estimate_patch
    implicit none
    private
 
-   public :: solve_patch, inner_edge, on_opposite_edge, edge_free, edge_neumann, chol_factor, chol_solve
+   public :: solve_patch, inner_edge, link_edge, on_opposite_edge, edge_free, edge_neumann, chol_factor, chol_solve
 
    !> edge kinds in `links`: a positive value numbers an inner edge of the patch
    integer, parameter :: edge_free = 0, edge_neumann = -1
@@ -63,6 +63,28 @@ contains
          i = n_inner
       end if
    end subroutine inner_edge
+
+   !> links(m, k) of solve_patch for edge e of a triangle of vertex a's patch: on ∂Ω free, unless
+   !> it is the edge opposite a (`opposite`: on the patch boundary) of an interior vertex's
+   !> patch, where it carries zero flux like every opposite edge inside Ω; any other edge an
+   !> inner multiplier (inner_edge). The general path and the signatures' keys
+   !> (twomem_estimate_patch_classes) both link by this rule, so that a patch's key describes
+   !> the system the general path would solve.
+   pure subroutine link_edge(on_boundary, opposite, a_on_boundary, e, inner, n_inner, link)
+      logical, intent(in) :: on_boundary, opposite, a_on_boundary
+      integer(ip), intent(in) :: e
+      integer(ip), intent(inout) :: inner(:)
+      integer, intent(inout) :: n_inner
+      integer, intent(out) :: link
+
+      if (on_boundary) then
+         link = merge(edge_neumann, edge_free, opposite .and. .not. a_on_boundary)
+      else if (opposite) then
+         link = edge_neumann
+      else
+         call inner_edge(inner, n_inner, e, link)
+      end if
+   end subroutine link_edge
 
    !> Patch triangle k is of class classes(k) at ratio ratios(k) (twomem_estimate_shapes), and
    !> signs(:, k) = ±1 turns its class trace rows into the patch's (the mesh's edge

@@ -23,7 +23,7 @@ module twomem_estimate_patch_classes
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_estimate_raviart_thomas, only: rt_space_t
    use twomem_estimate_shapes, only: shape_classes_t, triangle_class
-   use twomem_estimate_patch, only: inner_edge, on_opposite_edge, edge_neumann, edge_free
+   use twomem_estimate_patch, only: link_edge, on_opposite_edge, edge_neumann
    use twomem_estimate_patch_factor, only: patch_factor_t, condensed_factor, max_theta
    implicit none
    private
@@ -282,10 +282,9 @@ contains
       integer, intent(out) :: key(:), length
 
       integer :: n_coarse, n_children, ne, kc, c, m, k, i, n_inner, n_theta, l, child_level, nt
-      integer(ip) :: order(max_patch), inner(9*max_patch), t, child
+      integer(ip) :: order(max_patch), inner(9*max_patch), t, child, e
       integer :: classes(max_patch), neumann(max_patch), links(3, max_patch), local(max_patch)
       real(dp) :: signs(6, max_patch), o(2*9*max_patch), ratio
-      logical :: opposite
 
       length = 0
       n_children = merge(4, 1, refined)
@@ -314,17 +313,9 @@ contains
             call triangle_class(child_level, child, classes(ne), ratio)
             call edge_signs(nt, fine%triangles(:, child), signs(:, ne))
             do m = 1, 3
-               ! as the general path links them (twomem_estimate_alg_flux, coarse_patch): an
-               ! edge on ∂Ω is free unless it bounds an interior vertex's patch (only the
-               ! opposite edge can then lie on ∂Ω, and carries zero flux)
-               opposite = on_opposite_edge(refined, local(kc), c, m)
-               if (fine%boundary_edge(fine%triangle_edges(m, child))) then
-                  links(m, ne) = merge(edge_neumann, edge_free, opposite .and. .not. coarse%boundary_vertex(a))
-               else if (opposite) then
-                  links(m, ne) = edge_neumann
-               else
-                  call inner_edge(inner, n_inner, fine%triangle_edges(m, child), links(m, ne))
-               end if
+               e = fine%triangle_edges(m, child)
+               call link_edge(fine%boundary_edge(e), on_opposite_edge(refined, local(kc), c, m), &
+                              coarse%boundary_vertex(a), e, inner, n_inner, links(m, ne))
             end do
             neumann(ne) = findloc(links(:, ne), edge_neumann, dim=1)
          end do
