@@ -86,6 +86,7 @@ before, start = resource.getrusage(resource.RUSAGE_SELF).ru_stime, time.perf_cou
 memory = mmap.mmap(-1, n)
 for _ in range(n // len(chunk)):
     memory.write(chunk)
+memory.write(chunk[:n % len(chunk)])
 wall = time.perf_counter() - start
 print(resource.getrusage(resource.RUSAGE_SELF).ru_stime - before, wall)
 """
