@@ -25,8 +25,9 @@ many fresh bytes as the run's peak once (one thread, 4-KiB pages) and reports it
 seconds (`touch kernel s`, median; `touch s/GiB` per GiB written). Where the two kernel times
 agree, the run's kernel time is the host's price of its peak, paid by any program of that size.
 Both wait `--settle` seconds first: a virtual machine's host takes freed memory back within a
-few seconds, and a process that touches memory another one has just freed pays a fraction of
-the price (on the development machine 1.6 s instead of 5 s of kernel time for 3.9 GiB).
+few seconds, and a process that touches memory another one has just freed may pay a fraction
+of the price (on the development machine 1.6–4.5 s of kernel time for 3.9 GiB against
+4.6–5.7 s after a pause).
 """
 from __future__ import annotations
 
