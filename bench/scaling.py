@@ -78,27 +78,25 @@ def run_once(exe: str, overrides: list[str], out: Path, threads: int) -> dict:
 
 # The peer of the kernel column: write `n` fresh bytes once, 1 MiB at a time into an anonymous
 # mapping (4-KiB pages as the run's heap, where numpy would ask for huge pages), and report the
-# kernel CPU seconds and wall seconds of that alone (the interpreter's start is not counted).
+# kernel CPU seconds of that alone (the interpreter's start is not counted).
 TOUCH = """
-import mmap, resource, sys, time
+import mmap, resource, sys
 n = int(sys.argv[1])
 chunk = bytes([1]) * 2**20
-before, start = resource.getrusage(resource.RUSAGE_SELF).ru_stime, time.perf_counter()
+before = resource.getrusage(resource.RUSAGE_SELF).ru_stime
 memory = mmap.mmap(-1, n)
 for _ in range(n // len(chunk)):
     memory.write(chunk)
 memory.write(chunk[:n % len(chunk)])
-wall = time.perf_counter() - start
-print(resource.getrusage(resource.RUSAGE_SELF).ru_stime - before, wall)
+print(resource.getrusage(resource.RUSAGE_SELF).ru_stime - before)
 """
 
 
-def touch_once(mib: float) -> dict:
+def touch_once(mib: float) -> float:
     proc = subprocess.run([sys.executable, "-c", TOUCH, str(int(mib * 2**20))], capture_output=True, text=True)
     if proc.returncode != 0:
         sys.exit(f"scaling: the first-touch peer run of {mib:.0f} MiB failed:\n{proc.stderr.strip()}")
-    kernel, wall = proc.stdout.split()
-    return {"touch_kernel_s": float(kernel), "touch_wall_s": float(wall)}
+    return float(proc.stdout)
 
 
 def measure(args, case: str, cfun: str, levels: int, tmp: Path) -> dict:
@@ -109,10 +107,10 @@ def measure(args, case: str, cfun: str, levels: int, tmp: Path) -> dict:
         time.sleep(args.settle)
         run = run_once(args.exe, overrides, tmp / f"{case}_{cfun}_{levels}_{i}.h5", args.threads)
         time.sleep(args.settle)
-        run.update(touch_once(run["peak_mib"]))
+        run["touch_kernel_s"] = touch_once(run["peak_mib"])
         runs.append(run)
     row = dict(runs[0])
-    for key in (*PHASES, "peak_mib", "user_s", "kernel_s", "kernel_share", "touch_kernel_s", "touch_wall_s"):
+    for key in (*PHASES, "peak_mib", "user_s", "kernel_s", "kernel_share", "touch_kernel_s"):
         row[key] = statistics.median(r[key] for r in runs)
     row["total"] = sum(row[p] for p in PHASES)
     row.update(case=case, cfun=cfun, levels=levels)

@@ -25,7 +25,7 @@ module twomem_estimate_patch
    implicit none
    private
 
-   public :: solve_patch, inner_edge, link_edge, on_opposite_edge, edge_free, edge_neumann, chol_factor, chol_solve
+   public :: solve_patch, link_edge, on_opposite_edge, edge_free, edge_neumann, chol_factor, chol_solve
 
    !> edge kinds in `links`: a positive value numbers an inner edge of the patch
    integer, parameter :: edge_free = 0, edge_neumann = -1
