@@ -11,6 +11,9 @@ module test_newton
    use twomem_newton_fb_finish, only: fb_finish_t
    use twomem_newton_history, only: history_row_t, not_computed
    use twomem_newton_settle, only: settle_contact
+   use twomem_newton_system, only: newton_system_t
+   use twomem_newton_residual, only: nonlinear_residual_t
+   use twomem_newton_cfun, only: c_function_min, c_function_fb
    use twomem_testing, only: unittest_t, new_unittest, check, check_close, error_t
    use test_refinement, only: square_problem
    implicit none
@@ -44,7 +47,8 @@ contains
                new_unittest('check_schedule_predicts_the_newton_test', test_check_schedule), &
                new_unittest('check_schedule_stages', test_check_stages), &
                new_unittest('fb_finish_schedule', test_fb_finish), &
-               new_unittest('settle_restores_the_discrete_solution', test_settle)]
+               new_unittest('settle_restores_the_discrete_solution', test_settle), &
+               new_unittest('residual_tracks_the_merit', test_tracked_merit)]
    end subroutine collect_newton
 
    subroutine test_cfun_min(err)
@@ -195,6 +199,57 @@ contains
       call check(err, settled >= 2, 'the broken vertices were relaxed')
       call check(err, maxval(abs(x - res%x)) <= 1.0e-12_dp*scale, 'both vertices restored')
    end subroutine test_settle
+
+   !> The merit that `relative` leaves when tracking (the Newton driver's line search takes it
+   !> instead of calling `merit`) is `merit`'s value to the last bit, tracking leaves the
+   !> relative residual as it was, and both are the norms their formulas give when computed
+   !> here from the matrices (both C-functions, an iterate off the solution).
+   subroutine test_tracked_merit(err)
+      type(error_t), allocatable, intent(out) :: err
+      type(mesh_hierarchy_t) :: h
+      type(discrete_problem_t), target :: p
+      type(newton_system_t), target :: sys
+      type(nonlinear_residual_t) :: plain, tracking
+      real(dp), allocatable :: x(:), c(:), da(:), db(:), s1(:), s2(:), r1(:), r2(:), cc(:)
+      real(dp) :: rel_plain, rel_tracking, merit, expected_merit, expected_rel
+      integer(ip) :: n, i
+      integer :: which
+
+      call square_problem(3, h, p, err)
+      if (allocated(err)) return
+      n = p%n
+      ! (g, 0, 0) moved by a smooth non-trivial perturbation: contact and free vertices, λ of both signs
+      allocate (x(3*n), c(n), da(n), db(n), s1(n), s2(n), cc(n))
+      do i = 1, n
+         x(i) = p%g + 0.01_dp*sin(0.7_dp*i)
+         x(n + i) = 0.02_dp*cos(1.3_dp*i)
+         x(2*n + i) = 0.5_dp*sin(0.37_dp*i)
+      end do
+      call sys%init(p, .false.)
+      call p%stiffness%matvec(x(1:n), s1)
+      call p%stiffness%matvec(x(n + 1:2*n), s2)
+      r1 = p%f(1:n) - (p%mu1*s1 - p%mass*x(2*n + 1:))
+      r2 = p%f(n + 1:) - (p%mu2*s2 + p%mass*x(2*n + 1:))
+      do which = c_function_min, c_function_fb
+         call plain%init(sys, which, track_merit=.false.)
+         call tracking%init(sys, which, track_merit=.true.)
+         call plain%relative(x, rel_plain, c, da, db)
+         call tracking%relative(x, rel_tracking, c, da, db)
+         merit = tracking%merit(x)
+         call check(err, rel_tracking == rel_plain, 'tracking leaves the relative residual as it was')
+         call check(err, tracking%last_merit == merit, 'the tracked merit is merit''s to the last bit')
+         if (which == c_function_min) then
+            cc = min(x(1:n) - x(n + 1:2*n), x(2*n + 1:))
+         else
+            cc = sqrt((x(1:n) - x(n + 1:2*n))**2 + x(2*n + 1:)**2) - (x(1:n) - x(n + 1:2*n)) - x(2*n + 1:)
+         end if
+         expected_merit = sqrt(sum((r1/p%mass)**2) + sum((r2/p%mass)**2) + sum(cc**2))
+         expected_rel = sqrt(sum(r1**2) + sum(r2**2) + sum(cc**2))/sqrt(sum(p%f**2))
+         call check_close(err, merit, expected_merit, 1.0e-12_dp, 0.0_dp, 'the merit is the formula''s')
+         call check_close(err, rel_plain, expected_rel, 1.0e-12_dp, 0.0_dp, 'the relative residual is the formula''s')
+         if (allocated(err)) return
+      end do
+   end subroutine test_tracked_merit
 
    subroutine test_limit(err)
       type(error_t), allocatable, intent(out) :: err

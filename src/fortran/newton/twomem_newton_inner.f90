@@ -117,6 +117,10 @@ module twomem_newton_inner
       !> work: C and its Jacobian at the GMRES iterate (the Newton driver's arrays for them,
       !> which it does not read while GMRES runs)
       real(dp), pointer, contiguous :: c(:) => null(), da(:) => null(), db(:) => null()
+      !> the relative residual of the last iterate observed, while c, da, db still hold the run's
+      !> C-function there (NaN otherwise): when GMRES stops at that iterate, the driver takes
+      !> them instead of evaluating the same residual again
+      real(dp) :: last_relative = 0.0_dp
    contains
       procedure :: observe => observe_gmres
       procedure :: pending => check_pending
@@ -211,6 +215,7 @@ contains
       n = size(x, kind=ip)/3
       row = not_computed()
       call self%residual%relative(x, row%lin_residual, self%c, self%da, self%db)
+      self%last_relative = row%lin_residual
       row%alg_residual = residual_norm/self%b_norm
       row%newton_it = self%newton_it
       row%gmres_it = self%gmres_before + iteration
@@ -314,11 +319,13 @@ contains
       pending = self%put_off /= put_off_none
    end function check_pending
 
-   !> Forget a check put off by a GMRES solve that did not come back to it (it failed).
+   !> Forget a check put off by a GMRES solve that did not come back to it (it failed), and the
+   !> residual of the last step's iterates: a new solve starts.
    subroutine forget_pending(self)
       class(inner_observer_t), intent(inout) :: self
 
       self%put_off = put_off_none
+      self%last_relative = ieee_value(1.0_dp, ieee_quiet_nan)
    end subroutine forget_pending
 
    !> Whether an iterate whose η_lin is `eta_lin` is worth an evaluation: the Newton test can
@@ -366,7 +373,10 @@ contains
       real(dp), intent(in) :: x(:)
 
       associate (sys => self%residual%sys)
-         if (self%residual%cfun /= c_function_min) call cfun_eval(c_function_min, x, self%c, self%da, self%db)
+         if (self%residual%cfun /= c_function_min) then
+            call cfun_eval(c_function_min, x, self%c, self%da, self%db)
+            self%last_relative = ieee_value(1.0_dp, ieee_quiet_nan)
+         end if
          same = .not. sys%halo%comm%any_true(any(self%da /= sys%da .or. self%db /= sys%db))
       end associate
    end function same_branches

@@ -15,7 +15,7 @@ module twomem_newton_line_search
    type :: line_search_t
       !> merits of the last iterates, a ring indexed by the Newton step
       real(dp) :: recent(5) = 0.0_dp
-      !> the trial iterate
+      !> a backtracking trial (allocated by the first step that backtracks)
       real(dp), allocatable :: trial(:)
    contains
       procedure :: step
@@ -23,24 +23,30 @@ module twomem_newton_line_search
 
 contains
 
-   !> The step α ∈ (0, 1] from x towards x_new at Newton step k.
-   real(dp) function step(self, residual, k, x, x_new) result(alpha)
+   !> The step α ∈ (0, 1] from x towards x_new at Newton step k, given the merits of both (the
+   !> driver has them from its residual evaluations: a full step, the common case, costs no
+   !> evaluation here).
+   real(dp) function step(self, residual, k, x, merit_x, x_new, merit_new) result(alpha)
       class(line_search_t), intent(inout) :: self
       type(nonlinear_residual_t), intent(inout) :: residual
       integer, intent(in) :: k
-      real(dp), intent(in) :: x(:), x_new(:)
+      real(dp), intent(in) :: x(:), merit_x, x_new(:), merit_new
 
-      real(dp) :: reference
+      real(dp) :: reference, merit
       integer :: halvings
 
-      if (.not. allocated(self%trial)) allocate (self%trial(size(x)))
-      self%recent(modulo(k - 1, size(self%recent)) + 1) = residual%merit(x)
+      self%recent(modulo(k - 1, size(self%recent)) + 1) = merit_x
       reference = maxval(self%recent)
       alpha = 1.0_dp
+      merit = merit_new
       do halvings = 0, 30
-         self%trial = x + alpha*(x_new - x)
-         if (residual%merit(self%trial) <= (1 - 1.0e-4_dp*alpha)*reference) return
-         alpha = alpha/2
+         if (halvings > 0) then
+            alpha = alpha/2
+            if (.not. allocated(self%trial)) allocate (self%trial(size(x)))
+            self%trial = x + alpha*(x_new - x)
+            merit = residual%merit(self%trial)
+         end if
+         if (merit <= (1 - 1.0e-4_dp*alpha)*reference) return
       end do
       alpha = 1.0_dp
    end function step

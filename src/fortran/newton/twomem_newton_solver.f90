@@ -173,7 +173,8 @@ contains
       logical, allocatable :: active(:), previous(:)
       integer(ip) :: n
       integer :: k, kind
-      real(dp) :: t0, step
+      !> the relative residual and merit of GMRES's (or UMFPACK's) iterate, and the merit of x
+      real(dp) :: t0, step, trial_relative, trial_merit, merit_x
       character(len=:), allocatable :: why
       logical :: adaptive, in_place
 
@@ -186,7 +187,7 @@ contains
       end if
       kind = merge(solver_direct, solver_gmres, options%linear == method_direct)
       call sys%init(p, needs_matrix(kind, options%precond))
-      call residual%init(sys, options%cfun)
+      call residual%init(sys, options%cfun, track_merit=options%line_search)
       if (present(transfer)) then
          if (present(level)) then
             call solver%init(kind, options%precond, options%gmres, p, transfer, level, err)
@@ -216,6 +217,7 @@ contains
 
       row = not_computed()
       call residual%relative(x, row%lin_residual, c, da, db)
+      merit_x = residual%last_merit
       call record(0, row, .false.)
       previous = active
       if (row%lin_residual <= options%tol) why = 'converged'
@@ -233,19 +235,22 @@ contains
          call linear_step(k, row)
          if (allocated(err)) return
          if (allocated(why)) exit
+         call evaluate_trial(trial_relative, trial_merit)
          step = 1.0_dp
-         if (options%line_search) step = search%step(residual, k, x, x_new)
+         if (options%line_search) step = search%step(residual, k, x, merit_x, x_new, trial_merit)
          if (step < 1.0_dp) call watch%damped(k)
          ! a full step takes GMRES's iterate itself: x + (x_new − x) differs from it by round-off,
          ! and the observer's evaluation at x_new (the last inner row) must be of this very iterate
-         if (in_place) then
-            continue
-         else if (step == 1.0_dp) then
-            x = x_new
+         if (step == 1.0_dp) then
+            if (.not. in_place) x = x_new
+            ! c, da, db are those of the trial iterate
+            row%lin_residual = trial_relative
+            merit_x = trial_merit
          else
             x = x + step*(x_new - x)
+            call residual%relative(x, row%lin_residual, c, da, db)
+            merit_x = residual%last_merit
          end if
-         call residual%relative(x, row%lin_residual, c, da, db)
          row%step = step
          call record(k, row, reuses_inner_row(step))
          call fb%step_moved(row%active_changed, row%active)
@@ -335,6 +340,23 @@ contains
             row%alg_residual = sys%dot%norm(ax)/b_norm
          end if
       end subroutine linear_step
+
+      !> The relative residual and the merit (tracked by the line search) of the linear solve's
+      !> iterate `trial`, with C and its Jacobian there in c, da, db. When GMRES was stopped by
+      !> its observer, the observer's last evaluation was of this very iterate (bit for bit) and
+      !> into these very arrays, and is taken as it is: one residual (a C-function, E X and three
+      !> sums) less per Newton step.
+      subroutine evaluate_trial(relative, merit)
+         real(dp), intent(out) :: relative, merit
+
+         if (kind == solver_gmres .and. solver%monitor%reason == 'stopped by observer' .and. &
+             ieee_is_finite(inner%last_relative)) then
+            relative = inner%last_relative
+         else
+            call residual%relative(trial, relative, c, da, db)
+         end if
+         merit = residual%last_merit
+      end subroutine evaluate_trial
 
       !> GMRES stopped by the forcing at a full step: its last inner row saw this very iterate,
       !> so the Newton row replaces it and reuses what the observer computed there.
