@@ -49,19 +49,27 @@ contains
       type(comm_t), intent(in) :: comm
 
       integer(i8) :: h1, h2
-      integer(ip) :: i
+      integer(ip) :: i, n
+      integer :: members
 
+      n = size(active, kind=ip)
       h1 = 0
       h2 = 0
-      do i = 1, size(active, kind=ip)
+      members = 0
+      ! integer sums: the threads' order does not change them
+      !$omp parallel do default(none) shared(active, owned, global, n) private(i) &
+      !$omp reduction(+:h1, h2, members) schedule(static) if(n > 4096)
+      do i = 1, n
          if (active(i) .and. owned(i)) then
             h1 = h1 + mix(int(global(i), i8), 1_i8)
             h2 = h2 + mix(int(global(i), i8), 2_i8)
+            members = members + 1
          end if
       end do
+      !$omp end parallel do
       self%hash(1, k) = mod(comm%sum(h1), p1)
       self%hash(2, k) = mod(comm%sum(h2), p2)
-      self%size(k) = comm%sum(count(active .and. owned))
+      self%size(k) = comm%sum(members)
    end subroutine record
 
    !> Step k was damped by the line search.

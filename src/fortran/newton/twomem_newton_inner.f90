@@ -210,16 +210,13 @@ contains
       real(dp), intent(in) :: x(:), residual_norm
       type(history_row_t) :: row
 
-      integer(ip) :: n
-
-      n = size(x, kind=ip)/3
       row = not_computed()
       call self%residual%relative(x, row%lin_residual, self%c, self%da, self%db)
       self%last_relative = row%lin_residual
       row%alg_residual = residual_norm/self%b_norm
       row%newton_it = self%newton_it
       row%gmres_it = self%gmres_before + iteration
-      row%active = self%residual%sys%global_count(x(1:n) - x(n + 1:2*n) <= x(2*n + 1:))
+      row%active = self%residual%sys%contact_count(x)
       row%inner = .true.
       row%step = ieee_value(1.0_dp, ieee_quiet_nan)
       row%active_changed = -1
@@ -377,7 +374,7 @@ contains
             call cfun_eval(c_function_min, x, self%c, self%da, self%db)
             self%last_relative = ieee_value(1.0_dp, ieee_quiet_nan)
          end if
-         same = .not. sys%halo%comm%any_true(any(self%da /= sys%da .or. self%db /= sys%db))
+         same = .not. sys%jacobian_differs(self%da, self%db)
       end associate
    end function same_branches
 

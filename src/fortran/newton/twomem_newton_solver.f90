@@ -403,11 +403,11 @@ contains
          logical :: estimates
 
          ! contact where u1 − u2 ≤ λ: for Newton-min exactly the vertices with the a-row
-         active = x(1:n) - x(n + 1:2*n) <= x(2*n + 1:)
+         call sys%contact_set(x, active)
          row%newton_it = k
          row%gmres_it = result%linear_iterations
          row%active = sys%global_count(active)
-         row%active_changed = sys%global_count(active .neqv. previous)
+         row%active_changed = sys%global_count(active, other=previous)
          call watch%record(k, active, p%global, p%halo%owned, p%halo%comm)
          if (reuse) then
             call row%take_observations(result%history%rows(result%history%n))

@@ -50,6 +50,9 @@ module twomem_newton_system
       procedure :: apply_e
       procedure :: sum_squares
       procedure :: global_count
+      procedure :: contact_set
+      procedure :: contact_count
+      procedure :: jacobian_differs
    end type newton_system_t
 
    !> The system as the operator GMRES iterates with.
@@ -111,12 +114,89 @@ contains
    end function sum_squares
 
    !> How many of the unknowns marked in `mask` (length n) there are on all ranks.
-   integer function global_count(self, mask) result(c)
+   !> The owned unknowns of every rank where `mask` (and, given, where mask differs from `other`).
+   !> These counts run at every Newton step and GMRES check: threaded, since a serial pass over
+   !> 10^6 vertices costs as much as a threaded sparse product (an integer sum: any order gives
+   !> the same count).
+   integer function global_count(self, mask, other) result(c)
       class(newton_system_t), intent(in) :: self
       logical, intent(in) :: mask(:)
+      logical, intent(in), optional :: other(:)
 
-      c = self%halo%comm%sum(count(mask .and. self%halo%owned))
+      integer(ip) :: i, n
+
+      n = self%n
+      c = 0
+      if (present(other)) then
+         !$omp parallel do default(none) shared(self, mask, other, n) private(i) reduction(+:c) &
+         !$omp schedule(static) if(n > 4096)
+         do i = 1, n
+            if ((mask(i) .neqv. other(i)) .and. self%halo%owned(i)) c = c + 1
+         end do
+         !$omp end parallel do
+      else
+         !$omp parallel do default(none) shared(self, mask, n) private(i) reduction(+:c) &
+         !$omp schedule(static) if(n > 4096)
+         do i = 1, n
+            if (mask(i) .and. self%halo%owned(i)) c = c + 1
+         end do
+         !$omp end parallel do
+      end if
+      c = self%halo%comm%sum(c)
    end function global_count
+
+   !> The contact set of iterate x = [X1; X2; X3], the vertices where X1 − X2 ≤ X3 (for Newton-min
+   !> exactly those of the contact row).
+   subroutine contact_set(self, x, active)
+      class(newton_system_t), intent(in) :: self
+      real(dp), intent(in) :: x(:)
+      logical, intent(out) :: active(:)
+
+      integer(ip) :: i, n
+
+      n = self%n
+      !$omp parallel do default(none) shared(x, active, n) private(i) schedule(static) if(n > 4096)
+      do i = 1, n
+         active(i) = x(i) - x(n + i) <= x(2*n + i)
+      end do
+      !$omp end parallel do
+   end subroutine contact_set
+
+   !> The size of x's contact set (`contact_set`) over every rank, without storing it.
+   integer function contact_count(self, x) result(c)
+      class(newton_system_t), intent(in) :: self
+      real(dp), intent(in) :: x(:)
+
+      integer(ip) :: i, n
+
+      n = self%n
+      c = 0
+      !$omp parallel do default(none) shared(self, x, n) private(i) reduction(+:c) schedule(static) if(n > 4096)
+      do i = 1, n
+         if (x(i) - x(n + i) <= x(2*n + i) .and. self%halo%owned(i)) c = c + 1
+      end do
+      !$omp end parallel do
+      c = self%halo%comm%sum(c)
+   end function contact_count
+
+   !> Whether the Jacobian entries da, db differ anywhere, on any rank, from the system's.
+   !> Collective.
+   logical function jacobian_differs(self, da, db) result(differs)
+      class(newton_system_t), intent(in) :: self
+      real(dp), intent(in) :: da(:), db(:)
+
+      integer(ip) :: i, n
+
+      n = self%n
+      differs = .false.
+      !$omp parallel do default(none) shared(self, da, db, n) private(i) reduction(.or.:differs) &
+      !$omp schedule(static) if(n > 4096)
+      do i = 1, n
+         if (da(i) /= self%da(i) .or. db(i) /= self%db(i)) differs = .true.
+      end do
+      !$omp end parallel do
+      differs = self%halo%comm%any_true(differs)
+   end function jacobian_differs
 
    subroutine assemble(self)
       type(newton_system_t), intent(inout) :: self
