@@ -23,8 +23,8 @@ module twomem_newton_residual
       integer :: cfun = 0
       !> ‖[F; 0]‖ (1 if F vanishes)
       real(dp) :: f_norm = 1.0_dp
-      !> 1/(|ω_a|/3) per vertex (allocated when a merit is first asked for: only the line search
-      !> does, and Newton-min runs without)
+      !> 1/(|ω_a|/3) per vertex, for the merit (allocated only with the line search: Newton-min
+      !> runs without)
       real(dp), allocatable :: inv_mass(:)
       !> `relative` computes the merit too, into `last_merit`
       logical :: track_merit = .false.

@@ -113,11 +113,10 @@ contains
       s = self%halo%comm%sum(s)
    end function sum_squares
 
-   !> How many of the unknowns marked in `mask` (length n) there are on all ranks.
-   !> The owned unknowns of every rank where `mask` (and, given, where mask differs from `other`).
-   !> These counts run at every Newton step and GMRES check: threaded, since a serial pass over
-   !> 10^6 vertices costs as much as a threaded sparse product (an integer sum: any order gives
-   !> the same count).
+   !> How many unknowns over all ranks (each counted by its owner) are marked in `mask` (length
+   !> n), or, given `other`, differ between mask and other. These counts run at every Newton
+   !> step and GMRES check: threaded, since a serial pass over 10^6 vertices costs as much as a
+   !> threaded sparse product (an integer sum: any order gives the same count).
    integer function global_count(self, mask, other) result(c)
       class(newton_system_t), intent(in) :: self
       logical, intent(in) :: mask(:)
