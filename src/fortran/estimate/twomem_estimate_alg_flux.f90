@@ -521,7 +521,6 @@ contains
             end do
          end do
       end if
-      rhs_flux = 0.0_dp
       do kc = 1, n_coarse
          t = order(kc)
          local_a = findloc(coarse%triangles(:, t), a, dim=1)
@@ -593,12 +592,14 @@ contains
          end do
       end do
       if (id > 0) then
+         ! σ_alg has no flux datum: the factored solve leaves those columns out (rhs_flux unread)
          associate (sig => table%sig(id))
             call solve_condensed_factored(space, shapes, sig%classes, ratio_level, sig%neumann, rhs_flux(1:2, :, :), &
                                           rhs_div, .false., sig%factor, children, sigma)
          end associate
          ok = .true.
       else
+         rhs_flux = 0.0_dp
          call solve_patch(space, shapes, classes, ratios, signs, links, rhs_flux, rhs_div, .false., n_blocks, &
                           patch_sigma, ok)
          do k = 1, ne
