@@ -460,8 +460,9 @@ contains
             end if
          end if
       end do
-      ! the same operations as for the observed iterate, so a stop returns it bit for bit
-      call current_iterate(ws, k, x)
+      ! a cycle that ends at an observation returns the observed iterate, already in xc; any
+      ! other gets it by the same operations, so a stop returns it bit for bit
+      if (outcome /= cycle_stopped .and. outcome /= cycle_pending) call current_iterate(ws, k, x)
       ! y is replicated on every rank: they all decide alike
       if (.not. all(ieee_is_finite(ws%y(1:k)))) then
          outcome = cycle_nonfinite
