@@ -460,8 +460,8 @@ contains
             end if
          end if
       end do
-      ! a cycle that ends at an observation returns the observed iterate, already in xc; any
-      ! other gets it by the same operations, so a stop returns it bit for bit
+      ! a cycle that ends at an observation (a stop, or a check put off) returns the very iterate
+      ! the observer saw, already in xc; any other forms it from its y here
       if (outcome /= cycle_stopped .and. outcome /= cycle_pending) call current_iterate(ws, k, x)
       ! y is replicated on every rank: they all decide alike
       if (.not. all(ieee_is_finite(ws%y(1:k)))) then
