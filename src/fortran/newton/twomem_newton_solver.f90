@@ -349,8 +349,13 @@ contains
       subroutine evaluate_trial(relative, merit)
          real(dp), intent(out) :: relative, merit
 
-         if (kind == solver_gmres .and. solver%monitor%reason == 'stopped by observer' .and. &
-             ieee_is_finite(inner%last_relative)) then
+         logical :: observed
+
+         ! (nested: Fortran may evaluate every operand, and the direct solver sets no reason)
+         observed = .false.
+         if (kind == solver_gmres) observed = solver%monitor%reason == 'stopped by observer' .and. &
+                                              ieee_is_finite(inner%last_relative)
+         if (observed) then
             relative = inner%last_relative
          else
             call residual%relative(trial, relative, c, da, db)
