@@ -156,7 +156,7 @@ contains
       n = self%n
       !$omp parallel do default(none) shared(x, active, n) private(i) schedule(static) if(n > 4096)
       do i = 1, n
-         active(i) = x(i) - x(n + i) <= x(2*n + i)
+         active(i) = in_contact(x, n, i)
       end do
       !$omp end parallel do
    end subroutine contact_set
@@ -172,11 +172,19 @@ contains
       c = 0
       !$omp parallel do default(none) shared(self, x, n) private(i) reduction(+:c) schedule(static) if(n > 4096)
       do i = 1, n
-         if (x(i) - x(n + i) <= x(2*n + i) .and. self%halo%owned(i)) c = c + 1
+         if (in_contact(x, n, i) .and. self%halo%owned(i)) c = c + 1
       end do
       !$omp end parallel do
       c = self%halo%comm%sum(c)
    end function contact_count
+
+   !> Vertex i of n is in contact at x = [X1; X2; X3]: X1 − X2 ≤ X3 (the one definition of the set).
+   pure logical function in_contact(x, n, i)
+      real(dp), intent(in) :: x(:)
+      integer(ip), intent(in) :: n, i
+
+      in_contact = x(i) - x(n + i) <= x(2*n + i)
+   end function in_contact
 
    !> Whether the Jacobian entries da, db differ anywhere, on any rank, from the system's.
    !> Collective.
