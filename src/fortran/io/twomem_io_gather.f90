@@ -7,6 +7,7 @@ module twomem_io_gather
    use twomem_base_kinds, only: dp, ip
    use twomem_base_comm, only: comm_t
    use twomem_mesh_triangulation, only: mesh_t
+   use twomem_linalg_vectors, only: threaded_from
    implicit none
    private
 
@@ -87,7 +88,7 @@ contains
 
       if (self%comm%size == 1) then
          !$omp parallel do default(none) shared(whole, slots, values, mine) private(i) schedule(static) &
-         !$omp if(size(mine) > 4096)
+         !$omp if(size(mine) > threaded_from)
          do i = 1, size(mine, kind=ip)
             whole(slots(i)) = values(mine(i))
          end do

@@ -14,7 +14,7 @@ module twomem_linalg_chebyshev
    use twomem_base_kinds, only: dp, ip
    use twomem_linalg_csr, only: csr_t, cut_entry
    use twomem_linalg_halo, only: halo_t
-   use twomem_linalg_vectors, only: copy_allocated
+   use twomem_linalg_vectors, only: copy_allocated, threaded_from
    implicit none
    private
 
@@ -86,14 +86,15 @@ contains
          all_rows = .true.
       end if
       if (all_rows) then
-         !$omp parallel do default(none) shared(a, self, diagonal, fixed) private(i) schedule(static) if(a%n > 4096)
+         !$omp parallel do default(none) shared(a, self, diagonal, fixed) private(i) &
+         !$omp schedule(static) if(a%n > threaded_from)
          do i = 1, a%n
             call row_parts(a, i, self%part_diag(i), self%part_sum(i), diagonal, fixed)
          end do
          !$omp end parallel do
       else
          !$omp parallel do default(none) shared(a, self, rows, diagonal, fixed) private(j) schedule(static) &
-         !$omp if(size(rows) > 4096)
+         !$omp if(size(rows) > threaded_from)
          do j = 1, size(rows, kind=ip)
             call row_parts(a, rows(j), self%part_diag(rows(j)), self%part_sum(rows(j)), diagonal, fixed)
          end do
@@ -109,7 +110,7 @@ contains
       if (.not. allocated(self%inv_diag)) allocate (self%inv_diag(a%n))
       bound = 0.0_dp
       !$omp parallel do default(none) shared(a, self, diag, row_sum) private(i) reduction(max:bound) &
-      !$omp schedule(static) if(a%n > 4096)
+      !$omp schedule(static) if(a%n > threaded_from)
       do i = 1, a%n
          if (diag(i) > 0.0_dp) then
             self%inv_diag(i) = 1/diag(i)
@@ -186,7 +187,8 @@ contains
       sigma = theta/delta
       rho_old = 1/sigma
       if (from_zero) then
-         !$omp parallel do default(none) shared(n, b, x, d, r, self, theta) private(i) schedule(static) if(n > 4096)
+         !$omp parallel do default(none) shared(n, b, x, d, r, self, theta) private(i) &
+         !$omp schedule(static) if(n > threaded_from)
          do i = 1, n
             d(i) = self%inv_diag(i)*b(i)/theta
             x(i) = d(i)
@@ -195,7 +197,8 @@ contains
          !$omp end parallel do
       else
          call level_product(a, halo, x, y, diagonal, fixed)
-         !$omp parallel do default(none) shared(n, b, x, d, r, y, self, theta) private(i) schedule(static) if(n > 4096)
+         !$omp parallel do default(none) shared(n, b, x, d, r, y, self, theta) private(i) &
+         !$omp schedule(static) if(n > threaded_from)
          do i = 1, n
             r(i) = b(i) - y(i)
             d(i) = self%inv_diag(i)*r(i)/theta
@@ -208,7 +211,7 @@ contains
          call level_product(a, halo, d, y, diagonal, fixed)
          rho = 1/(2*sigma - rho_old)
          !$omp parallel do default(none) shared(n, x, d, r, y, self, rho, rho_old, delta) private(i) &
-         !$omp schedule(static) if(n > 4096)
+         !$omp schedule(static) if(n > threaded_from)
          do i = 1, n
             r(i) = r(i) - y(i)
             d(i) = rho*rho_old*d(i) + 2*rho/delta*self%inv_diag(i)*r(i)

@@ -6,7 +6,7 @@
 module twomem_linalg_csr
    use twomem_base_kinds, only: dp, ip
    use twomem_base_sort, only: sort_row
-   use twomem_linalg_vectors, only: copy_allocated
+   use twomem_linalg_vectors, only: copy_allocated, threaded_from
    implicit none
    private
 
@@ -51,7 +51,7 @@ contains
       allocate (self%val(size(self%col)))
       ! rows are short and mostly given sorted: an insertion sort per row, rows in parallel (the
       ! Newton pattern has 3n of them)
-      !$omp parallel do default(none) shared(self) private(i) schedule(static) if(self%n > 4096)
+      !$omp parallel do default(none) shared(self) private(i) schedule(static) if(self%n > threaded_from)
       do i = 1, self%n
          call sort_row(self%col(self%row_ptr(i):self%row_ptr(i + 1) - 1))
          self%val(self%row_ptr(i):self%row_ptr(i + 1) - 1) = 0.0_dp
@@ -122,7 +122,7 @@ contains
       integer(ip) :: i, k
       real(dp) :: s
 
-      !$omp parallel do default(none) shared(self, x, y) private(i, k, s) schedule(static) if(self%n > 4096)
+      !$omp parallel do default(none) shared(self, x, y) private(i, k, s) schedule(static) if(self%n > threaded_from)
       do i = 1, self%n
          s = 0.0_dp
          do k = self%row_ptr(i), self%row_ptr(i + 1) - 1
@@ -152,7 +152,7 @@ contains
       real(dp) :: s
 
       !$omp parallel do default(none) shared(self, diagonal, fixed, x, y) private(i, k, s) schedule(static) &
-      !$omp if(self%n > 4096)
+      !$omp if(self%n > threaded_from)
       do i = 1, self%n
          if (fixed(i)) then
             ! an identity row (or a zero one, in a part of a shared row)
@@ -195,7 +195,7 @@ contains
       integer(ip) :: i, k
       real(dp) :: s
 
-      !$omp parallel do default(none) shared(self, b, x, r) private(i, k, s) schedule(static) if(self%n > 4096)
+      !$omp parallel do default(none) shared(self, b, x, r) private(i, k, s) schedule(static) if(self%n > threaded_from)
       do i = 1, self%n
          s = b(i)
          do k = self%row_ptr(i), self%row_ptr(i + 1) - 1
@@ -215,7 +215,7 @@ contains
       integer(ip) :: i, k
       real(dp) :: s
 
-      !$omp parallel do default(none) shared(self, x, y) private(i, k, s) schedule(static) if(self%n > 4096)
+      !$omp parallel do default(none) shared(self, x, y) private(i, k, s) schedule(static) if(self%n > threaded_from)
       do i = 1, self%n
          s = y(i)
          do k = self%row_ptr(i), self%row_ptr(i + 1) - 1

@@ -18,7 +18,7 @@ module twomem_linalg_galerkin
    use twomem_base_sort, only: sort_pairs
    use twomem_linalg_csr, only: csr_t
    use twomem_linalg_halo, only: halo_t
-   use twomem_linalg_vectors, only: copy_allocated
+   use twomem_linalg_vectors, only: copy_allocated, threaded_from
    implicit none
    private
 
@@ -106,7 +106,7 @@ contains
       deallocate (slot, buffer, values)
       !$omp end parallel
       ! columns sorted within each row, the values moved along
-      !$omp parallel do default(none) shared(nc, row_ptr, col, val) private(i) schedule(static) if(nc > 4096)
+      !$omp parallel do default(none) shared(nc, row_ptr, col, val) private(i) schedule(static) if(nc > threaded_from)
       do i = 1, nc
          call sort_pairs(col(row_ptr(i):row_ptr(i + 1) - 1), val(row_ptr(i):row_ptr(i + 1) - 1))
       end do
@@ -253,7 +253,7 @@ contains
       allocate (listed(c%n), lost(c%n))
       listed = .false.
       !$omp parallel do default(none) shared(rows, c, part_diag, listed) private(j) schedule(static) &
-      !$omp if(size(rows) > 4096)
+      !$omp if(size(rows) > threaded_from)
       do j = 1, size(rows, kind=ip)
          part_diag(rows(j)) = c%val(c%find(rows(j), rows(j)))
          listed(rows(j)) = .true.
@@ -262,7 +262,7 @@ contains
       diag = part_diag
       call halo%add(diag)
       !$omp parallel do default(none) shared(c, coarse_fixed, diag, halo, cut, listed, updated, lost) &
-      !$omp private(i, now_cut) schedule(static) if(c%n > 4096)
+      !$omp private(i, now_cut) schedule(static) if(c%n > threaded_from)
       do i = 1, c%n
          now_cut = coarse_fixed(i) .or. .not. diag(i) > 0.0_dp
          lost(i) = .false.
@@ -360,7 +360,8 @@ contains
          if (coarse_flipped(i)) moved(r%col(r%row_ptr(i):r%row_ptr(i + 1) - 1)) = .true.
       end do
       allocate (reach(a%n))
-      !$omp parallel do default(none) shared(a, reach, flipped, changed) private(i) schedule(static) if(a%n > 4096)
+      !$omp parallel do default(none) shared(a, reach, flipped, changed) private(i) &
+      !$omp schedule(static) if(a%n > threaded_from)
       do i = 1, a%n
          reach(i) = flipped(i) .or. changed(i)
       end do
@@ -369,7 +370,7 @@ contains
          if (changed(i) .or. moved(i)) reach(a%col(a%row_ptr(i):a%row_ptr(i + 1) - 1)) = .true.
       end do
       !$omp parallel do default(none) shared(touched, coarse_flipped) private(i) schedule(static) &
-      !$omp if(size(touched) > 4096)
+      !$omp if(size(touched) > threaded_from)
       do i = 1, size(touched, kind=ip)
          touched(i) = coarse_flipped(i)
       end do

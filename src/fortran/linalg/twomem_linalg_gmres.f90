@@ -12,7 +12,7 @@ module twomem_linalg_gmres
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_bad_input
    use twomem_linalg_operators, only: linear_operator_t, preconditioner_t, inner_product_t
-   use twomem_linalg_vectors, only: copy_into
+   use twomem_linalg_vectors, only: copy_into, threaded_from
    implicit none
    private
 
@@ -568,7 +568,7 @@ contains
       integer(ip) :: i
 
       call op%apply(x, r)
-      !$omp parallel do default(none) shared(b, r) private(i) schedule(static) if(size(r) > 4096)
+      !$omp parallel do default(none) shared(b, r) private(i) schedule(static) if(size(r) > threaded_from)
       do i = 1, size(r, kind=ip)
          r(i) = b(i) - r(i)
       end do
@@ -582,7 +582,7 @@ contains
 
       integer(ip) :: i
 
-      !$omp parallel do default(none) shared(a, x, y) private(i) schedule(static) if(size(y) > 4096)
+      !$omp parallel do default(none) shared(a, x, y) private(i) schedule(static) if(size(y) > threaded_from)
       do i = 1, size(y, kind=ip)
          y(i) = y(i) + a*x(i)
       end do
@@ -596,7 +596,7 @@ contains
 
       integer(ip) :: i
 
-      !$omp parallel do default(none) shared(a, x) private(i) schedule(static) if(size(x) > 4096)
+      !$omp parallel do default(none) shared(a, x) private(i) schedule(static) if(size(x) > threaded_from)
       do i = 1, size(x, kind=ip)
          x(i) = x(i)/a
       end do

@@ -31,7 +31,7 @@ module twomem_linalg_multigrid
    use twomem_linalg_chebyshev, only: chebyshev_t, level_product
    use twomem_linalg_halo, only: halo_t
    use twomem_linalg_gathered_solve, only: gathered_solver_t
-   use twomem_linalg_vectors, only: copy_allocated, fill
+   use twomem_linalg_vectors, only: copy_allocated, fill, threaded_from
    use twomem_base_comm, only: comm_t
    implicit none
    private
@@ -287,7 +287,7 @@ contains
          self%base => base
          allocate (self%levels(top - 1)%base_part(self%levels(top - 1)%a%nnz()))
          allocate (self%cut_diagonal(base%n))
-         !$omp parallel do default(none) shared(self, base) private(i) schedule(static) if(base%n > 4096)
+         !$omp parallel do default(none) shared(self, base) private(i) schedule(static) if(base%n > threaded_from)
          do i = 1, base%n
             self%cut_diagonal(i) = base%val(base%find(i, i))
          end do
@@ -471,7 +471,7 @@ contains
       real(dp) :: d
 
       !$omp parallel do default(none) shared(base, shift, fixed, owned, diagonal) private(i, d) schedule(static) &
-      !$omp if(base%n > 4096)
+      !$omp if(base%n > threaded_from)
       do i = 1, base%n
          if (fixed(i)) then
             diagonal(i) = merge(1.0_dp, 0.0_dp, owned(i))
@@ -714,7 +714,7 @@ contains
 
       integer(ip) :: i
 
-      !$omp parallel do default(none) shared(b, ax, owned, r) private(i) schedule(static) if(size(r) > 4096)
+      !$omp parallel do default(none) shared(b, ax, owned, r) private(i) schedule(static) if(size(r) > threaded_from)
       do i = 1, size(r, kind=ip)
          r(i) = merge(b(i) - ax(i), 0.0_dp, owned(i))
       end do
@@ -730,7 +730,7 @@ contains
       integer(ip) :: j, k
       real(dp) :: s
 
-      !$omp parallel do default(none) shared(r, rv, res, bc) private(j, k, s) schedule(static) if(r%n > 4096)
+      !$omp parallel do default(none) shared(r, rv, res, bc) private(j, k, s) schedule(static) if(r%n > threaded_from)
       do j = 1, r%n
          s = 0.0_dp
          do k = r%row_ptr(j), r%row_ptr(j + 1) - 1
@@ -749,7 +749,7 @@ contains
 
       integer(ip) :: i, k
 
-      !$omp parallel do default(none) shared(p, pv, xc, x) private(i, k) schedule(static) if(p%n > 4096)
+      !$omp parallel do default(none) shared(p, pv, xc, x) private(i, k) schedule(static) if(p%n > threaded_from)
       do i = 1, p%n
          do k = p%row_ptr(i), p%row_ptr(i + 1) - 1
             x(i) = x(i) + pv(k)*xc(p%col(k))

@@ -8,7 +8,7 @@ module twomem_linalg_vectors
    implicit none
    private
 
-   public :: copy_into, copy_allocated, fill
+   public :: copy_into, copy_allocated, fill, threaded_from
 
    !> dest becomes an allocated copy of source (reallocated unless it has source's size)
    interface copy_allocated
@@ -20,7 +20,8 @@ module twomem_linalg_vectors
       module procedure fill_real, fill_logical
    end interface fill
 
-   !> Below this many entries a loop runs on one thread: the team's start costs more.
+   !> Below this many entries a loop runs on one thread: the team's start costs more (every
+   !> threaded loop of the code takes its `if` clause from here).
    integer(ip), parameter :: threaded_from = 4096
 
 contains

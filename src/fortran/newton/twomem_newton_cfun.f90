@@ -10,6 +10,7 @@
 !>   ρ is computed with `hypot`, so no overflow or underflow for extreme a, b.
 module twomem_newton_cfun
    use twomem_base_kinds, only: dp, ip
+   use twomem_linalg_vectors, only: threaded_from
    implicit none
    private
 
@@ -72,13 +73,13 @@ contains
 
       n = size(c, kind=ip)
       if (which == c_function_fb) then
-         !$omp parallel do default(none) shared(x, c, da, db, n) private(i) schedule(static) if(n > 4096)
+         !$omp parallel do default(none) shared(x, c, da, db, n) private(i) schedule(static) if(n > threaded_from)
          do i = 1, n
             call cfun_fb(x(i) - x(n + i), x(2*n + i), c(i), da(i), db(i))
          end do
          !$omp end parallel do
       else
-         !$omp parallel do default(none) shared(x, c, da, db, n) private(i) schedule(static) if(n > 4096)
+         !$omp parallel do default(none) shared(x, c, da, db, n) private(i) schedule(static) if(n > threaded_from)
          do i = 1, n
             call cfun_min(x(i) - x(n + i), x(2*n + i), c(i), da(i), db(i))
          end do

@@ -8,6 +8,7 @@
 module twomem_newton_cycling
    use twomem_base_kinds, only: ip, i8
    use twomem_base_comm, only: comm_t
+   use twomem_linalg_vectors, only: threaded_from
    implicit none
    private
 
@@ -58,7 +59,7 @@ contains
       members = 0
       ! integer sums: the threads' order does not change them
       !$omp parallel do default(none) shared(active, owned, global, n) private(i) &
-      !$omp reduction(+:h1, h2, members) schedule(static) if(n > 4096)
+      !$omp reduction(+:h1, h2, members) schedule(static) if(n > threaded_from)
       do i = 1, n
          if (active(i) .and. owned(i)) then
             h1 = h1 + mix(int(global(i), i8), 1_i8)

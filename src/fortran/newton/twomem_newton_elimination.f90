@@ -28,7 +28,7 @@ module twomem_newton_elimination
    use twomem_base_system, only: return_freed_memory
    use twomem_linalg_csr, only: csr_t
    use twomem_linalg_halo, only: halo_t
-   use twomem_linalg_vectors, only: fill
+   use twomem_linalg_vectors, only: fill, threaded_from
    use twomem_linalg_operators, only: preconditioner_t
    use twomem_linalg_multigrid, only: multigrid_t, multigrid_options_t, multigrid_transfer_t, multigrid_work_t
    use twomem_fem_discrete, only: discrete_problem_t
@@ -142,7 +142,7 @@ contains
       allocate (self%cycle_work)
       call self%cycle_work%init(self%s_mg)
       allocate (self%k_diag(n))
-      !$omp parallel do default(none) shared(self, p, n) private(i) schedule(static) if(n > 4096)
+      !$omp parallel do default(none) shared(self, p, n) private(i) schedule(static) if(n > threaded_from)
       do i = 1, n
          self%k_diag(i) = p%stiffness%val(p%stiffness%find(i, i))
       end do
@@ -204,7 +204,7 @@ contains
       zero_row = .false.
       stored = allocated(self%refill)
       !$omp parallel do default(none) shared(self, da, db, stored) private(i, fixed) reduction(.or.:changed, zero_row) &
-      !$omp schedule(static) if(self%n > 4096)
+      !$omp schedule(static) if(self%n > threaded_from)
       do i = 1, self%n
          self%a(i) = da(i)
          self%b(i) = db(i)
@@ -265,7 +265,7 @@ contains
       integer(ip) :: i, k
 
       !$omp parallel do default(none) shared(k_mat, diag, fixed, shift, owned, rows, w_mat) private(i, k) &
-      !$omp schedule(static) if(k_mat%n > 4096)
+      !$omp schedule(static) if(k_mat%n > threaded_from)
       do i = 1, k_mat%n
          if (.not. rows(i)) cycle
          do k = k_mat%row_ptr(i), k_mat%row_ptr(i + 1) - 1
@@ -334,7 +334,7 @@ contains
       integer(ip) :: i
 
       !$omp parallel do default(none) shared(n, mu1, mu2, c_mu, mass, a, b, fixed, r, rhs_s, rhs_w, w_fixed) &
-      !$omp private(i) schedule(static) if(n > 4096)
+      !$omp private(i) schedule(static) if(n > threaded_from)
       do i = 1, n
          rhs_s(i) = r(i) + r(n + i)
          if (fixed(i)) then
@@ -359,7 +359,7 @@ contains
       real(dp) :: t
 
       !$omp parallel do default(none) shared(k_mat, fixed, w_fixed, kw) private(i, k, t) schedule(static) &
-      !$omp if(k_mat%n > 4096)
+      !$omp if(k_mat%n > threaded_from)
       do i = 1, k_mat%n
          t = 0.0_dp
          if (.not. fixed(i)) then
@@ -380,7 +380,7 @@ contains
 
       integer(ip) :: i
 
-      !$omp parallel do default(none) shared(fixed, kw, rhs_w) private(i) schedule(static) if(size(kw) > 4096)
+      !$omp parallel do default(none) shared(fixed, kw, rhs_w) private(i) schedule(static) if(size(kw) > threaded_from)
       do i = 1, size(kw, kind=ip)
          if (.not. fixed(i)) rhs_w(i) = rhs_w(i) - kw(i)
       end do
@@ -397,7 +397,8 @@ contains
       integer(ip) :: i, k
       real(dp) :: t
 
-      !$omp parallel do default(none) shared(k_mat, rows, w, kw) private(i, k, t) schedule(static) if(k_mat%n > 4096)
+      !$omp parallel do default(none) shared(k_mat, rows, w, kw) private(i, k, t) &
+      !$omp schedule(static) if(k_mat%n > threaded_from)
       do i = 1, k_mat%n
          t = 0.0_dp
          if (rows(i)) then
@@ -417,7 +418,7 @@ contains
 
       integer(ip) :: i
 
-      !$omp parallel do default(none) shared(w_fixed, w) private(i) schedule(static) if(size(w) > 4096)
+      !$omp parallel do default(none) shared(w_fixed, w) private(i) schedule(static) if(size(w) > threaded_from)
       do i = 1, size(w, kind=ip)
          w(i) = w(i) + w_fixed(i)
       end do
@@ -437,7 +438,7 @@ contains
       real(dp) :: s, w
 
       !$omp parallel do default(none) shared(n, mu1, mu2, c_mu, mass, a, b, by_balance, kw, r, z) &
-      !$omp private(i, s, w) schedule(static) if(n > 4096)
+      !$omp private(i, s, w) schedule(static) if(n > threaded_from)
       do i = 1, n
          s = z(i)
          w = z(n + i)

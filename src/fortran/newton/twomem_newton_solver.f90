@@ -21,7 +21,7 @@ module twomem_newton_solver
    use twomem_base_system, only: return_freed_memory
    use twomem_base_timer, only: wall_time
    use twomem_linalg_csr, only: csr_t
-   use twomem_linalg_vectors, only: copy_into
+   use twomem_linalg_vectors, only: copy_into, threaded_from
    use twomem_linalg_multigrid, only: multigrid_transfer_t
    use twomem_linalg_gmres, only: gmres_options_t
    use twomem_fem_discrete, only: discrete_problem_t
@@ -300,7 +300,7 @@ contains
          ! (an evaluation of the estimators between the steps may have taken its memory)
          if (.not. allocated(b)) allocate (b(3*n))
          call copy_into(sys%f, b(1:2*n))
-         !$omp parallel do default(none) shared(b, x, da, db, c, n) private(i) schedule(static) if(n > 4096)
+         !$omp parallel do default(none) shared(b, x, da, db, c, n) private(i) schedule(static) if(n > threaded_from)
          do i = 1, n
             b(2*n + i) = da(i)*(x(i) - x(n + i)) + db(i)*x(2*n + i) - c(i)
          end do

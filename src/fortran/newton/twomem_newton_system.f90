@@ -19,6 +19,7 @@ module twomem_newton_system
    use twomem_linalg_operators, only: linear_operator_t, distributed_product_t
    use twomem_linalg_halo, only: halo_t
    use twomem_fem_discrete, only: discrete_problem_t
+   use twomem_linalg_vectors, only: threaded_from
    implicit none
    private
 
@@ -128,14 +129,14 @@ contains
       c = 0
       if (present(other)) then
          !$omp parallel do default(none) shared(self, mask, other, n) private(i) reduction(+:c) &
-         !$omp schedule(static) if(n > 4096)
+         !$omp schedule(static) if(n > threaded_from)
          do i = 1, n
             if ((mask(i) .neqv. other(i)) .and. self%halo%owned(i)) c = c + 1
          end do
          !$omp end parallel do
       else
          !$omp parallel do default(none) shared(self, mask, n) private(i) reduction(+:c) &
-         !$omp schedule(static) if(n > 4096)
+         !$omp schedule(static) if(n > threaded_from)
          do i = 1, n
             if (mask(i) .and. self%halo%owned(i)) c = c + 1
          end do
@@ -154,7 +155,7 @@ contains
       integer(ip) :: i, n
 
       n = self%n
-      !$omp parallel do default(none) shared(x, active, n) private(i) schedule(static) if(n > 4096)
+      !$omp parallel do default(none) shared(x, active, n) private(i) schedule(static) if(n > threaded_from)
       do i = 1, n
          active(i) = in_contact(x, n, i)
       end do
@@ -170,7 +171,8 @@ contains
 
       n = self%n
       c = 0
-      !$omp parallel do default(none) shared(self, x, n) private(i) reduction(+:c) schedule(static) if(n > 4096)
+      !$omp parallel do default(none) shared(self, x, n) private(i) reduction(+:c) &
+      !$omp schedule(static) if(n > threaded_from)
       do i = 1, n
          if (in_contact(x, n, i) .and. self%halo%owned(i)) c = c + 1
       end do
@@ -197,7 +199,7 @@ contains
       n = self%n
       differs = .false.
       !$omp parallel do default(none) shared(self, da, db, n) private(i) reduction(.or.:differs) &
-      !$omp schedule(static) if(n > 4096)
+      !$omp schedule(static) if(n > threaded_from)
       do i = 1, n
          if (da(i) /= self%da(i) .or. db(i) /= self%db(i)) differs = .true.
       end do
@@ -288,7 +290,7 @@ contains
 
       n = self%n
       call self%apply_e(x, y(1:2*n))
-      !$omp parallel do default(none) shared(self, x, y, n) private(i) schedule(static) if(n > 4096)
+      !$omp parallel do default(none) shared(self, x, y, n) private(i) schedule(static) if(n > threaded_from)
       do i = 1, n
          y(2*n + i) = self%da(i)*x(i) + (-self%da(i))*x(n + i) + self%db(i)*x(2*n + i)
       end do
@@ -307,7 +309,7 @@ contains
 
       n = self%n
       !$omp parallel do default(none) shared(self, x, ex, n) private(i, m, s1, s2) schedule(static) &
-      !$omp if(n > 4096)
+      !$omp if(n > threaded_from)
       do i = 1, n
          s1 = 0.0_dp
          s2 = 0.0_dp
@@ -322,7 +324,7 @@ contains
       ! the stiffness parts of shared rows summed, then the (full) lumped mass
       call self%halo%add(ex(1:n))
       call self%halo%add(ex(n + 1:2*n))
-      !$omp parallel do default(none) shared(self, x, ex, n) private(i) schedule(static) if(n > 4096)
+      !$omp parallel do default(none) shared(self, x, ex, n) private(i) schedule(static) if(n > threaded_from)
       do i = 1, n
          ex(i) = ex(i) + (-self%mass(i))*x(2*n + i)
          ex(n + i) = ex(n + i) + self%mass(i)*x(2*n + i)
