@@ -18,7 +18,6 @@ module test_coarse_levels
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_linalg_csr, only: csr_t
    use twomem_linalg_halo, only: halo_t
-   use twomem_base_comm, only: comm_t
    use twomem_linalg_aggregation, only: aggregation_options_t, aggregation_levels, aggregate
    use twomem_linalg_multigrid, only: multigrid_t, multigrid_options_t, multigrid_transfer_t
    use twomem_testing, only: unittest_t, new_unittest, check, check_close
@@ -55,7 +54,7 @@ contains
       call p%init(mesh, data, err)
    end subroutine disk_problem
 
-   !> Transfers from the algebraic levels of p's stiffness (levels coarse_size apart).
+   !> Transfers from the algebraic levels of p's stiffness (down to coarse_size unknowns).
    subroutine algebraic_transfer(p, coarse_size, transfer, err)
       type(discrete_problem_t), intent(in) :: p
       integer(ip), intent(in) :: coarse_size
@@ -64,21 +63,13 @@ contains
 
       type(csr_t), allocatable :: prolongations(:)
       type(halo_t), allocatable :: halos(:)
-      type(comm_t) :: one_rank
       type(aggregation_options_t) :: options
-      integer :: l, m
-      integer(ip) :: i
+      integer(ip), allocatable :: keys(:)
 
       options%coarse_size = coarse_size
-      call aggregation_levels(p%stiffness, options, prolongations, err)
+      call aggregation_levels(p%stiffness, p%halo, options, prolongations, halos, keys, err)
       if (allocated(err)) return
-      m = size(prolongations)
-      allocate (halos(0:m))
-      call halos(0)%init_whole(one_rank, prolongations(1)%ncol)
-      do l = 1, m
-         call halos(l)%init_whole(one_rank, prolongations(l)%n)
-      end do
-      call transfer%init(prolongations, err, halos=halos, coarse_keys=[(i, i=1, prolongations(1)%ncol)], algebraic=m)
+      call transfer%init(prolongations, err, halos=[halos, p%halo], coarse_keys=keys, algebraic=size(prolongations))
    end subroutine algebraic_transfer
 
    subroutine fill_random(state, v)
@@ -148,6 +139,8 @@ contains
       type(mesh_t) :: mesh
       type(discrete_problem_t) :: p
       type(csr_t), allocatable :: pr(:)
+      type(halo_t), allocatable :: halos(:)
+      integer(ip), allocatable :: keys(:)
       type(aggregation_options_t) :: options
       real(dp), allocatable :: ones(:), sums(:), k_ones(:)
       integer(ip) :: i
@@ -156,7 +149,7 @@ contains
       call disk_problem(0.05_dp, mesh, p, err)
       if (allocated(err)) return
       options%coarse_size = 100
-      call aggregation_levels(p%stiffness, options, pr, err)
+      call aggregation_levels(p%stiffness, p%halo, options, pr, halos, keys, err)
       if (allocated(err)) return
       call check(err, size(pr) >= 2, 'several algebraic levels down to 100 unknowns')
       associate (fine => pr(size(pr)))

@@ -37,7 +37,7 @@ contains
       type(error_t), allocatable, intent(out) :: err
 
       type(halo_t), allocatable :: halos(:)
-      type(csr_t), allocatable :: prolongations(:), algebraic(:)
+      type(csr_t), allocatable :: prolongations(:)
       type(csr_t) :: stiffness
       real(dp), allocatable :: coupling(:)
       integer(ip), allocatable :: unknown(:), interior(:), keys(:)
@@ -53,46 +53,40 @@ contains
          if (l == bottom) keys = hierarchy%meshes(l)%global_vertex_of(interior)
       end do
       prolongations = interior_prolongations(hierarchy, top)
-      if (multigrid .and. comm%size == 1 .and. needs_algebraic_levels(size(keys, kind=ip))) then
+      if (multigrid .and. needs_algebraic_levels(comm%sum(int(halos(0)%n_owned())))) then
          if (bottom == hierarchy%levels) then
-            call aggregation_levels(p%stiffness, aggregation_options_t(), algebraic, err)
+            call algebraic_levels(p%stiffness, halos(0), prolongations(bottom + 1:top), halos, keys, transfer, err)
          else
             call stiffness_rows(hierarchy%meshes(bottom), unknown_of(hierarchy, bottom), stiffness, coupling)
-            call aggregation_levels(stiffness, aggregation_options_t(), algebraic, err)
+            call algebraic_levels(stiffness, halos(0), prolongations(bottom + 1:top), halos, keys, transfer, err)
          end if
-         if (allocated(err)) return
       else
-         allocate (algebraic(0))
+         call transfer%init(prolongations(bottom + 1:top), err, halos=halos, coarse_keys=keys)
       end if
-      call with_algebraic_levels(algebraic, prolongations(bottom + 1:top), halos, keys, comm, transfer, err)
    end subroutine hierarchy_transfer
 
-   !> The transfers of one mesh's problem p on one rank (a mesh with no hierarchy of its own):
-   !> algebraic levels below it when it is too large for a direct solve and `multigrid`, else
-   !> the one level, solved directly.
+   !> The transfers of one mesh's problem p (a mesh with no hierarchy of its own): algebraic
+   !> levels below it when it is too large for a direct solve and `multigrid`, else the one
+   !> level, solved directly. Collective.
    subroutine mesh_transfer(p, multigrid, transfer, err)
       type(discrete_problem_t), intent(in) :: p
       logical, intent(in) :: multigrid
       type(multigrid_transfer_t), intent(inout) :: transfer
       type(error_t), allocatable, intent(out) :: err
 
-      type(csr_t), allocatable :: algebraic(:)
       type(csr_t) :: none(0)
-      integer(ip) :: i
 
-      if (multigrid .and. needs_algebraic_levels(p%n)) then
-         call aggregation_levels(p%stiffness, aggregation_options_t(), algebraic, err)
-         if (allocated(err)) return
+      if (multigrid .and. needs_algebraic_levels(p%halo%comm%sum(int(p%halo%n_owned())))) then
+         call algebraic_levels(p%stiffness, p%halo, none, [p%halo], p%global, transfer, err)
       else
-         allocate (algebraic(0))
+         call transfer%init(none, err, halos=[p%halo], coarse_keys=p%global)
       end if
-      call with_algebraic_levels(algebraic, none, [p%halo], [(i, i=1, p%n)], p%halo%comm, transfer, err)
    end subroutine mesh_transfer
 
    !> Whether a coarsest mesh of n unknowns gets algebraic levels below it (a direct solve of
    !> it would cost more than the V-cycle's other levels).
    pure logical function needs_algebraic_levels(n)
-      integer(ip), intent(in) :: n
+      integer, intent(in) :: n
 
       type(aggregation_options_t) :: defaults
 
@@ -108,31 +102,32 @@ contains
       unknown = interior_numbering(hierarchy%meshes(l))
    end function unknown_of
 
-   !> transfer from the algebraic prolongations (coarsest first) below the nested ones, whose
-   !> coarsest level has the interface halos(0) and the keys `keys`.
-   subroutine with_algebraic_levels(algebraic, nested, halos, keys, comm, transfer, err)
-      type(csr_t), intent(in) :: algebraic(:), nested(:)
+   !> transfer with the algebraic levels of operator `a` (this rank's part; `halo` the interface
+   !> of its unknowns) below the nested prolongations, whose levels have the interfaces `halos`
+   !> (halos(0): a's) and whose coarsest level the keys `keys`; only the nested levels when
+   !> aggregation does not coarsen. Collective.
+   subroutine algebraic_levels(a, halo, nested, halos, keys, transfer, err)
+      type(csr_t), intent(in) :: a
+      type(halo_t), intent(in) :: halo
+      type(csr_t), intent(in) :: nested(:)
       type(halo_t), intent(in) :: halos(0:)
       integer(ip), intent(in) :: keys(:)
-      type(comm_t), intent(in) :: comm
       type(multigrid_transfer_t), intent(inout) :: transfer
       type(error_t), allocatable, intent(out) :: err
 
-      type(halo_t), allocatable :: all_halos(:)
-      integer(ip) :: i
-      integer :: l, m
+      type(csr_t), allocatable :: algebraic(:)
+      type(halo_t), allocatable :: algebraic_halos(:)
+      integer(ip), allocatable :: coarse_keys(:)
+      integer :: m
 
+      call aggregation_levels(a, halo, aggregation_options_t(), algebraic, algebraic_halos, coarse_keys, err)
+      if (allocated(err)) return
       m = size(algebraic)
       if (m == 0) then
          call transfer%init(nested, err, halos=halos, coarse_keys=keys)
-         return
+      else
+         call transfer%init([algebraic, nested], err, halos=[algebraic_halos, halos], coarse_keys=coarse_keys, &
+                            algebraic=m)
       end if
-      allocate (all_halos(0:m + size(nested)))
-      do l = 0, m - 1
-         call all_halos(l)%init_whole(comm, algebraic(l + 1)%ncol)
-      end do
-      all_halos(m:) = halos
-      call transfer%init([algebraic, nested], err, halos=all_halos, coarse_keys=[(i, i=1, algebraic(1)%ncol)], &
-                         algebraic=m)
-   end subroutine with_algebraic_levels
+   end subroutine algebraic_levels
 end module twomem_app_transfers
