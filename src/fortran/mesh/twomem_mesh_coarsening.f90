@@ -56,6 +56,8 @@ module twomem_mesh_coarsening
       integer(ip), allocatable :: tri(:, :), star(:, :), bnbr(:, :), merged_into(:)
       integer, allocatable :: nstar(:)
       logical, allocatable :: alive(:), boundary(:), corner(:)
+      !> triangles changed since the last Delaunay pass looked at them
+      logical, allocatable :: dirty(:)
       integer(ip) :: n_alive = 0
    end type work_mesh_t
 
@@ -117,6 +119,8 @@ contains
 
       w%x = fine%vertices
       w%tri = fine%triangles
+      allocate (w%dirty(fine%nt))
+      w%dirty = .false.
       allocate (w%star(max_star, fine%nv), w%nstar(fine%nv), w%bnbr(2, fine%nv), w%alive(fine%nv), &
                 w%boundary(fine%nv), w%corner(fine%nv), w%merged_into(fine%nv), count_b(fine%nv))
       w%nstar = 0
@@ -341,6 +345,7 @@ contains
             where (w%tri(:, t) == v) w%tri(:, t) = u
             w%nstar(u) = w%nstar(u) + 1
             w%star(w%nstar(u), u) = t
+            w%dirty(t) = .true.
          end if
       end do
       if (w%boundary(v)) then
@@ -374,17 +379,21 @@ contains
       end do
    end subroutine remove_from_star
 
-   !> Lawson flips until every interior edge is locally Delaunay (a few passes; each flip raises
-   !> the smallest angle of its quadrilateral, so the passes end).
+   !> Lawson flips until every interior edge is locally Delaunay. Only triangles that changed
+   !> (a collapse, or a flip, marks them) are examined again; each flip raises the smallest angle
+   !> of its quadrilateral, so the passes end.
    subroutine flip_to_delaunay(w)
       type(work_mesh_t), intent(inout) :: w
 
       integer(ip) :: t, s, a, b, c, d
-      integer :: i, pass, flips
+      integer :: i, pass
+      logical :: any_dirty
 
-      do pass = 1, 20
-         flips = 0
+      do pass = 1, 50
+         any_dirty = .false.
          do t = 1, size(w%tri, 2, kind=ip)
+            if (.not. w%dirty(t)) cycle
+            w%dirty(t) = .false.
             if (w%tri(1, t) == 0) cycle
             do i = 1, 3
                a = w%tri(i, t)
@@ -396,11 +405,13 @@ contains
                if (.not. should_flip(w, a, b, c, d)) cycle
                if (w%nstar(c) == max_star .or. w%nstar(d) == max_star) cycle
                call flip(w, t, s, a, b, c, d)
-               flips = flips + 1
+               w%dirty(t) = .true.
+               w%dirty(s) = .true.
+               any_dirty = .true.
                exit
             end do
          end do
-         if (flips == 0) exit
+         if (.not. any_dirty) exit
       end do
    end subroutine flip_to_delaunay
 
