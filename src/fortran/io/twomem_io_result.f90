@@ -7,7 +7,7 @@ module twomem_io_result
    use twomem_base_errors, only: error_t
    use twomem_base_system, only: rename_file, remove_file, process_id, base_name, register_temporary, &
       unregister_temporary
-   use twomem_io_hdf5, only: h5_file_t
+   use twomem_hdf5_file, only: h5_file_t
    use twomem_io_xdmf, only: write_xdmf
    use twomem_base_phases, only: phase_clock_t, phase_output, n_phases, phase_names
    implicit none
