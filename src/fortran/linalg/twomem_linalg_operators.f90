@@ -163,6 +163,8 @@ contains
       real(dp), intent(in) :: x(:), y(:)
       logical, intent(in), optional :: owned(:)
 
+      !> fixes the order of the additions, so it is a constant of its own: whether threads
+      !> share the blocks (threaded_from) changes no bit
       integer(ip), parameter :: block = 4096
       real(dp), allocatable :: partial(:)
       real(dp) :: acc
@@ -175,9 +177,7 @@ contains
       allocate (partial(nb))
       ! each block's sum in a private accumulator, stored once: accumulating in the shared array
       ! made the threads write neighbouring entries of one cache line at every element (false
-      ! sharing: with 2 threads the products of the Newton solve spent 15% of their time here).
-      ! `block` fixes the order of the additions, so it stays a constant of its own; whether
-      ! threads share the blocks changes no bit.
+      ! sharing: with 2 threads the products of the Newton solve spent 15% of their time here)
       !$omp parallel do default(none) shared(x, y, owned, masked, partial, n, nb) private(b, i, acc) &
       !$omp schedule(static) if(n > threaded_from)
       do b = 1, nb
