@@ -405,7 +405,7 @@ contains
 
       !$omp parallel default(none) shared(nc, rows, r_ptr, r_col, rv, a_ptr, a_col, a_val, p_ptr, p_col, pv) &
       !$omp shared(c_ptr, c_col, c_val, start, from_start, diagonal, owned, fixed) &
-      !$omp private(position, i, k, m, q, kk, j, jr, rik, rikakj) if(size(rows) > 1024)
+      !$omp private(position, i, k, m, q, kk, j, jr, rik, rikakj) if(size(rows) > threaded_from)
       allocate (position(nc))
       !$omp do schedule(static)
       do jr = 1, size(rows, kind=ip)
