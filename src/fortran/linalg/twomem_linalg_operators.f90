@@ -177,7 +177,7 @@ contains
       allocate (partial(nb))
       ! each block's sum in a private accumulator, stored once: accumulating in the shared array
       ! made the threads write neighbouring entries of one cache line at every element (false
-      ! sharing: with 2 threads the products of the Newton solve spent 15% of their time here)
+      ! sharing, a visible share of the Newton solve's products: docs/performance.md)
       !$omp parallel do default(none) shared(x, y, owned, masked, partial, n, nb) private(b, i, acc) &
       !$omp schedule(static) if(n > threaded_from)
       do b = 1, nb
