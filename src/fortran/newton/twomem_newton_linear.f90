@@ -15,7 +15,7 @@ module twomem_newton_linear
    use twomem_linalg_gathered_solve, only: gathered_solver_t
    use twomem_linalg_multigrid, only: multigrid_options_t, multigrid_transfer_t
    use twomem_linalg_gmres, only: gmres_solve, gmres_options_t, gmres_monitor_t, gmres_observer_t, &
-      gmres_workspace_t
+      gmres_workspace_t, gmres_stopped_by_observer, gmres_reason_text, gmres_not_solved
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_newton_system, only: newton_system_t, newton_operator_t
    use twomem_newton_elimination, only: elimination_preconditioner_t
@@ -43,7 +43,7 @@ module twomem_newton_linear
       logical :: residual_known = .false.
       !> GMRES solves that ended neither converged nor stopped by the observer, and the last reason
       integer :: failures = 0
-      character(len=:), allocatable :: failure_reason
+      integer :: failure_reason = gmres_not_solved
    contains
       procedure :: init => linear_init
       procedure :: solve => linear_solve
@@ -183,7 +183,7 @@ contains
          call gmres_solve(matrix, prec, sys%dot, b, x, options, self%monitor, err, observer, self%workspace)
       end select
       if (allocated(err)) return
-      if (.not. self%monitor%converged .and. self%monitor%reason /= 'stopped by observer') then
+      if (.not. self%monitor%converged .and. self%monitor%reason /= gmres_stopped_by_observer) then
          self%failures = self%failures + 1
          self%failure_reason = self%monitor%reason
       end if
@@ -199,6 +199,6 @@ contains
       note = ''
       if (self%failures == 0) return
       write (count_text, '(i0)') self%failures
-      note = ' ('//trim(count_text)//' GMRES solves ended by '''//self%failure_reason//''')'
+      note = ' ('//trim(count_text)//' GMRES solves ended by '''//gmres_reason_text(self%failure_reason)//''')'
    end function failure_note
 end module twomem_newton_linear

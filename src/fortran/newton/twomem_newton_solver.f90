@@ -23,7 +23,7 @@ module twomem_newton_solver
    use twomem_linalg_csr, only: csr_t
    use twomem_linalg_vectors, only: copy_into, threaded_from
    use twomem_linalg_multigrid, only: multigrid_transfer_t
-   use twomem_linalg_gmres, only: gmres_options_t
+   use twomem_linalg_gmres, only: gmres_options_t, gmres_stopped_by_observer, gmres_non_finite_correction
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_newton_cfun, only: c_function_min, c_function_fb, cfun_eval
    use twomem_newton_system, only: newton_system_t
@@ -317,11 +317,11 @@ contains
             call solver%solve(sys, b, trial, err, observer=inner)
             if (allocated(err)) return
             result%linear_iterations = result%linear_iterations + solver%monitor%iterations
-            if (solver%monitor%reason == 'non-finite correction') then
+            if (solver%monitor%reason == gmres_non_finite_correction) then
                why = 'not converged: GMRES broke down with a non-finite correction (the iterate before it is kept)'
                return
             else if (p%halo%comm%any_true(.not. all(ieee_is_finite(trial)))) then
-               why = 'not converged: GMRES broke down ('//solver%monitor%reason//') with a non-finite iterate'
+               why = 'not converged: GMRES broke down ('//solver%monitor%reason_text()//') with a non-finite iterate'
                return
             end if
          else
@@ -351,9 +351,9 @@ contains
 
          logical :: observed
 
-         ! (nested: Fortran may evaluate every operand, and the direct solver sets no reason)
+         ! (the direct solver leaves the monitor of no solve)
          observed = .false.
-         if (kind == solver_gmres) observed = solver%monitor%reason == 'stopped by observer' .and. &
+         if (kind == solver_gmres) observed = solver%monitor%reason == gmres_stopped_by_observer .and. &
                                               ieee_is_finite(inner%last_relative)
          if (observed) then
             relative = inner%last_relative
