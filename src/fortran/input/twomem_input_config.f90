@@ -13,7 +13,12 @@ module twomem_input_config
    use twomem_base_text, only: int_text, to_lower
    use twomem_input_case, only: config_t, mesh_config_t, problem_config_t, newton_config_t, gmres_config_t, &
                                 estimate_config_t, output_config_t, config_len
-   use twomem_input_keys
+   use twomem_input_keys, only: keys, n_keys, n_groups, group_names, find_group, find_key, group_list, key_list, &
+      type_word, type_path, type_real, type_int, type_logical, type_load, &
+      k_domain, k_mesh_file, k_coarse_h, k_levels, k_boundary_h, k_mu1, k_mu2, k_f1, k_f2, k_g, k_exact, &
+      k_f1_file, k_f2_file, k_cfun, k_linear, k_newton_max_it, k_tol, k_gamma_lin, k_initial, k_line_search, &
+      k_fb_finish, k_restart, k_gmres_max_it, k_rtol, k_precond, k_forcing, k_gamma_alg, k_enabled, k_every, &
+      k_flux, k_alg_levels, k_criteria, k_checks, k_output_file, k_fields, k_estimators, k_history, k_xdmf
    use twomem_input_rules, only: validate
    implicit none
    private
@@ -186,33 +191,33 @@ contains
       integer :: n
       logical :: b
 
-      select case (key_kinds(id))
-      case (kind_word, kind_path)
+      select case (keys(id)%type)
+      case (type_word, type_path)
          if (len(value) > config_len) then
             what = 'text longer than '//int_text(config_len)//' characters'
          else if (has_control_character(value)) then
             ! a newline would break the echo, which must reload as a case file
             what = 'text with a control character, got '//quote(excerpt(value))
-         else if (key_kinds(id) == kind_word) then
+         else if (keys(id)%type == type_word) then
             call store_text(cfg, id, to_lower(trim(adjustl(value))))
          else
             call store_text(cfg, id, value)
          end if
-      case (kind_real)
+      case (type_real)
          if (quoted) then
             what = 'expected a real number, got the string '//quote(excerpt(value))
          else
             call scan_real(value, x, what)
             if (.not. allocated(what)) call store_real(cfg, id, x)
          end if
-      case (kind_int)
+      case (type_int)
          if (quoted) then
             what = 'expected an integer, got the string '//quote(excerpt(value))
          else
             call scan_integer(value, n, what)
             if (.not. allocated(what)) call store_int(cfg, id, n)
          end if
-      case (kind_load)
+      case (type_load)
          ! a number stays a number (bit-for-bit the same run as before formulas existed), quoted
          ! or not; anything else is kept as a formula and parsed by `validate`
          call scan_real(value, x, what)
@@ -232,7 +237,7 @@ contains
             deallocate (what)
             call store_text(cfg, id, trim(adjustl(value)))
          end if
-      case (kind_logical)
+      case (type_logical)
          if (quoted) then
             what = 'expected a logical (.true. or .false.), got the string '//quote(excerpt(value))
          else
@@ -331,8 +336,8 @@ contains
       do gid = 1, n_groups
          text = text//'&'//trim(group_names(gid))//nl
          do id = 1, n_keys
-            if (key_group(id) /= gid) cycle
-            text = text//'   '//trim(key_names(id))//' = '//value_text(cfg, id)//nl
+            if (keys(id)%group /= gid) cycle
+            text = text//'   '//trim(keys(id)%name)//' = '//value_text(cfg, id)//nl
          end do
          text = text//'/'//nl
       end do

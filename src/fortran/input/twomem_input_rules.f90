@@ -11,7 +11,10 @@ module twomem_input_rules
    use twomem_input_formula, only: formula_t
    use twomem_input_formula_parser, only: parse_formula
    use twomem_input_case, only: config_t
-   use twomem_input_keys
+   use twomem_input_keys, only: key_name, group_name, k_domain, k_mesh_file, k_coarse_h, k_levels, k_boundary_h, &
+      k_mu1, k_mu2, k_f1, k_f2, k_g, k_exact, k_f1_file, k_f2_file, k_cfun, k_linear, k_newton_max_it, k_tol, &
+      k_gamma_lin, k_initial, k_line_search, k_fb_finish, k_restart, k_gmres_max_it, k_rtol, k_precond, &
+      k_forcing, k_gamma_alg, k_every, k_flux, k_alg_levels, k_criteria, k_checks
    implicit none
    private
 
@@ -132,7 +135,7 @@ contains
       character(len=*), intent(in) :: what
 
       if (allocated(err) .or. ok) return
-      call make_error(err, exit_bad_input, origin(id)%s//': &'//trim(group_names(key_group(id))), what)
+      call make_error(err, exit_bad_input, origin(id)%s//': &'//group_name(id), what)
    end subroutine require
 
    !> `<origin>: &group: key must be ...`
@@ -142,8 +145,7 @@ contains
       integer, intent(in) :: id
       character(len=*), intent(in) :: what
 
-      call make_error(err, exit_bad_input, origin(id)%s//': &'//trim(group_names(key_group(id))), &
-                      trim(key_names(id))//' '//what)
+      call make_error(err, exit_bad_input, origin(id)%s//': &'//group_name(id), key_name(id)//' '//what)
    end subroutine fail
 
    subroutine check_word(err, origin, id, value, allowed)
