@@ -10,6 +10,8 @@ module twomem_app_levels
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t
    use twomem_base_comm, only: comm_t
+   use twomem_base_options, only: method_direct, method_gmres, method_adaptive, forcing_finish, precond_mg, &
+      initial_nested
    use twomem_base_timer, only: wall_time
    use twomem_base_text, only: fixed
    use twomem_base_phases, only: phase_clock_t, phase_assembly, phase_solve
@@ -22,8 +24,7 @@ module twomem_app_levels
    use twomem_linalg_halo, only: halo_t
    use twomem_linalg_multigrid, only: multigrid_transfer_t
    use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_observer_t, newton_solve, &
-      method_direct, method_gmres, method_adaptive, forcing_finish, automatic_every
-   use twomem_newton_linear, only: precond_mg
+      automatic_every
    use twomem_newton_settle, only: settle_contact
    implicit none
    private
@@ -62,7 +63,7 @@ contains
       bottom = hierarchy%first_with_unknowns(comm)
       call build_transfer(comm, hierarchy, bottom, options, transfer, err)
       if (allocated(err)) return
-      if (trim(cfg%newton%initial) /= 'nested' .or. finest == bottom) then
+      if (cfg%newton%initial /= initial_nested .or. finest == bottom) then
          x0 = [spread(data%g, 1, p%n), spread(0.0_dp, 1, 2*p%n)]
          call newton_solve(p, options, x0, newton, err, observer, transfer, finest - bottom)
          return

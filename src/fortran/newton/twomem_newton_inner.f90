@@ -29,7 +29,8 @@ module twomem_newton_inner
    use twomem_base_system, only: return_freed_memory
    use twomem_linalg_gmres, only: gmres_observer_t
    use twomem_linalg_operators, only: preconditioner_t
-   use twomem_newton_cfun, only: c_function_min, cfun_eval
+   use twomem_base_options, only: c_function_min
+   use twomem_newton_cfun, only: cfun_eval
    use twomem_newton_residual, only: nonlinear_residual_t
    use twomem_newton_history, only: history_t, history_row_t, not_computed
    implicit none

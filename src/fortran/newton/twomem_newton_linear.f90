@@ -8,6 +8,7 @@
 module twomem_newton_linear
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_bad_input
+   use twomem_base_options, only: precond_mg, precond_ilu0, precond_jacobi, precond_none
    use twomem_linalg_csr, only: csr_t
    use twomem_linalg_operators, only: preconditioner_t, csr_operator_t, identity_preconditioner_t
    use twomem_linalg_ilu0, only: ilu0_preconditioner_t
@@ -22,11 +23,10 @@ module twomem_newton_linear
    implicit none
    private
 
-   public :: linear_step_t, precond_kind, needs_matrix
-   public :: solver_direct, solver_gmres, precond_mg, precond_ilu0, precond_jacobi, precond_none
+   public :: linear_step_t, needs_matrix
+   public :: solver_direct, solver_gmres
 
    integer, parameter :: solver_direct = 1, solver_gmres = 2
-   integer, parameter :: precond_mg = 1, precond_ilu0 = 2, precond_jacobi = 3, precond_none = 4
 
    type :: linear_step_t
       !> solver_direct or solver_gmres
@@ -51,24 +51,6 @@ module twomem_newton_linear
    end type linear_step_t
 
 contains
-
-   !> The preconditioner named by a `gmres.precond` word; 0 for any other word.
-   pure integer function precond_kind(name) result(which)
-      character(len=*), intent(in) :: name
-
-      select case (name)
-      case ('mg')
-         which = precond_mg
-      case ('ilu0')
-         which = precond_ilu0
-      case ('jacobi')
-         which = precond_jacobi
-      case ('none')
-         which = precond_none
-      case default
-         which = 0
-      end select
-   end function precond_kind
 
    !> Whether a solve with this solver and preconditioner needs the assembled Newton matrix.
    pure logical function needs_matrix(kind, precond)

@@ -18,6 +18,8 @@ module twomem_newton_solver
    use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_io
+   use twomem_base_options, only: c_function_min, c_function_fb, method_direct, method_adaptive, forcing_fixed, &
+      forcing_finish, precond_mg
    use twomem_base_system, only: return_freed_memory
    use twomem_base_timer, only: wall_time
    use twomem_linalg_csr, only: csr_t
@@ -25,10 +27,10 @@ module twomem_newton_solver
    use twomem_linalg_multigrid, only: multigrid_transfer_t
    use twomem_linalg_gmres, only: gmres_options_t, gmres_stopped_by_observer, gmres_non_finite_correction
    use twomem_fem_discrete, only: discrete_problem_t
-   use twomem_newton_cfun, only: c_function_min, c_function_fb, cfun_eval
+   use twomem_newton_cfun, only: cfun_eval
    use twomem_newton_system, only: newton_system_t
    use twomem_newton_residual, only: nonlinear_residual_t
-   use twomem_newton_linear, only: linear_step_t, solver_direct, solver_gmres, precond_mg, needs_matrix
+   use twomem_newton_linear, only: linear_step_t, solver_direct, solver_gmres, needs_matrix
    use twomem_newton_line_search, only: line_search_t
    use twomem_newton_cycling, only: active_set_watch_t
    use twomem_newton_fb_finish, only: fb_finish_t
@@ -38,12 +40,7 @@ module twomem_newton_solver
    private
 
    public :: newton_options_t, newton_result_t, newton_observer_t, newton_solve, automatic_every
-   public :: method_kind, forcing_kind
-   public :: method_direct, method_gmres, method_adaptive, forcing_paper, forcing_finish, forcing_fixed
 
-   !> the method (newton.linear) and the GMRES forcing (gmres.forcing)
-   integer, parameter :: method_direct = 1, method_gmres = 2, method_adaptive = 3
-   integer, parameter :: forcing_paper = 1, forcing_fixed = 2, forcing_finish = 3
    type :: newton_options_t
       !> c_function_min or c_function_fb
       integer :: cfun = c_function_min
@@ -80,38 +77,6 @@ module twomem_newton_solver
    end type newton_result_t
 
 contains
-
-   !> The method of input word newton.linear (0 for a word that is not one).
-   pure integer function method_kind(name) result(which)
-      character(len=*), intent(in) :: name
-
-      select case (name)
-      case ('direct')
-         which = method_direct
-      case ('gmres')
-         which = method_gmres
-      case ('adaptive')
-         which = method_adaptive
-      case default
-         which = 0
-      end select
-   end function method_kind
-
-   !> The forcing of input word gmres.forcing (0 for a word that is not one).
-   pure integer function forcing_kind(name) result(which)
-      character(len=*), intent(in) :: name
-
-      select case (name)
-      case ('paper')
-         which = forcing_paper
-      case ('fixed')
-         which = forcing_fixed
-      case ('finish')
-         which = forcing_finish
-      case default
-         which = 0
-      end select
-   end function forcing_kind
 
    !> ν, the GMRES iterations between two checks of the inner stopping test, when the case
    !> leaves it to the program (estimate.every = 0). ILU(0) takes the paper's 10. With the
