@@ -19,7 +19,7 @@ module twomem_newton_solver
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_io
    use twomem_base_options, only: c_function_min, c_function_fb, method_direct, method_adaptive, forcing_fixed, &
-      forcing_finish, precond_mg
+      forcing_finish
    use twomem_base_system, only: return_freed_memory
    use twomem_base_timer, only: wall_time
    use twomem_linalg_csr, only: csr_t
@@ -35,74 +35,19 @@ module twomem_newton_solver
    use twomem_newton_cycling, only: active_set_watch_t
    use twomem_newton_fb_finish, only: fb_finish_t
    use twomem_newton_inner, only: newton_observer_t, inner_observer_t, lin_criterion
-   use twomem_newton_history, only: history_t, history_row_t, not_computed, print_progress
+   use twomem_newton_history, only: history_row_t, not_computed, print_progress
+   use twomem_newton_options, only: newton_options_t, newton_result_t, automatic_every, newton_status, &
+      newton_running, newton_converged, newton_iteration_limit, newton_gmres_non_finite_correction, &
+      newton_gmres_non_finite_iterate, newton_round_off_floor, newton_cycling
    implicit none
    private
 
-   public :: newton_options_t, newton_result_t, newton_observer_t, newton_solve, automatic_every
+   public :: newton_solve
+   ! what a solve is asked and answers, with the solver
+   public :: newton_options_t, newton_result_t, newton_observer_t, automatic_every
 
-   type :: newton_options_t
-      !> c_function_min or c_function_fb
-      integer :: cfun = c_function_min
-      !> method_direct (UMFPACK), method_gmres or method_adaptive (GMRES, estimator-based stopping)
-      integer :: linear = method_direct
-      !> adaptive stopping: γ_lin, γ_alg and the local criteria instead of the global ones
-      real(dp) :: gamma_lin = 0.3_dp, gamma_alg = 0.3_dp
-      logical :: local_criteria = .false.
-      !> adaptive method: a check computes η_lin first, then η_disc and then the rest only while
-      !> the Newton test can still hold (estimate.checks = 'predicted'; check_schedule_t)
-      logical :: predicted_checks = .true.
-      integer :: max_it = 100
-      real(dp) :: tol = 1.0e-10_dp
-      logical :: line_search = .false.
-      !> Fischer–Burmeister: Newton-min (active-set) steps once the contact set settles
-      logical :: fb_active_set = .true.
-      !> GMRES: forcing_paper (algebraic ≤ linearization residual), forcing_finish (the same until
-      !> the iterate's contact set is the step's, then on to tol) or forcing_fixed (gmres%rtol)
-      integer :: forcing = forcing_finish
-      !> precond_mg (block elimination with multigrid), precond_ilu0, precond_jacobi, precond_none
-      integer :: precond = precond_mg
-      type(gmres_options_t) :: gmres
-      logical :: verbose = .true.
-   end type newton_options_t
-
-   type :: newton_result_t
-      !> the iterate [X1; X2; X3] at interior vertices
-      real(dp), allocatable :: x(:)
-      integer :: iterations = 0
-      integer :: linear_iterations = 0
-      logical :: converged = .false.
-      character(len=:), allocatable :: status
-      type(history_t) :: history
-   end type newton_result_t
 
 contains
-
-   !> ν, the GMRES iterations between two checks of the inner stopping test, when the case
-   !> leaves it to the program (estimate.every = 0). ILU(0) takes the paper's 10. With the
-   !> multigrid preconditioner a Newton step needs one to three iterations, so each counts:
-   !> Newton's inexact GMRES checks after every one (a check costs one residual, and stopping
-   !> as soon as the algebraic residual is below the linearization residual took 6 GMRES
-   !> iterations on the finest of 1.1e6 vertices instead of 13 with ν = 3, in as many Newton
-   !> steps). So does Fischer–Burmeister finished by active-set steps (`fb_active_set`): its
-   !> inexact first steps hand over to active-set steps within one or two steps, and
-   !> bench/scaling.py's cases took 6–20% less time than with ν = 3 at 1.1e6 and 4.5e6 vertices
-   !> (alternating runs). Fischer–Burmeister throughout keeps 3: its inexact steps wander
-   !> between contact sets with ν = 1 (5 finest-level Newton steps instead of 2 on the
-   !> membranes case at 7e4 vertices), and so does the adaptive method, whose checks may each
-   !> be an evaluation of the estimators.
-   pure integer function automatic_every(linear, cfun, precond, fb_active_set) result(every)
-      integer, intent(in) :: linear, cfun, precond
-      logical, intent(in) :: fb_active_set
-
-      if (precond /= precond_mg) then
-         every = 10
-      else if (linear == method_adaptive .or. (cfun == c_function_fb .and. .not. fb_active_set)) then
-         every = 3
-      else
-         every = 1
-      end if
-   end function automatic_every
 
    !> Newton for problem p from x0, which it takes over (x0 is unallocated on return; at 10^6
    !> vertices the finest level's start is 23 MiB that would otherwise sit beside the iterate
@@ -140,10 +85,12 @@ contains
       integer :: k, kind
       !> the relative residual and merit of GMRES's (or UMFPACK's) iterate, and the merit of x
       real(dp) :: t0, step, trial_relative, trial_merit, merit_x
-      character(len=:), allocatable :: why
+      !> newton_running, or how the solve ended
+      integer :: reason
       logical :: adaptive, in_place
 
       call move_alloc(x0, x)
+      reason = newton_running
       n = p%n
       adaptive = options%linear == method_adaptive
       if (adaptive .and. .not. present(observer)) then
@@ -185,13 +132,13 @@ contains
       merit_x = residual%last_merit
       call record(0, row, .false.)
       previous = active
-      if (row%lin_residual <= options%tol) why = 'converged'
+      if (row%lin_residual <= options%tol) reason = newton_converged
       call configure_inner()
 
       k = 0
-      do while (.not. allocated(why))
+      do while (reason == newton_running)
          if (k == options%max_it) then
-            why = 'not converged: iteration limit newton.max_it reached'
+            reason = newton_iteration_limit
             exit
          end if
          k = k + 1
@@ -199,7 +146,7 @@ contains
          if (fb%active_set_step) call cfun_eval(c_function_min, x, c, da, db)
          call linear_step(k, row)
          if (allocated(err)) return
-         if (allocated(why)) exit
+         if (reason /= newton_running) exit
          call evaluate_trial(trial_relative, trial_merit)
          step = 1.0_dp
          if (options%line_search) step = search%step(residual, k, x, merit_x, x_new, trial_merit)
@@ -219,15 +166,16 @@ contains
          row%step = step
          call record(k, row, reuses_inner_row(step))
          call fb%step_moved(row%active_changed, row%active)
-         call decide_stop(row, k, why)
+         call decide_stop(row, k)
          previous = active
       end do
 
       call move_alloc(x, result%x)
       result%iterations = k
-      result%converged = why == 'converged'
-      if (.not. result%converged) why = why//solver%failure_note()
-      result%status = why
+      result%reason = reason
+      result%converged = reason == newton_converged
+      result%status = newton_status(reason, solver%monitor%reason)
+      if (.not. result%converged) result%status = result%status//solver%failure_note()
 
    contains
 
@@ -252,7 +200,7 @@ contains
       end subroutine configure_inner
 
       !> Newton step k's linear solve, from the Jacobian in da, db into `trial`: its row with the
-      !> algebraic residual, or `why` when GMRES broke down (`err` when a solver failed).
+      !> algebraic residual, or the `reason` to stop when GMRES broke down (`err` when a solver failed).
       subroutine linear_step(k, row)
          integer, intent(in) :: k
          type(history_row_t), intent(out) :: row
@@ -283,10 +231,10 @@ contains
             if (allocated(err)) return
             result%linear_iterations = result%linear_iterations + solver%monitor%iterations
             if (solver%monitor%reason == gmres_non_finite_correction) then
-               why = 'not converged: GMRES broke down with a non-finite correction (the iterate before it is kept)'
+               reason = newton_gmres_non_finite_correction
                return
             else if (p%halo%comm%any_true(.not. all(ieee_is_finite(trial)))) then
-               why = 'not converged: GMRES broke down ('//solver%monitor%reason_text()//') with a non-finite iterate'
+               reason = newton_gmres_non_finite_iterate
                return
             end if
          else
@@ -341,25 +289,23 @@ contains
          end if
       end function reuses_inner_row
 
-      !> Why Newton stops after step k ('converged' or a failure); `reason` stays unallocated to
-      !> go on.
-      subroutine decide_stop(row, k, reason)
+      !> Whether Newton stops after step k: `reason` becomes newton_converged or a failure, or
+      !> stays newton_running.
+      subroutine decide_stop(row, k)
          type(history_row_t), intent(in) :: row
          integer, intent(in) :: k
-         character(len=:), allocatable, intent(inout) :: reason
 
          if (row%lin_residual <= options%tol) then
-            reason = 'converged'
+            reason = newton_converged
          else if (adaptive) then
-            if (lin_criterion(row, options%gamma_lin, options%local_criteria)) reason = 'converged'
+            if (lin_criterion(row, options%gamma_lin, options%local_criteria)) reason = newton_converged
          else if (options%linear == method_direct .and. row%step == 1.0_dp .and. &
                   options%cfun == c_function_min) then
             ! exact full steps of Newton-min: a repeated active set cannot make progress
             if (row%active_changed == 0) then
-               reason = 'not converged: stagnation (active set unchanged, residual above newton.tol: '// &
-                        'round-off floor reached)'
+               reason = newton_round_off_floor
             else if (watch%repeats(k)) then
-               reason = 'not converged: stagnation (Newton-min cycles between active sets)'
+               reason = newton_cycling
             end if
          end if
       end subroutine decide_stop
