@@ -18,8 +18,7 @@ module twomem_newton_solver
    use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_io
-   use twomem_base_options, only: c_function_min, c_function_fb, method_direct, method_adaptive, forcing_fixed, &
-      forcing_finish
+   use twomem_base_options, only: c_function_min, c_function_fb, method_direct, method_adaptive
    use twomem_base_system, only: return_freed_memory
    use twomem_base_timer, only: wall_time
    use twomem_linalg_csr, only: csr_t
@@ -133,7 +132,8 @@ contains
       call record(0, row, .false.)
       previous = active
       if (row%lin_residual <= options%tol) reason = newton_converged
-      call configure_inner()
+      ! (an absent `observer`, or an unallocated preconditioner (the direct solver's), is absent)
+      call inner%init(options, residual, c, da, db, result%history, t0, user=observer, prec=solver%prec)
 
       k = 0
       do while (reason == newton_running)
@@ -179,26 +179,6 @@ contains
 
    contains
 
-      !> GMRES's observer: the iterate's residuals, the run's observer and the forcing.
-      subroutine configure_inner()
-         inner%residual => residual
-         inner%c => c
-         inner%da => da
-         inner%db => db
-         inner%history => result%history
-         if (present(observer)) inner%user => observer
-         inner%paper_forcing = options%forcing /= forcing_fixed .and. .not. adaptive
-         inner%finish = options%forcing == forcing_finish
-         inner%adaptive = adaptive
-         inner%local_criteria = options%local_criteria
-         inner%gamma_alg = options%gamma_alg
-         inner%schedule%predict = options%predicted_checks
-         inner%schedule%gamma_lin = options%gamma_lin
-         inner%newton_tol = options%tol
-         inner%t0 = t0
-         if (allocated(solver%prec)) inner%prec => solver%prec
-      end subroutine configure_inner
-
       !> Newton step k's linear solve, from the Jacobian in da, db into `trial`: its row with the
       !> algebraic residual, or the `reason` to stop when GMRES broke down (`err` when a solver failed).
       subroutine linear_step(k, row)
@@ -221,12 +201,8 @@ contains
          if (.not. in_place) x_new = x
          b_norm = max(sys%dot%norm(b), tiny(1.0_dp))
          if (kind == solver_gmres) then
-            inner%newton_it = k
-            ! (a check put off by a GMRES solve that then failed is not this step's)
-            call inner%forget_pending()
-            inner%linearized = merge(c_function_min, options%cfun, fb%active_set_step)
-            inner%gmres_before = result%linear_iterations
-            inner%b_norm = b_norm
+            call inner%start_solve(k, merge(c_function_min, options%cfun, fb%active_set_step), &
+                                   result%linear_iterations, b_norm)
             call solver%solve(sys, b, trial, err, observer=inner)
             if (allocated(err)) return
             result%linear_iterations = result%linear_iterations + solver%monitor%iterations
