@@ -113,15 +113,11 @@ contains
             return
          end if
       end if
-      observer%hierarchy => hierarchy
-      observer%data => data
-      observer%p => p
-      observer%estimator => estimator
-      observer%gamma_alg = cfg%estimate%gamma_alg
-      observer%gamma_lin = cfg%newton%gamma_lin
-      observer%local_criteria = options%local_criteria
-      observer%with_error = data%has_exact() .and. cfg%output%history
-      observer%with_estimates = options%linear == method_adaptive .or. (cfg%estimate%enabled .and. cfg%output%history)
+      call observer%init(hierarchy, data, p, estimator, with_error=data%has_exact() .and. cfg%output%history, &
+                         with_estimates=options%linear == method_adaptive .or. &
+                                        (cfg%estimate%enabled .and. cfg%output%history), &
+                         gamma_alg=cfg%estimate%gamma_alg, gamma_lin=cfg%newton%gamma_lin, &
+                         local_criteria=options%local_criteria)
 
       call clock%switch(phase_solve)
       if (observer%with_error .or. observer%with_estimates) then
