@@ -14,7 +14,7 @@ module twomem_app_loads
    use twomem_fem_problem, only: problem_data_t
    use twomem_fem_cases, only: make_problem
    use twomem_fem_user_data, only: user_data_t, new_user_data
-   use twomem_io_hdf5, only: h5_file_t
+   use twomem_hdf5_file, only: h5_file_t
    use twomem_base_text, only: int_text
    implicit none
    private

@@ -30,7 +30,8 @@ module twomem_app_run
    use twomem_app_observer, only: run_observer_t
    use twomem_app_mesh, only: build_hierarchy
    use twomem_app_levels, only: solve_levels, coarse_work_t
-   use twomem_io_result, only: result_record_t, output_choice_t, write_result, xdmf_path_for
+   use twomem_io_result, only: result_record_t, history_columns_t, output_choice_t, write_result, xdmf_path_for
+   use twomem_newton_history, only: history_t
    use twomem_io_gather, only: gather_plan_t
    implicit none
    private
@@ -243,7 +244,7 @@ contains
       rec%input_text = config_echo(cfg)
       rec%status = newton%status
       rec%levels = hierarchy%levels
-      rec%history = newton%history
+      call history_columns(newton%history, rec%history)
       rec%newton_iterations = newton%iterations
       rec%gmres_iterations = newton%linear_iterations
       rec%newton_iterations_coarse = coarse%newton_iterations
@@ -416,4 +417,26 @@ contains
       call unregister_temporary()
    end subroutine check_output_writable
 
+   !> The solver's history rows as the result file's columns.
+   subroutine history_columns(history, columns)
+      type(history_t), intent(in) :: history
+      type(history_columns_t), intent(out) :: columns
+
+      associate (r => history%rows(1:history%n))
+         columns%newton_it = int(r%newton_it, ip)
+         columns%gmres_it = int(r%gmres_it, ip)
+         columns%eta_disc = r%eta_disc
+         columns%eta_lin = r%eta_lin
+         columns%eta_alg = r%eta_alg
+         columns%eta_total = r%eta_total
+         columns%energy_error = r%energy_error
+         columns%lin_residual = r%lin_residual
+         columns%alg_residual = r%alg_residual
+         columns%active = int(r%active, ip)
+         columns%active_changed = int(r%active_changed, ip)
+         columns%step = r%step
+         columns%inner = int(merge(1, 0, r%inner), ip)
+         columns%wall_time = r%wall_time
+      end associate
+   end subroutine history_columns
 end module twomem_app_run

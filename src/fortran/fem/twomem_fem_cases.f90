@@ -199,8 +199,8 @@ contains
 
    !> [∇u1, ∇u2] at x, from S = μ1 u1 + μ2 u2 and w = u1 − u2 (both radial): ∇v = (v'(r)/r) x,
    !> with v'/r finite at the centre. Only r² is needed: no square root (the energy error
-   !> evaluates this at some 5·10^7 points at 10^6 vertices, where norm2's scaled sum cost a
-   !> third of the error's time).
+   !> evaluates this at every quadrature point of every triangle, where norm2's scaled sum was
+   !> a large part of the error's time).
    pure function radial_gradient(self, x) result(grad)
       class(radial_data_t), intent(in) :: self
       real(dp), intent(in) :: x(2)
