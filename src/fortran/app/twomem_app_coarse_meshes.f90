@@ -19,6 +19,7 @@ module twomem_app_coarse_meshes
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t
    use twomem_base_comm, only: comm_t
+   use twomem_base_options, only: method_direct, precond_mg
    use twomem_base_timer, only: wall_time
    use twomem_base_text, only: fixed
    use twomem_mesh_triangulation, only: mesh_t
@@ -28,8 +29,7 @@ module twomem_app_coarse_meshes
    use twomem_fem_problem, only: problem_data_t
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_linalg_multigrid, only: multigrid_transfer_t
-   use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_solve, method_direct
-   use twomem_newton_linear, only: precond_mg
+   use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_solve
    use twomem_newton_settle, only: settle_contact
    use twomem_app_transfers, only: mesh_transfer
    implicit none

@@ -11,6 +11,8 @@ module twomem_app_levels
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t
    use twomem_base_comm, only: comm_t
+   use twomem_base_options, only: method_direct, method_gmres, method_adaptive, forcing_finish, precond_mg, &
+      initial_nested
    use twomem_base_timer, only: wall_time
    use twomem_base_text, only: fixed
    use twomem_base_phases, only: phase_clock_t, phase_assembly, phase_solve
@@ -20,8 +22,7 @@ module twomem_app_levels
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_linalg_multigrid, only: multigrid_transfer_t
    use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_observer_t, newton_solve, &
-      method_direct, method_gmres, method_adaptive, forcing_finish, automatic_every
-   use twomem_newton_linear, only: precond_mg
+      automatic_every
    use twomem_newton_settle, only: settle_contact
    use twomem_app_transfers, only: hierarchy_transfer
    use twomem_app_coarse_meshes, only: coarse_work_t, coarsened_start, cold_start
@@ -56,7 +57,7 @@ contains
 
       finest = hierarchy%levels
       bottom = hierarchy%first_with_unknowns(comm)
-      nested = trim(cfg%newton%initial) == 'nested'
+      nested = cfg%newton%initial == initial_nested
       call hierarchy_transfer(comm, hierarchy, bottom, p, options%precond == precond_mg .and. &
                               options%linear /= method_direct, transfer, err)
       if (allocated(err)) return

@@ -40,7 +40,7 @@ contains
       associate (p => cfg%problem)
          if (len_trim(p%f1_formula//p%f2_formula//p%f1_file//p%f2_file) == 0) then
             ! numbers and built-in cases: the same objects, hence bit for bit the same runs
-            call make_problem(trim(p%exact), p%mu1, p%mu2, p%f1, p%f2, p%g, data, err)
+            call make_problem(p%exact, p%mu1, p%mu2, p%f1, p%f2, p%g, data, err)
             return
          end if
          call new_user_data(p%mu1, p%mu2, p%g, [p%f1, p%f2], [p%f1_formula, p%f2_formula], user, err)

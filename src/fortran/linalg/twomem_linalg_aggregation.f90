@@ -433,7 +433,7 @@ contains
 
       type(comm_t) :: comm
       integer, allocatable :: owner_of_foreign(:), send_ptr(:), recv_ptr(:), owner(:), neighbours(:), ptr(:)
-      integer, allocatable :: reach_ptr(:), reach_rank(:), sharer_ptr(:), sharers(:)
+      integer, allocatable :: reach_ptr(:), reach_rank(:)
       real(dp), allocatable :: send(:), recv(:)
       integer(ip), allocatable :: idx(:), order(:)
       logical, allocatable :: with(:, :)
