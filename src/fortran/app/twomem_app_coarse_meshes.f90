@@ -10,7 +10,10 @@
 !> triangulation (loads, tensions and boundary values as given), so each level is a sound
 !> approximation, unlike a Galerkin coarse space of aggregation, whose solution misses a fixed
 !> share of the deflection at every mesh size. Only Newton's path changes: the solution is the
-!> given mesh's. One rank: a distributed mesh starts from the paper's guess.
+!> given mesh's. A distributed mesh is gathered whole on every rank, and every rank makes the
+!> same coarse meshes and solves the same coarse problems on its own (one rank each, the same
+!> operations in the same order), then takes the start at its own vertices: the coarse levels
+!> cost no communication and give every rank count the same start.
 module twomem_app_coarse_meshes
    use, intrinsic :: iso_fortran_env, only: output_unit
    use twomem_base_kinds, only: dp, ip
@@ -21,6 +24,8 @@ module twomem_app_coarse_meshes
    use twomem_base_text, only: fixed
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_mesh_coarsening, only: coarsen, vertex_interpolation_t
+   use twomem_mesh_partition, only: share_mesh
+   use twomem_io_gather, only: gather_plan_t
    use twomem_fem_problem, only: problem_data_t
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_linalg_multigrid, only: multigrid_transfer_t
@@ -59,9 +64,9 @@ contains
       x0 = [spread(p%g, 1, p%n), spread(0.0_dp, 1, 2*p%n)]
    end function cold_start
 
-   !> Newton's start x0 for problem p on `mesh`: by nested iteration over coarsened meshes when
-   !> the mesh is large enough and whole (one rank), else the paper's guess. `quiet` are the
-   !> options of the coarser levels' Newton. Collective.
+   !> Newton's start x0 for problem p on `mesh` (this rank's piece): by nested iteration over
+   !> coarsened meshes when the whole mesh is large enough, else the paper's guess. `quiet` are
+   !> the options of the coarser levels' Newton. Collective.
    subroutine coarsened_start(mesh, data, p, quiet, comm, x0, work, err)
       type(mesh_t), intent(in) :: mesh
       class(problem_data_t), intent(in) :: data
@@ -73,22 +78,50 @@ contains
       type(error_t), allocatable, intent(out) :: err
 
       type(coarse_level_t), allocatable :: levels(:)
+      type(mesh_t) :: whole
       real(dp), allocatable :: nodal(:, :)
+      integer(ip), allocatable :: at(:)
       integer :: j, m
 
       x0 = cold_start(p)
-      if (comm%size > 1 .or. mesh%nv <= 2*coarsest_vertices) return
-      call coarse_meshes(mesh, levels)
+      if (mesh%nv_global <= 2*coarsest_vertices) return
+      if (comm%size == 1) then
+         call coarse_meshes(mesh, levels)
+      else
+         call whole_mesh(comm, mesh, whole, err)
+         if (allocated(err)) return
+         call coarse_meshes(whole, levels)
+      end if
       m = size(levels)
       if (m == 0) return
       do j = m, 1, -1
-         call solve_level(levels, j, data, quiet, nodal, work, err)
+         call solve_level(levels, j, data, quiet, comm%is_root(), nodal, work, err)
          if (allocated(err)) return
       end do
-      ! the given mesh's start from the finest coarse level's solution
-      x0 = [nodal(p%interior, 1), nodal(p%interior, 2), nodal(p%interior, 3)]
+      ! the given mesh's start from the finest coarse level's solution, at this rank's vertices
+      at = mesh%global_vertex_of(p%interior)
+      x0 = [nodal(at, 1), nodal(at, 2), nodal(at, 3)]
       call settle_contact(p, x0)
    end subroutine coarsened_start
+
+   !> The whole mesh of which `piece` is this rank's, on every rank. Collective.
+   subroutine whole_mesh(comm, piece, whole, err)
+      type(comm_t), intent(in) :: comm
+      type(mesh_t), intent(in) :: piece
+      type(mesh_t), intent(inout) :: whole
+      type(error_t), allocatable, intent(out) :: err
+
+      type(gather_plan_t) :: plan
+      real(dp), allocatable :: vertices(:, :)
+      integer(ip), allocatable :: triangles(:, :)
+
+      call plan%init(comm, piece)
+      call plan%mesh_arrays(piece, vertices, triangles)
+      if (comm%is_root()) call whole%init(vertices, triangles, 'the gathered mesh', err, diameter=piece%diameter)
+      call comm%agree(err)
+      if (allocated(err)) return
+      call share_mesh(comm, whole, 'the gathered mesh', err)
+   end subroutine whole_mesh
 
    !> levels(1..m): each a coarsening of the one before (levels(1) of `mesh`), down to about
    !> coarsest_vertices; none if the mesh does not coarsen (a coarsening that fails, which its
@@ -126,11 +159,12 @@ contains
    !> Newton on coarse level j from the interpolated solution of level j+1 (from the paper's
    !> guess on the coarsest), then its nodal fields u1, u2, λ interpolated to the next finer
    !> mesh, replacing `nodal`.
-   subroutine solve_level(levels, j, data, quiet, nodal, work, err)
+   subroutine solve_level(levels, j, data, quiet, report, nodal, work, err)
       type(coarse_level_t), intent(in) :: levels(:)
       integer, intent(in) :: j
       class(problem_data_t), intent(in) :: data
       type(newton_options_t), intent(in) :: quiet
+      logical, intent(in) :: report
       real(dp), allocatable, intent(inout) :: nodal(:, :)
       type(coarse_work_t), intent(inout) :: work
       type(error_t), allocatable, intent(out) :: err
@@ -157,7 +191,7 @@ contains
       if (allocated(err)) return
       work%newton_iterations = work%newton_iterations + step%iterations
       work%gmres_iterations = work%gmres_iterations + step%linear_iterations
-      write (output_unit, '("nested: coarsened mesh ",i2," (",i0," vertices): ",i4," Newton steps, ",i6,&
+      if (report) write (output_unit, '("nested: coarsened mesh ",i2," (",i0," vertices): ",i4," Newton steps, ",i6,&
          &" GMRES iterations (",a,"), ",a," s")') j, levels(j)%mesh%nv, step%iterations, step%linear_iterations, &
          step%status, fixed(wall_time() - t0, 2)
       allocate (u(levels(j)%mesh%nv, 3))
