@@ -1,0 +1,392 @@
+!> The generic path of the vertex-patch problems (twomem_estimate_patch): every patch assembled,
+!> factorized, solved for both membranes and discarded, its triangles' operators computed from
+!> their vertices (twomem_estimate_triangle_ops), so that nothing is stored per triangle, per
+!> shape class or per patch. A patch loop hands over one block of neighbouring patches at a
+!> time (twomem_estimate_coloring): `gather` lists the block's distinct triangles and computes
+!> each one's operators once into thread-private slots (a triangle lies in three patches, mostly
+!> of the same block), and `solve` then solves the block's patches one by one from those slots.
+!> The hybridized solve is that of the general path, with the operators at the triangle's own
+!> size (no ratio) and the flux datum σ_0 = ψ_i c entering through z Φ_iᵀ: each triangle's
+!> particular solution σ_K = y G + z Φ_iᵀ c and its traces C σ_K, the zero-flux edge's rows
+!> eliminated by their n_trace × n_trace Schur complement, the inner multipliers' SPD system
+!> by Cholesky (its first multiplier pinned when no edge is free), then σ_K − z Cᵀ S μ. The
+!> work arrays grow to the largest patch seen and are kept by the caller's scratch.
+module twomem_estimate_generic_patch
+   use twomem_base_kinds, only: dp, ip, i8
+   use twomem_mesh_triangulation, only: mesh_t
+   use twomem_estimate_raviart_thomas, only: rt_space_t
+   use twomem_estimate_patch, only: chol_factor, chol_solve, edge_free, edge_neumann
+   use twomem_estimate_triangle_ops, only: triangle_ops_t
+   implicit none
+   private
+
+   public :: generic_scratch_t, solve_generic
+
+   !> One thread's scratch: the operators of a block's triangles, where each patch's triangles
+   !> sit among them, and the work arrays of a patch solve.
+   type :: generic_scratch_t
+      !> the block's distinct triangles (ascending); ops slot k is triangles(k)
+      integer(ip), allocatable :: triangles(:)
+      integer :: n = 0
+      type(triangle_ops_t) :: ops
+      !> patch p of the gathered list (in the order given) has its triangles, in its patch list's
+      !> order, in slots(first(p):first(p+1)−1); `table`: the hash table that finds them
+      integer, allocatable :: first(:), slots(:), table(:)
+      !> work arrays of solve_generic: the multiplier matrix (n_theta², column by column), its
+      !> right-hand sides (n_theta, 2), per patch triangle its particular solution, traces and
+      !> zero-flux block's inverse
+      real(dp), allocatable :: h(:), b(:, :), part(:, :, :), c_sigma(:, :, :), inv_n(:, :, :)
+   contains
+      procedure :: gather
+      procedure :: ensure
+      procedure :: free
+   end type generic_scratch_t
+
+contains
+
+   !> The operators of every triangle of the patches of `vertices` of `mesh` (whole patches:
+   !> vertices of the rank's own triangles), each computed once, in the order the patches first
+   !> meet them. ok is .false. if one is degenerate.
+   subroutine gather(self, space, mesh, vertices, ok)
+      class(generic_scratch_t), intent(inout) :: self
+      type(rt_space_t), intent(in) :: space
+      type(mesh_t), intent(in) :: mesh
+      integer(ip), intent(in) :: vertices(:)
+      logical, intent(out) :: ok
+
+      integer :: p, n_entries, k, s, i, n_slots, slot
+      integer(ip) :: a, t
+      real(dp) :: v(2, 3)
+      logical :: one_ok
+
+      n_entries = 0
+      do p = 1, size(vertices)
+         a = vertices(p)
+         n_entries = n_entries + int(mesh%patch_ptr(a + 1) - mesh%patch_ptr(a))
+      end do
+      call grow(self%first, size(vertices) + 1)
+      call grow(self%slots, n_entries)
+      ! the distinct triangles by open addressing on their numbers (a power-of-two table at most
+      ! half full: the slot from the number's low bits, then the next free one)
+      n_slots = 64
+      do while (n_slots < 2*n_entries)
+         n_slots = 2*n_slots
+      end do
+      call grow(self%table, n_slots)
+      self%table(1:n_slots) = 0
+      if (allocated(self%triangles)) then
+         if (size(self%triangles) < n_entries) deallocate (self%triangles)
+      end if
+      if (.not. allocated(self%triangles)) allocate (self%triangles(n_entries))
+      s = 0
+      k = 0
+      do p = 1, size(vertices)
+         a = vertices(p)
+         self%first(p) = k + 1
+         do i = int(mesh%patch_ptr(a)), int(mesh%patch_ptr(a + 1) - 1)
+            t = mesh%patch_triangles(i)
+            slot = int(iand(int(t, i8)*2654435761_i8, int(n_slots - 1, i8))) + 1
+            do
+               if (self%table(slot) == 0) then
+                  s = s + 1
+                  self%triangles(s) = t
+                  self%table(slot) = s
+                  exit
+               end if
+               if (self%triangles(self%table(slot)) == t) exit
+               slot = iand(slot, n_slots - 1) + 1
+            end do
+            k = k + 1
+            self%slots(k) = self%table(slot)
+         end do
+      end do
+      self%first(size(vertices) + 1) = k + 1
+      self%n = s
+      call self%ops%reserve(space, s)
+      ok = .true.
+      do s = 1, self%n
+         t = self%triangles(s)
+         do i = 1, 3
+            v(:, i) = mesh%vertices(:, mesh%triangles(i, t))
+         end do
+         call self%ops%compute(space, s, v, one_ok)
+         ok = ok .and. one_ok
+      end do
+   end subroutine gather
+
+   !> An integer array of at least n entries (kept when it has them).
+   pure subroutine grow(x, n)
+      integer, allocatable, intent(inout) :: x(:)
+      integer, intent(in) :: n
+
+      if (allocated(x)) then
+         if (size(x) >= n) return
+         deallocate (x)
+      end if
+      allocate (x(n))
+   end subroutine grow
+
+   !> Work arrays for a patch of ne triangles and n_theta multipliers.
+   pure subroutine ensure(self, space, ne, n_theta)
+      class(generic_scratch_t), intent(inout) :: self
+      type(rt_space_t), intent(in) :: space
+      integer, intent(in) :: ne, n_theta
+
+      integer :: nc
+
+      nc = 3*space%n_trace
+      if (allocated(self%h)) then
+         if (size(self%b, 1) < n_theta .or. size(self%part, 2) < ne .or. size(self%part, 1) /= space%n_flux) &
+            deallocate (self%h, self%b, self%part, self%c_sigma, self%inv_n)
+      end if
+      ! room for a little more than asked: the next patches are about as large
+      if (.not. allocated(self%h)) allocate (self%h(max(n_theta + 8, 1)**2), self%b(max(n_theta + 8, 1), 2), &
+                                             self%part(space%n_flux, ne + 4, 2), self%c_sigma(nc, 2, ne + 4), &
+                                             self%inv_n(space%n_trace, space%n_trace, ne + 4))
+   end subroutine ensure
+
+   subroutine free(self)
+      class(generic_scratch_t), intent(inout) :: self
+
+      if (allocated(self%triangles)) deallocate (self%triangles)
+      if (allocated(self%first)) deallocate (self%first)
+      if (allocated(self%slots)) deallocate (self%slots)
+      if (allocated(self%table)) deallocate (self%table)
+      if (allocated(self%h)) deallocate (self%h, self%b, self%part, self%c_sigma, self%inv_n)
+      if (allocated(self%ops%y)) deallocate (self%ops%y, self%ops%zc, self%ops%czc, self%ops%trace, self%ops%z_phi, &
+                                             self%ops%psi_q, self%ops%bary_psi_q, self%ops%q_int)
+      self%ops%capacity = 0
+      self%n = 0
+   end subroutine free
+
+   !> One patch from the gathered operators: patch triangle k is slot slots(k), its patch vertex
+   !> is its local vertex corner(k), signs(:, k) = ±1 turn its local trace rows into the mesh's
+   !> orientation, links(m, k) as in solve_patch (inner edge > 0, edge_free, edge_neumann). For
+   !> both membranes r: fgrad(:, k, r) the constant c of the flux datum ψ_a c (read when
+   !> flux_data), rhs_div(:, k, r) the divergence moments; sigma(:, k, r) returns σ on triangle k.
+   !> ok is .false. if the multiplier system is singular. Written with explicit loops over the
+   !> rows (no array sections with vector subscripts: each would be a temporary per use), the
+   !> multiplier matrix in a contiguous buffer that the Cholesky kernels take as it is.
+   pure subroutine solve_generic(space, scratch, slots, corner, links, signs, fgrad, rhs_div, flux_data, sigma, ok)
+      type(rt_space_t), intent(in) :: space
+      type(generic_scratch_t), intent(inout) :: scratch
+      integer, intent(in) :: slots(:), corner(:), links(:, :)
+      real(dp), intent(in) :: signs(:, :), fgrad(:, :, :), rhs_div(:, :, :)
+      logical, intent(in) :: flux_data
+      real(dp), intent(out) :: sigma(:, :, :)
+      logical, intent(out) :: ok
+
+      integer, parameter :: mc = 6, mt = 2
+      integer :: nt, nf, nd, nc, ne, n, k, s, r, i, j, q, nn, ni, l, m, c0
+      integer :: rows_n(mt), rows_i(mc), glob(mc)
+      real(dp) :: czc(mc, mc), sg(mc), acc, x(mt, mc + 2), mu(mc, 2), part(8, 2)
+
+      nt = space%n_trace
+      nf = space%n_flux
+      nd = space%n_div
+      nc = 3*nt
+      ne = size(slots)
+      n = nt*max(0, maxval(links))
+      call scratch%ensure(space, ne, n)
+      associate (ops => scratch%ops, h => scratch%h, b => scratch%b, c_sigma => scratch%c_sigma, inv_n => scratch%inv_n)
+         h(1:n*n) = 0.0_dp
+         b(1:n, :) = 0.0_dp
+         ok = .true.
+         do k = 1, ne
+            s = slots(k)
+            do i = 1, nc
+               sg(i) = signs(i, k)
+            end do
+            ! the triangle alone: σ = y G + z Φ_iᵀ c, its traces S C σ
+            do r = 1, 2
+               do i = 1, nf
+                  acc = 0.0_dp
+                  do q = 1, nd
+                     acc = acc + ops%y(i, q, s)*rhs_div(q, k, r)
+                  end do
+                  if (flux_data) acc = acc + ops%z_phi(i, 1, corner(k), s)*fgrad(1, k, r) &
+                                       + ops%z_phi(i, 2, corner(k), s)*fgrad(2, k, r)
+                  part(i, r) = acc
+                  scratch%part(i, k, r) = acc
+               end do
+            end do
+            do i = 1, nc
+               acc = 0.0_dp
+               do q = 1, nf
+                  acc = acc + ops%trace(i, q, s)*part(q, 1)
+               end do
+               c_sigma(i, 1, k) = sg(i)*acc
+               acc = 0.0_dp
+               do q = 1, nf
+                  acc = acc + ops%trace(i, q, s)*part(q, 2)
+               end do
+               c_sigma(i, 2, k) = sg(i)*acc
+            end do
+            do j = 1, nc
+               do i = 1, nc
+                  czc(i, j) = sg(i)*sg(j)*ops%czc(i, j, s)
+               end do
+            end do
+            call split_rows(links(:, k), nt, nn, rows_n, ni, rows_i, glob)
+            if (nn > 0) then
+               ! zero flux through the patch boundary: the edge's rows by their Schur complement
+               call small_inverse(nt, czc, rows_n, inv_n(:, :, k), ok)
+               if (.not. ok) return
+               ! x = N⁻¹ [czc(n, inner) | S C σ(n)]
+               do j = 1, ni + 2
+                  do l = 1, nn
+                     acc = 0.0_dp
+                     do q = 1, nn
+                        if (j <= ni) then
+                           acc = acc + inv_n(l, q, k)*czc(rows_n(q), rows_i(j))
+                        else
+                           acc = acc + inv_n(l, q, k)*c_sigma(rows_n(q), j - ni, k)
+                        end if
+                     end do
+                     x(l, j) = acc
+                  end do
+               end do
+               do j = 1, ni
+                  c0 = (glob(j) - 1)*n
+                  do i = 1, ni
+                     acc = czc(rows_i(i), rows_i(j))
+                     do q = 1, nn
+                        acc = acc - czc(rows_i(i), rows_n(q))*x(q, j)
+                     end do
+                     h(c0 + glob(i)) = h(c0 + glob(i)) + acc
+                  end do
+               end do
+               do r = 1, 2
+                  do i = 1, ni
+                     acc = c_sigma(rows_i(i), r, k)
+                     do q = 1, nn
+                        acc = acc - czc(rows_i(i), rows_n(q))*x(q, ni + r)
+                     end do
+                     b(glob(i), r) = b(glob(i), r) + acc
+                  end do
+               end do
+            else
+               do j = 1, ni
+                  c0 = (glob(j) - 1)*n
+                  do i = 1, ni
+                     h(c0 + glob(i)) = h(c0 + glob(i)) + czc(rows_i(i), rows_i(j))
+                  end do
+               end do
+               do r = 1, 2
+                  do i = 1, ni
+                     b(glob(i), r) = b(glob(i), r) + c_sigma(rows_i(i), r, k)
+                  end do
+               end do
+            end if
+         end do
+         if (n > 0) then
+            if (.not. any(links == edge_free)) then
+               ! only zero-flux boundary: θ is defined up to a constant, pin the first multiplier
+               do i = 1, n
+                  h(i) = 0.0_dp
+                  h((i - 1)*n + 1) = 0.0_dp
+               end do
+               h(1) = 1.0_dp
+               b(1, :) = 0.0_dp
+            end if
+            call chol_factor(n, h(1:n*n), ok)
+            if (.not. ok) return
+            call chol_solve(n, h(1:n*n), 2, b(1:n, :))
+         end if
+         ! σ_K = particular − z Cᵀ S μ, μ: θ on inner rows, the solved zero-flux rows, 0 on free rows
+         do k = 1, ne
+            s = slots(k)
+            do i = 1, nc
+               sg(i) = signs(i, k)
+            end do
+            call split_rows(links(:, k), nt, nn, rows_n, ni, rows_i, glob)
+            mu(1:nc, :) = 0.0_dp
+            do i = 1, ni
+               mu(rows_i(i), :) = b(glob(i), :)
+            end do
+            if (nn > 0) then
+               do r = 1, 2
+                  do l = 1, nn
+                     acc = c_sigma(rows_n(l), r, k)
+                     do i = 1, ni
+                        acc = acc - sg(rows_n(l))*sg(rows_i(i))*ops%czc(rows_n(l), rows_i(i), s)*mu(rows_i(i), r)
+                     end do
+                     x(l, r) = acc
+                  end do
+                  do l = 1, nn
+                     acc = 0.0_dp
+                     do q = 1, nn
+                        acc = acc + inv_n(l, q, k)*x(q, r)
+                     end do
+                     mu(rows_n(l), r) = acc
+                  end do
+               end do
+            end if
+            do r = 1, 2
+               do m = 1, nc
+                  mu(m, r) = sg(m)*mu(m, r)
+               end do
+               do i = 1, nf
+                  acc = scratch%part(i, k, r)
+                  do m = 1, nc
+                     acc = acc - ops%zc(i, m, s)*mu(m, r)
+                  end do
+                  sigma(i, k, r) = acc
+               end do
+            end do
+         end do
+      end associate
+   end subroutine solve_generic
+
+   !> The trace rows of one patch triangle: nn on its zero-flux edge, ni on inner edges with
+   !> their patch multipliers glob.
+   pure subroutine split_rows(links, nt, nn, rows_n, ni, rows_i, glob)
+      integer, intent(in) :: links(3), nt
+      integer, intent(out) :: nn, rows_n(:), ni, rows_i(:), glob(:)
+
+      integer :: m, l
+
+      nn = 0
+      ni = 0
+      do m = 1, 3
+         do l = 1, nt
+            if (links(m) == edge_neumann) then
+               nn = nn + 1
+               rows_n(nn) = (m - 1)*nt + l
+            else if (links(m) > 0) then
+               ni = ni + 1
+               rows_i(ni) = (m - 1)*nt + l
+               glob(ni) = (links(m) - 1)*nt + l
+            end if
+         end do
+      end do
+   end subroutine split_rows
+
+   !> inv = the inverse of a(rows, rows) for n = 1 or 2 rows (the zero-flux edge's block: SPD).
+   pure subroutine small_inverse(n, a, rows, inv, ok)
+      integer, intent(in) :: n, rows(:)
+      real(dp), intent(in) :: a(:, :)
+      real(dp), intent(out) :: inv(:, :)
+      logical, intent(out) :: ok
+
+      real(dp) :: det, a11, a12, a21, a22
+
+      if (n == 1) then
+         a11 = a(rows(1), rows(1))
+         ok = a11 > 0.0_dp
+         if (ok) inv(1, 1) = 1/a11
+         return
+      end if
+      a11 = a(rows(1), rows(1))
+      a12 = a(rows(1), rows(2))
+      a21 = a(rows(2), rows(1))
+      a22 = a(rows(2), rows(2))
+      det = a11*a22 - a12*a21
+      ok = det > 0.0_dp .and. a11 > 0.0_dp
+      if (.not. ok) return
+      inv(1, 1) = a22/det
+      inv(2, 2) = a11/det
+      inv(1, 2) = -a12/det
+      inv(2, 1) = -a21/det
+   end subroutine small_inverse
+end module twomem_estimate_generic_patch
