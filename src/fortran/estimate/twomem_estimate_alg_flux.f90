@@ -44,6 +44,12 @@ module twomem_estimate_alg_flux
    use twomem_estimate_patch_factor, only: solve_condensed_factored
    use twomem_estimate_patch_classes, only: patch_table_t, stored_order, edge_signs
    use twomem_estimate_evaluated_iterate, only: evaluated_iterate_t, lifting_on
+   use twomem_estimate_generic_patch, only: generic_scratch_t
+   use twomem_estimate_alg_single, only: single_mesh_patches
+   use twomem_estimate_riesz, only: riesz_representer_t
+   use twomem_estimate_ghosts, only: ghost_cells_t
+   use twomem_linalg_halo, only: halo_t
+   use twomem_linalg_operators, only: preconditioner_t
    implicit none
    private
 
@@ -91,6 +97,11 @@ module twomem_estimate_alg_flux
       !> coarse right-hand side and solution, ρ_α at the vertices of T_b
       type(vector_t), allocatable :: restricted(:)
       real(dp), allocatable :: coarse_rhs(:), rho(:), nodal(:)
+      !> the one-level construction (b = J without a coarse solve: twomem_estimate_riesz), and
+      !> what it needs: h_Ω C_PF, the tensions, the flux order
+      logical :: one_level = .false.
+      type(riesz_representer_t) :: riesz
+      real(dp) :: poincare = 1.0_dp, mu(2) = 1.0_dp
    contains
       procedure :: init
       procedure :: take_residual
@@ -104,13 +115,20 @@ contains
 
    !> Use the last `n_meshes` meshes of the hierarchy (all when fewer); factorize the coarse
    !> Laplacian, colour the patch meshes (the level parts are allocated by the first `compute`).
-   !> With `comm`, the hierarchy is this rank's piece of a distributed one (collective).
-   subroutine init(self, space, hierarchy, data, n_meshes, err, comm)
+   !> Without `classes` (the hierarchy stores no shape classes, which the refined levels' patches
+   !> read) a single mesh. When the coarse problem would have more than `exact_max` unknowns over
+   !> all ranks, the one-level construction replaces it on the finest mesh (twomem_estimate_riesz,
+   !> with poincare = h_Ω C_PF). With `comm`, the hierarchy is this rank's piece of a distributed
+   !> one (collective).
+   subroutine init(self, space, hierarchy, data, n_meshes, classes, exact_max, poincare, err, comm)
       class(algebraic_flux_t), intent(out) :: self
       type(rt_space_t), intent(in) :: space
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       class(problem_data_t), intent(in) :: data
       integer, intent(in) :: n_meshes
+      logical, intent(in) :: classes
+      integer(ip), intent(in) :: exact_max
+      real(dp), intent(in) :: poincare
       type(error_t), allocatable, intent(out) :: err
       type(comm_t), intent(in), optional :: comm
 
@@ -121,9 +139,16 @@ contains
 
       if (present(comm)) self%comm = comm
       self%space = space
+      self%poincare = poincare
+      self%mu = [data%mu1, data%mu2]
       self%finest = hierarchy%levels
       ! a mesh without interior vertices has no coarse problem (its ρ_α would be zero)
       self%base = max(0, self%finest - n_meshes + 1, hierarchy%first_with_unknowns(self%comm))
+      if (.not. classes) self%base = self%finest
+      if (unknowns(hierarchy%meshes(self%base), self%comm) > exact_max) then
+         self%one_level = .true.
+         self%base = self%finest
+      end if
       first = self%first()
       allocate (self%colors(first:self%finest), self%levels(self%finest - first + 1), self%p2(first:self%finest))
       do j = first, self%finest
@@ -131,6 +156,8 @@ contains
          call self%colors(j)%init(hierarchy%meshes(merge(j, j - 1, j == self%base)))
          self%levels(j - first + 1)%level = j
       end do
+      ! the one-level construction solves on the finest problem the caller passes to `compute`
+      if (self%one_level) return
       allocate (self%grad_rho(2, hierarchy%meshes(self%base)%nt, 2))
       associate (base_mesh => hierarchy%meshes(self%base), fine_mesh => hierarchy%meshes(self%finest))
          call self%coarse%init(base_mesh, data, err, self%comm)
@@ -168,25 +195,60 @@ contains
       call self%coarse_solver%factor(self%coarse%stiffness, err)
    end subroutine init
 
+   !> The unknowns (interior vertices) of `mesh` over all ranks, each counted by its owner.
+   integer(ip) function unknowns(mesh, comm) result(n)
+      type(mesh_t), intent(in) :: mesh
+      type(comm_t), intent(in) :: comm
+
+      integer(ip) :: a
+
+      n = 0
+      do a = 1, mesh%nv
+         if (.not. mesh%boundary_vertex(a) .and. mesh%vertex_owner_of(a) == comm%rank) n = n + 1
+      end do
+      n = nint(comm%sum(real(n, dp)), ip)
+   end function unknowns
+
    !> self%levels returns σ_alg level by level (levels b+1..J, or J alone with a single mesh)
    !> for the evaluated iterate: from its nodal algebraic residuals, zero at boundary vertices,
    !> and their lifting r on T_J. The patches use the factors of their signatures
    !> (twomem_estimate_patch_classes) in `single` (the finest mesh) and `refined` (the coarse
-   !> meshes of the refined levels); with tables that hold no signatures every patch is
-   !> assembled and factorized on its own.
-   subroutine compute(self, shapes, hierarchy, iterate, single, refined, err)
+   !> meshes of the refined levels); on the finest mesh, patches without a signature take the
+   !> generic path with the threads' `scratch`, on the refined levels they are assembled and
+   !> factorized on their own. The one-level construction solves on p (the finest problem, with
+   !> `halo` a copy of its halo and `ghosts` the ghost layer) with the preconditioner `precond`
+   !> of p's stiffness, or none.
+   subroutine compute(self, shapes, hierarchy, iterate, single, refined, scratch, p, halo, ghosts, err, precond)
       class(algebraic_flux_t), intent(inout) :: self
       type(shape_classes_t), intent(in) :: shapes
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       type(evaluated_iterate_t), intent(in) :: iterate
       type(patch_table_t), intent(in) :: single, refined
+      type(generic_scratch_t), intent(inout) :: scratch(0:)
+      type(discrete_problem_t), intent(in) :: p
+      type(halo_t), intent(inout) :: halo
+      type(ghost_cells_t), intent(in) :: ghosts
       type(error_t), allocatable, intent(out) :: err
+      class(preconditioner_t), intent(inout), optional :: precond
 
       integer :: j, first
       logical :: ok
+      real(dp) :: none(0, 0, 0)
 
       if (.not. self%has_residual) then
          call make_error(err, exit_io, 'algebraic flux', 'internal: compute before take_residual')
+         return
+      end if
+      if (self%one_level) then
+         associate (mesh => hierarchy%meshes(self%finest), lev => self%levels(1))
+            call self%riesz%solve(mesh, self%finest, p, halo, ghosts, self%top, self%poincare, self%mu, &
+                                  self%space%order, err, precond)
+            if (allocated(err)) return
+            if (.not. allocated(lev%sigma)) allocate (lev%sigma(self%space%n_flux, mesh%nt, 2))
+            call single_mesh_patches(self%space, shapes, single, mesh, self%finest, self%colors(self%finest), scratch, &
+                                     self%riesz%rho, .true., none, lev%sigma, ok)
+         end associate
+         if (.not. ok) call make_error(err, exit_io, 'algebraic flux', 'a patch system is singular (degenerate triangles?)')
          return
       end if
       call coarse_representer(self, hierarchy, err)
@@ -206,16 +268,14 @@ contains
          associate (lev => self%levels(j - first + 1))
             if (j == self%base) then
                ! a single mesh: patches and triangles of T_J
-               call level_patches(self%space, shapes, single, hierarchy%meshes(j), hierarchy%meshes(j), j, self%colors(j), &
-                                  .true., self%grad_rho, self%p2(j), self%p2(j), iterate, lev%sigma, ok, .false.)
+               call single_mesh_patches(self%space, shapes, single, hierarchy%meshes(j), j, self%colors(j), scratch, iterate, &
+                                        .false., self%grad_rho, lev%sigma, ok)
             else if (j == first) then
                call level_patches(self%space, shapes, refined, hierarchy%meshes(j - 1), hierarchy%meshes(j), j, &
-                                  self%colors(j), .true., self%grad_rho, self%p2(j), self%p2(j), iterate, lev%sigma, ok, &
-                                  .true.)
+                                  self%colors(j), .true., self%grad_rho, self%p2(j), self%p2(j), iterate, lev%sigma, ok)
             else
                call level_patches(self%space, shapes, refined, hierarchy%meshes(j - 1), hierarchy%meshes(j), j, &
-                                  self%colors(j), .false., self%grad_rho, self%p2(j - 1), self%p2(j), iterate, lev%sigma, ok, &
-                                  .true.)
+                                  self%colors(j), .false., self%grad_rho, self%p2(j - 1), self%p2(j), iterate, lev%sigma, ok)
             end if
          end associate
          if (.not. ok) then
@@ -243,6 +303,7 @@ contains
             if (allocated(self%p2(j)%c)) deallocate (self%p2(j)%c)
          end do
       end if
+      call self%riesz%free()
    end subroutine free_levels
 
    !> After the last `compute`: what only a computation reads goes (the coarse factorization, the
@@ -264,6 +325,7 @@ contains
       self%has_residual = .false.
       if (allocated(self%colors)) deallocate (self%colors)
       if (allocated(self%grad_rho)) deallocate (self%grad_rho)
+      call self%riesz%free()
    end subroutine drop_solvers
 
    !> The first level with patch problems: b + 1, or J for a single mesh.
@@ -278,18 +340,26 @@ contains
    !> restriction to T_{J−1} (the transpose of prolongation; each finest vertex counted on the
    !> rank that owns it, so the coarser sums are parts over the ranks), or their values at the
    !> unknowns of T_J for a single mesh. A later `compute` is for this iterate.
-   subroutine take_residual(self, hierarchy, residual)
+   subroutine take_residual(self, hierarchy, residual, interior)
       class(algebraic_flux_t), intent(inout) :: self
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       real(dp), intent(in) :: residual(:, :)
+      !> the finest problem's unknowns (their vertices)
+      integer(ip), intent(in) :: interior(:)
 
       integer :: alpha
       integer(ip) :: v, i
 
+      if (self%one_level .and. .not. allocated(self%top)) allocate (self%top(size(interior), 2))
       ! one membrane per thread: each sums into its own column, in the same order as alone
-      !$omp parallel do default(none) shared(self, hierarchy, residual) private(alpha, v, i) schedule(static, 1)
+      !$omp parallel do default(none) shared(self, hierarchy, residual, interior) private(alpha, v, i) schedule(static, 1)
       do alpha = 1, 2
-         if (self%base == self%finest) then
+         if (self%one_level) then
+            do i = 1, size(interior, kind=ip)
+               self%top(i, alpha) = residual(interior(i), alpha)
+            end do
+            cycle
+         else if (self%base == self%finest) then
             do i = 1, self%coarse%n
                self%top(i, alpha) = residual(self%coarse%interior(i), alpha)
             end do
@@ -413,12 +483,12 @@ contains
       end do
    end subroutine project_p2
 
-   !> The patch problems of one level: patches of the vertices of `coarse` (coloured by
-   !> `colors`), triangles of `fine`, level `level` of the hierarchy (its red refinement if
-   !> `refined`, else the same mesh). `first`: the data are r ψ_a − ∇ρ·∇ψ_a (grad_rho on the
-   !> coarse triangles), otherwise (I − Π_coarse)(r ψ_a).
+   !> The patch problems of one refined level: patches of the vertices of `coarse` (coloured by
+   !> `colors`), triangles of `fine`, its red refinement, level `level` of the hierarchy.
+   !> `first`: the data are r ψ_a − ∇ρ·∇ψ_a (grad_rho on the coarse triangles), otherwise
+   !> (I − Π_coarse)(r ψ_a).
    subroutine level_patches(space, shapes, table, coarse, fine, level, colors, first, grad_rho, p2_coarse, p2_fine, &
-                            iterate, sigma, ok, refined)
+                            iterate, sigma, ok)
       type(rt_space_t), intent(in) :: space
       type(shape_classes_t), intent(in) :: shapes
       type(patch_table_t), intent(in) :: table
@@ -432,7 +502,6 @@ contains
       type(evaluated_iterate_t), intent(in) :: iterate
       real(dp), intent(inout) :: sigma(:, :, :)
       logical, intent(out) :: ok
-      logical, intent(in) :: refined
 
       integer(ip) :: a, ib, m
       integer :: c
@@ -441,7 +510,6 @@ contains
       ok = .true.
       !$omp parallel default(none) &
       !$omp shared(space, shapes, table, coarse, fine, level, colors, first, grad_rho, p2_coarse, p2_fine, iterate, sigma) &
-      !$omp shared(refined) &
       !$omp private(a, ib, m, c, patch_ok) reduction(.and.:ok)
       !$omp workshare
       sigma = 0.0_dp
@@ -451,13 +519,8 @@ contains
          do ib = colors%ptr(c), colors%ptr(c + 1) - 1
             do m = colors%block_ptr(ib), colors%block_ptr(ib + 1) - 1
                a = colors%vertices(m)
-               if (refined) then
-                  call coarse_patch(space, shapes, table, coarse, fine, level, a, 4, first, grad_rho, p2_coarse, p2_fine, &
-                                    iterate, sigma, patch_ok)
-               else
-                  call coarse_patch(space, shapes, table, coarse, fine, level, a, 1, first, grad_rho, p2_coarse, p2_fine, &
-                                    iterate, sigma, patch_ok)
-               end if
+               call coarse_patch(space, shapes, table, coarse, fine, level, a, first, grad_rho, p2_coarse, p2_fine, &
+                                 iterate, sigma, patch_ok)
                ok = ok .and. patch_ok
             end do
          end do
@@ -467,8 +530,8 @@ contains
    end subroutine level_patches
 
    !> One patch of level_patches: with its signature in `table` (triangles in the signature's
-   !> order, its edges and factor), or the general way for a patch without one.
-   subroutine coarse_patch(space, shapes, table, coarse, fine, level, a, n_children, first, grad_rho, p2_coarse, p2_fine, &
+   !> order, its edges and factor), or assembled and factorized on its own without one.
+   subroutine coarse_patch(space, shapes, table, coarse, fine, level, a, first, grad_rho, p2_coarse, p2_fine, &
                            iterate, sigma, ok)
       type(rt_space_t), intent(in) :: space
       type(shape_classes_t), intent(in) :: shapes
@@ -476,7 +539,6 @@ contains
       type(mesh_t), intent(in) :: coarse, fine
       integer, intent(in) :: level
       integer(ip), intent(in) :: a
-      integer, intent(in) :: n_children
       logical, intent(in) :: first
       real(dp), intent(in) :: grad_rho(:, :, :)
       type(p2_field_t), intent(in) :: p2_coarse, p2_fine
@@ -485,7 +547,7 @@ contains
       real(dp), intent(inout) :: sigma(:, :, :)
       logical, intent(out) :: ok
 
-      integer, parameter :: max_inner_per_triangle = 9
+      integer, parameter :: max_inner_per_triangle = 9, n_children = 4
       integer :: n_coarse, ne, k, kc, c, m, i, alpha, local_a, n_inner, n_blocks
       integer(ip) :: t, child, e, v(3), children(n_children*(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a)))
       integer(ip) :: inner(max_inner_per_triangle*(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a)))
@@ -501,7 +563,7 @@ contains
       ne = 0
       n_inner = 0
       n_blocks = 0
-      coarse_level = merge(level - 1, level, n_children == 4)
+      coarse_level = level - 1
       ratio_level = 2.0_dp**level
       id = 0
       if (allocated(table%levels)) id = table%levels(coarse_level)%id(a)
@@ -510,7 +572,7 @@ contains
       else
          order = coarse%patch_triangles(coarse%patch_ptr(a):coarse%patch_ptr(a + 1) - 1)
       end if
-      if (n_children == 4 .and. id == 0) then
+      if (id == 0) then
          ! the inner edges of each coarse triangle (its middle child's edges) first, one block each
          n_blocks = n_coarse
          do kc = 1, n_coarse
@@ -542,7 +604,7 @@ contains
          end if
          do c = 1, n_children
             ne = ne + 1
-            child = merge(4*(t - 1) + c, t, n_children == 4)
+            child = 4*(t - 1) + c
             children(ne) = child
             if (id > 0) then
                ! the signature holds the classes and the relative trace signs
@@ -556,24 +618,16 @@ contains
             do m = 1, 3
                if (id > 0) exit
                e = fine%triangle_edges(m, child)
-               call link_edge(fine%boundary_edge(e), on_opposite_edge(n_children == 4, local_a, c, m), &
+               call link_edge(fine%boundary_edge(e), on_opposite_edge(.true., local_a, c, m), &
                               coarse%boundary_vertex(a), e, inner, n_inner, links(m, ne))
             end do
             ! the moments of r ψ_a on the child (r linear on T_J, P2 in the child's monomials
             ! above) and of the smooth part (∇ρ·∇ψ_a constant, or Π_coarse(r ψ_a) in t's q_l): the
-            ! tables of t's class for local vertex a and child c, or of the child's own class
-            ! when it is t itself, scaled by the child's area, are exact; no geometry is needed
+            ! tables of t's class for local vertex a and child c, scaled by the child's area, are
+            ! exact; no geometry is needed
             area_factor = 1/ratios(ne)**2
             rhs_div(:, ne, :) = 0.0_dp
-            if (n_children == 1) then
-               if (allocated(p2_fine%c)) then
-                  call add_moments(space%n_div, n_p2, shapes%mono_psi_q(:, :, local_a, cls), area_factor, &
-                                   p2_fine%c(:, child, :), rhs_div(:, ne, :))
-               else
-                  call lifting_on(iterate, fine, child, r)
-                  call add_moments(space%n_div, 3, shapes%bary_psi_q(:, :, local_a, cls), area_factor, r, rhs_div(:, ne, :))
-               end if
-            else if (allocated(p2_fine%c)) then
+            if (allocated(p2_fine%c)) then
                call add_moments(space%n_div, n_p2, shapes%child_mono_psi_q(:, :, local_a, c, cls), area_factor, &
                                 p2_fine%c(:, child, :), rhs_div(:, ne, :))
             else

@@ -44,6 +44,10 @@ module twomem_estimate_estimators
    use twomem_estimate_patch_classes, only: patch_table_t
    use twomem_estimate_iterate_parts, only: iterate_parts, iterate_sums, nonconformity
    use twomem_estimate_estimates, only: estimates_t
+   use twomem_estimate_generic_patch, only: generic_scratch_t
+   use twomem_estimate_triangle_ops, only: rt_mass_matrix
+   use twomem_linalg_operators, only: preconditioner_t
+   use omp_lib, only: omp_get_max_threads
    implicit none
    private
 
@@ -52,12 +56,18 @@ module twomem_estimate_estimators
    real(dp), parameter :: pi = acos(-1.0_dp)
    !> the sums of the element pass: see element_estimators
    integer, parameter :: n_sums = 9
+   !> the algebraic flux's coarse problem is solved exactly (factorized once) up to this many
+   !> unknowns; above, the one-level construction replaces it (docs/input.md, estimate.alg_levels)
+   integer(ip), parameter, public :: exact_coarse_max = 65536_ip
 
    type :: estimator_t
       type(rt_space_t) :: space
       type(algebraic_flux_t) :: alg
-      !> the triangle operators of every level, per shape class
+      !> the triangle operators of every level, per shape class, when the hierarchy stores them
+      !> (`classes`); otherwise every patch takes the generic path, with the threads' scratch
       type(shape_classes_t) :: shapes
+      logical :: classes = .false.
+      type(generic_scratch_t), allocatable :: scratch(:)
       !> the signatures of the vertices' patches: on the finest mesh's own triangles
       !> (discretization flux, single-mesh algebraic flux) and on refined coarse triangles
       type(patch_table_t) :: single, refined
@@ -114,8 +124,10 @@ contains
 
    !> flux_order 0 or 1; alg_meshes: how many of the finest meshes the algebraic flux uses;
    !> poincare: h_Ω C_PF. With `comm`, the hierarchy is this rank's piece of a distributed one
-   !> (collective; every rank returns the same error).
-   subroutine init(self, hierarchy, data, flux_order, alg_meshes, poincare, err, comm)
+   !> (collective; every rank returns the same error). `classes` and `exact_max` override the
+   !> choices of the stored shape classes (store_classes) and of the algebraic flux's exact
+   !> coarse solve (exact_coarse_max), for tests that compare the paths.
+   subroutine init(self, hierarchy, data, flux_order, alg_meshes, poincare, err, comm, classes, exact_max)
       class(estimator_t), intent(out) :: self
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       class(problem_data_t), intent(in) :: data
@@ -123,6 +135,10 @@ contains
       real(dp), intent(in) :: poincare
       type(error_t), allocatable, intent(out) :: err
       type(comm_t), intent(in), optional :: comm
+      logical, intent(in), optional :: classes
+      integer(ip), intent(in), optional :: exact_max
+
+      integer(ip) :: coarse_max
 
       if (present(comm)) self%comm = comm
       call self%ghosts%init(self%comm, hierarchy%meshes(0))
@@ -130,21 +146,38 @@ contains
          call self%space%init(flux_order)
          self%mu = [data%mu1, data%mu2]
          self%c_omega = poincare*sqrt(1/data%mu1 + 1/data%mu2)
-         call self%shapes%init(self%space, hierarchy, err)
-         call self%comm%agree(err)
-         if (allocated(err)) return
+         self%classes = store_classes(hierarchy)
+         if (present(classes)) self%classes = classes
+         if (self%classes) then
+            call self%shapes%init(self%space, hierarchy, err)
+            call self%comm%agree(err)
+            if (allocated(err)) return
+         end if
+         allocate (self%scratch(0:omp_get_max_threads() - 1))
          call self%colors%init(mesh)
          call self%loads%init(self%space, mesh, data)
          ! (constant loads are their own projection: no oscillation to store)
          if (flux_order == 1 .and. .not. self%loads%constant) &
             call data_oscillation(self%space, mesh, data, self%mu, self%osc_data)
-         call self%alg%init(self%space, hierarchy, data, alg_meshes, err, self%comm)
+         coarse_max = exact_coarse_max
+         if (present(exact_max)) coarse_max = exact_max
+         call self%alg%init(self%space, hierarchy, data, alg_meshes, self%classes, coarse_max, poincare, err, self%comm)
          call self%comm%agree(err)
          if (allocated(err)) return
-         call patch_tables(self, hierarchy, err)
+         if (self%classes) call patch_tables(self, hierarchy, err)
          call self%comm%agree(err)
       end associate
    end subroutine init
+
+   !> Whether the hierarchy's triangles repeat enough for per-class operators and per-signature
+   !> factors to pay off: on a refined hierarchy. A single mesh (a Gmsh mesh solved as given)
+   !> has a class per triangle and a signature per patch: the generic path computes what a
+   !> patch needs when it is solved and stores nothing.
+   logical function store_classes(hierarchy)
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
+
+      store_classes = hierarchy%levels >= 1
+   end function store_classes
 
    !> The patch signatures of every patch mesh: the finest mesh for the discretization flux (and
    !> the single-mesh algebraic flux), the coarse meshes of the refined algebraic-flux levels.
@@ -226,7 +259,7 @@ contains
    !> the algebraic flux, about half of an evaluation, is left out: est then holds η_disc and
    !> η_lin (with their parts) but no η_alg nor bound, and no fields; `complete` adds the rest
    !> for this same iterate.
-   subroutine evaluate(self, hierarchy, data, p, x, est, err, fields, algebraic)
+   subroutine evaluate(self, hierarchy, data, p, x, est, err, fields, algebraic, precond)
       class(estimator_t), intent(inout) :: self
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       class(problem_data_t), intent(in) :: data
@@ -236,6 +269,8 @@ contains
       type(estimates_t), intent(inout) :: est
       type(error_t), allocatable, intent(out) :: err
       logical, intent(in), optional :: fields, algebraic
+      !> a preconditioner of p's stiffness for the one-level algebraic flux (see `complete`)
+      class(preconditioner_t), intent(inout), optional :: precond
 
       integer(ip) :: n
       logical :: ok, with_fields, with_alg
@@ -257,7 +292,7 @@ contains
          ! the scratch on their way; the algebraic flux keeps what it needs of them before
          ! set_shares turns them into their shares in place
          call algebraic_residuals(p, x, it%shares, it%u(:, 1), self%halo)
-         call self%alg%take_residual(hierarchy, it%shares)
+         call self%alg%take_residual(hierarchy, it%shares, p%interior)
          call it%set_shares(mesh)
          call scatter(p, x(1:n), p%g, it%u(:, 1))
          call scatter(p, x(n + 1:2*n), 0.0_dp, it%u(:, 2))
@@ -266,32 +301,38 @@ contains
          call it%share_ghosts(self%ghosts, mesh, hierarchy%levels)
 
          call discretization_flux(self%space, self%shapes, self%single, mesh, hierarchy%levels, self%colors, self%mu, &
-                                  self%loads, it, self%sigma, ok)
+                                  self%loads, it, self%scratch, self%sigma, ok)
          if (self%comm%any_true(.not. ok)) then
             call make_error(err, exit_io, 'discretization flux', 'a patch system is singular (degenerate triangles?)')
             return
          end if
       end associate
       if (with_alg) then
-         call self%complete(hierarchy, data, est, err, with_fields)
+         call self%complete(hierarchy, data, est, err, with_fields, p, precond)
       else
          call element_pass(self, hierarchy, data, est, .false., .false.)
       end if
    end subroutine evaluate
 
    !> The algebraic flux and every estimator for the iterate of the last evaluation, which left
-   !> it out (or to be recomputed from its residual): see `evaluate`. Collective.
-   subroutine complete(self, hierarchy, data, est, err, fields)
+   !> it out (or to be recomputed from its residual): see `evaluate`. p: the discrete problem of
+   !> that evaluation, on which the one-level algebraic flux solves its Riesz problem
+   !> (twomem_estimate_riesz) with `precond`, a preconditioner of p's stiffness (without one,
+   !> plain conjugate gradients). Collective.
+   subroutine complete(self, hierarchy, data, est, err, fields, p, precond)
       class(estimator_t), intent(inout) :: self
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       class(problem_data_t), intent(in) :: data
       type(estimates_t), intent(inout) :: est
       type(error_t), allocatable, intent(out) :: err
       logical, intent(in) :: fields
+      type(discrete_problem_t), intent(in) :: p
+      class(preconditioner_t), intent(inout), optional :: precond
 
       call refuse_after_end(self, err)
       if (allocated(err)) return
-      call self%alg%compute(self%shapes, hierarchy, self%iterate, self%single, self%refined, err)
+      call self%alg%compute(self%shapes, hierarchy, self%iterate, self%single, self%refined, self%scratch, p, self%halo, &
+                            self%ghosts, err, precond)
       call self%comm%agree(err)
       if (allocated(err)) return
       call element_pass(self, hierarchy, data, est, fields, .true.)
@@ -328,6 +369,7 @@ contains
       class(estimator_t), intent(inout) :: self
 
       self%ended = .true.
+      if (allocated(self%scratch)) deallocate (self%scratch)
       call self%single%free()
       call self%refined%free()
       call self%alg%drop_solvers()
@@ -425,19 +467,24 @@ contains
       call self%comm%sum_in_place(sums)
       positive_norm = sqrt(sums(9))
       est%eta_1 = sqrt(sums(1))
+      ! the one-level algebraic flux's remainder (twomem_estimate_riesz) adds to the flux part
+      ! of the bound and to the algebraic component: η_1 + η_rem, η_alg + η_rem
+      est%alg_remainder = 0.0_dp
+      if (algebraic .and. self%alg%one_level) est%alg_remainder = self%alg%riesz%eta
       est%flux = sqrt(sums(2))
       est%osc = sqrt(sums(3))
       est%contact = sums(4)
       call nonconformity(sums(5), sums(6), sums(9), self%c_omega, est%nonc1, est%nonc2, est%nonc3, est%lin)
-      est%total = sqrt(max(0.0_dp, (est%eta_1 + est%nonc1 + est%nonc2)**2 + est%nonc3 + est%contact))
+      est%total = sqrt(max(0.0_dp, (est%eta_1 + est%alg_remainder + est%nonc1 + est%nonc2)**2 + est%nonc3 + est%contact))
       est%disc = sqrt(sums(7)) + sqrt(abs(est%contact))
-      est%alg = sqrt(sums(8))
+      est%alg = sqrt(sums(8)) + est%alg_remainder
       est%complete = algebraic
       if (.not. algebraic) then
          nan = ieee_value(1.0_dp, ieee_quiet_nan)
          est%alg = nan
          est%total = nan
          est%eta_1 = nan
+         est%alg_remainder = nan
          est%flux = nan
       end if
       if (.not. fields) return
@@ -491,6 +538,8 @@ contains
       !> K's barycentre in each ancestor's scaled coordinates and the ratio of their scales
       real(dp) :: shift(2, size(levels)), kappa(size(levels))
       real(dp) :: pos_ll, inv_ratio_sq, uv(3, 2), lam(3), grad_k(2, 2), hat(2, 3)
+      !> K's RT mass matrix where no shape class holds it
+      real(dp) :: mass(self%space%n_flux, self%space%n_flux)
       !> f ∓ λ_h at the 7 points of the degree-5 rule (RT0 only)
       real(dp) :: osc_values(2, 7)
       !> one triangle's parts: η_disc,K,α, η_alg,K,α, η_F,K,α, η_osc,K,α; η_C,K, η_nonc,1,K, η_nonc,2,K
@@ -530,14 +579,18 @@ contains
       !$omp private(b, t, anc, k, j, alpha, v, frame, level_frames, x, w, sq, f, lam_x, osc_mean, osc_sq, ratio, class) &
       !$omp private(c_disc, c_alg, shift, kappa, ancestors, osc_w, pos_ll, osc_values) &
       !$omp private(inv_ratio_sq, disc_k, alg_k, flux_k, osc_k, contact_k, nonc1_k, nonc2_k, uv, lam, grad_k, hat) &
-      !$omp firstprivate(frame_anc) schedule(static)
+      !$omp private(mass) firstprivate(frame_anc) schedule(static)
       do b = 1, n_blocks
          partial(:, b) = 0.0_dp
          do t = (b - 1)*block + 1, min(b*block, nt_own)
             v = hierarchy%meshes(finest)%triangles(:, t)
             frame = frame_of(hierarchy%meshes(finest)%vertices, v)
-            call triangle_class(finest, t, class, ratio)
-            inv_ratio_sq = 1.0_dp/ratio**2
+            if (self%classes) then
+               call triangle_class(finest, t, class, ratio)
+               inv_ratio_sq = 1.0_dp/ratio**2
+            else
+               call rt_mass_matrix(self%space, frame%vertices, mass)
+            end if
             hat = p1_gradients(hierarchy%meshes(finest), t)
             call gradients_on(self%iterate, hierarchy%meshes(finest), t, hat, grad_k)
             do j = 1, size(levels)
@@ -570,8 +623,12 @@ contains
                   end if
                end do
                ! the class mass matrix is that of the class size: K's is ρ⁻² times it
-               call quadratic_forms(self%space%n_flux, self%shapes%mass(:, :, class), c_disc, c_alg, sq(:, alpha))
-               sq(:, alpha) = sq(:, alpha)*inv_ratio_sq
+               if (self%classes) then
+                  call quadratic_forms(self%space%n_flux, self%shapes%mass(:, :, class), c_disc, c_alg, sq(:, alpha))
+                  sq(:, alpha) = sq(:, alpha)*inv_ratio_sq
+               else
+                  call quadratic_forms(self%space%n_flux, mass, c_disc, c_alg, sq(:, alpha))
+               end if
             end do
             do alpha = 1, 2
                disc_k(alpha) = sqrt(max(0.0_dp, sq(1, alpha))/self%mu(alpha))
