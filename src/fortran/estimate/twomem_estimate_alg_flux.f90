@@ -117,8 +117,8 @@ contains
    !> Laplacian, colour the patch meshes (the level parts are allocated by the first `compute`).
    !> Without `classes` (the hierarchy stores no shape classes, which the refined levels' patches
    !> read) a single mesh. When the coarse problem would have more than `exact_max` unknowns over
-   !> all ranks, the one-level construction replaces it on the finest mesh (twomem_estimate_riesz,
-   !> with poincare = h_Ω C_PF). With `comm`, the hierarchy is this rank's piece of a distributed
+   !> all ranks and more than a sixteenth of the finest mesh's, the one-level construction
+   !> replaces it on the finest mesh (twomem_estimate_riesz, with poincare = h_Ω C_PF). With `comm`, the hierarchy is this rank's piece of a distributed
    !> one (collective).
    subroutine init(self, space, hierarchy, data, n_meshes, classes, exact_max, poincare, err, comm)
       class(algebraic_flux_t), intent(out) :: self
@@ -145,7 +145,10 @@ contains
       ! a mesh without interior vertices has no coarse problem (its ρ_α would be zero)
       self%base = max(0, self%finest - n_meshes + 1, hierarchy%first_with_unknowns(self%comm))
       if (.not. classes) self%base = self%finest
-      if (unknowns(hierarchy%meshes(self%base), self%comm) > exact_max) then
+      ! the coarse problem of the default three meshes is a sixteenth of the finest one: it
+      ! stays exact whatever its size, a whole-mesh one only up to exact_max unknowns
+      if (unknowns(hierarchy%meshes(self%base), self%comm) > &
+          max(exact_max, unknowns(hierarchy%meshes(self%finest), self%comm)/16)) then
          self%one_level = .true.
          self%base = self%finest
       end if

@@ -57,8 +57,10 @@ module twomem_estimate_estimators
    !> the sums of the element pass: see element_estimators
    integer, parameter :: n_sums = 9
    !> the algebraic flux's coarse problem is solved exactly (factorized once) up to this many
-   !> unknowns; above, the one-level construction replaces it (docs/input.md, estimate.alg_levels)
-   integer(ip), parameter, public :: exact_coarse_max = 65536_ip
+   !> unknowns, or up to a sixteenth of the finest mesh's (the default three meshes' coarse
+   !> problem); above both, the one-level construction replaces it (docs/input.md,
+   !> estimate.alg_levels). A factor of 2^14 unknowns takes a few MB and tens of milliseconds.
+   integer(ip), parameter, public :: exact_coarse_max = 16384_ip
 
    type :: estimator_t
       type(rt_space_t) :: space

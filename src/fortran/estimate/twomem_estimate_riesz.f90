@@ -65,7 +65,7 @@ module twomem_estimate_riesz
       type(mesh_t), pointer :: mesh => null()
       type(discrete_problem_t), pointer :: p => null()
       type(comm_t) :: comm
-      real(dp), pointer, contiguous :: b(:) => null()
+      real(dp), pointer :: b(:) => null()
       real(dp) :: poincare = 1.0_dp
       integer :: order = 1
       !> the lifting's norm at the last test, and the nodal shares it was computed from

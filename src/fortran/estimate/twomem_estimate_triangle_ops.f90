@@ -113,7 +113,7 @@ contains
       type(rt_frame_t), intent(in) :: frame
       logical, intent(out) :: ok
 
-      integer, parameter :: xs(3) = [1, 3, 4], ys(3) = [2, 5, 6], ds(2) = [7, 8], bs(4) = [3, 6, 7, 8]
+      integer, parameter :: xs(3) = [1, 3, 4], ys(3) = [2, 5, 6], ds(2) = [7, 8]
       real(dp) :: gram(3, 3), gi(3, 3), am(3, 2), em(3, 2), d(2, 2), a(3, 2), e(3, 2), t(2, 2), ti(2, 2)
       real(dp) :: w(8, 8), bt(4, 3), x(8, 3), sc(3, 3), si(3, 3), z(8, 8), c(6, 8), ta(3, 2), te(3, 2), h, acc
       real(dp) :: be(3, 2)
