@@ -15,10 +15,9 @@ module twomem_estimate_alg_single
    use twomem_estimate_raviart_thomas, only: rt_space_t
    use twomem_estimate_shapes, only: shape_classes_t
    use twomem_estimate_coloring, only: coloring_t
-   use twomem_estimate_patch, only: link_edge
    use twomem_estimate_patch_factor, only: solve_condensed_factored
-   use twomem_estimate_patch_classes, only: patch_table_t, stored_order, edge_signs
-   use twomem_estimate_generic_patch, only: generic_scratch_t, solve_generic
+   use twomem_estimate_patch_classes, only: patch_table_t, stored_order
+   use twomem_estimate_generic_patch, only: generic_scratch_t, solve_generic, patch_links
    use twomem_estimate_evaluated_iterate, only: evaluated_iterate_t, lifting_on, gradients_on
    implicit none
    private
@@ -68,6 +67,8 @@ contains
                call scratch(me)%gather(space, mesh, generic, patch_ok)
                ok = ok .and. patch_ok
                if (.not. patch_ok) cycle
+               ! r and, from the nodal representer, ∇ρ on every gathered triangle
+               call scratch(me)%fill(mesh, source)
             end if
             g = 0
             do m = colors%block_ptr(ib), colors%block_ptr(ib + 1) - 1
@@ -78,10 +79,11 @@ contains
                   call factored_patch(space, shapes, table, mesh, level, a, id, source, from_nodal, grad_rho, sigma)
                else
                   g = g + 1
-                  call generic_patch(space, scratch(me), g, mesh, a, source, from_nodal, grad_rho, sigma, patch_ok)
+                  call generic_patch(space, scratch(me), g, mesh, a, from_nodal, grad_rho, patch_ok)
                   ok = ok .and. patch_ok
                end if
             end do
+            if (size(generic) > 0) call scratch(me)%flush(sigma)
          end do
          !$omp end do
       end do
@@ -183,51 +185,43 @@ contains
       end associate
    end subroutine factored_patch
 
-   !> The patch of vertex a on the generic path (p: its place in the gathered list).
-   subroutine generic_patch(space, scratch, p, mesh, a, source, from_nodal, grad_rho, sigma, ok)
+   !> The patch of vertex a on the generic path (p: its place in the gathered list, whose slots
+   !> hold the source's r and ∇ρ when from_nodal; else ∇ρ comes from grad_rho); σ goes to the
+   !> slots' sums.
+   pure subroutine generic_patch(space, scratch, p, mesh, a, from_nodal, grad_rho, ok)
       type(rt_space_t), intent(in) :: space
       type(generic_scratch_t), intent(inout) :: scratch
       integer, intent(in) :: p
       type(mesh_t), intent(in) :: mesh
       integer(ip), intent(in) :: a
-      type(evaluated_iterate_t), intent(in) :: source
       logical, intent(in) :: from_nodal
       real(dp), intent(in) :: grad_rho(:, :, :)
-      real(dp), intent(inout) :: sigma(:, :, :)
       logical, intent(out) :: ok
 
-      integer :: ne, k, m, i, n_inner, alpha, sl
-      integer(ip) :: t, e, inner(2*(mesh%patch_ptr(a + 1) - mesh%patch_ptr(a))), elements(size(inner)/2)
-      integer :: links(3, size(elements)), corner(size(elements))
-      real(dp) :: signs(3*space%n_trace, size(elements)), no_flux(2, size(elements), 2)
-      real(dp) :: rhs_div(space%n_div, size(elements), 2), patch_sigma(space%n_flux, size(elements), 2)
-      real(dp) :: hat(2, 3), r(3, 2), s(2)
+      integer :: ne, k, i, alpha, sl
+      integer :: links(3, mesh%patch_ptr(a + 1) - mesh%patch_ptr(a)), corner(size(links, 2))
+      real(dp) :: rhs_div(space%n_div, size(links, 2), 2), no_flux(2, size(links, 2), 2), s(2), g(2, 2)
 
-      ne = size(elements)
-      n_inner = 0
+      ne = size(links, 2)
+      call patch_links(scratch, p, a, mesh%boundary_vertex(a), corner, links)
       associate (slots => scratch%slots(scratch%first(p):scratch%first(p + 1) - 1), ops => scratch%ops)
          do k = 1, ne
-            t = mesh%patch_triangles(mesh%patch_ptr(a) + k - 1)
-            elements(k) = t
             sl = slots(k)
-            call edge_signs(space%n_trace, mesh%triangles(:, t), signs(:, k))
-            i = corner_of(mesh, t, a)
-            corner(k) = i
-            do m = 1, 3
-               e = mesh%triangle_edges(m, t)
-               call link_edge(mesh%boundary_edge(e), m == i, mesh%boundary_vertex(a), e, inner, n_inner, links(m, k))
-            end do
-            hat = p1_gradients(mesh, t)
-            call source_on(mesh, t, hat, hat(:, i), source, from_nodal, grad_rho, r, s)
+            i = corner(k)
+            if (from_nodal) then
+               g = scratch%grad(:, :, sl)
+            else
+               g = grad_rho(:, scratch%triangles(sl), :)
+            end if
+            s = [dot_product(scratch%hat(:, i, sl), g(:, 1)), dot_product(scratch%hat(:, i, sl), g(:, 2))]
             do alpha = 1, 2
-               rhs_div(:, k, alpha) = ops%bary_psi_q(:, 1, i, sl)*r(1, alpha) + ops%bary_psi_q(:, 2, i, sl)*r(2, alpha) &
-                                      + ops%bary_psi_q(:, 3, i, sl)*r(3, alpha) - s(alpha)*ops%q_int(:, sl)
+               associate (r => scratch%lift(:, alpha, sl))
+                  rhs_div(:, k, alpha) = ops%bary_psi_q(:, 1, i, sl)*r(1) + ops%bary_psi_q(:, 2, i, sl)*r(2) &
+                                         + ops%bary_psi_q(:, 3, i, sl)*r(3) - s(alpha)*ops%q_int(:, sl)
+               end associate
             end do
          end do
-         call solve_generic(space, scratch, slots, corner, links, signs, no_flux, rhs_div, .false., patch_sigma, ok)
+         call solve_generic(space, scratch, slots, corner, links, no_flux, rhs_div, .false., ok)
       end associate
-      do k = 1, ne
-         sigma(:, elements(k), :) = sigma(:, elements(k), :) + patch_sigma(:, k, :)
-      end do
    end subroutine generic_patch
 end module twomem_estimate_alg_single

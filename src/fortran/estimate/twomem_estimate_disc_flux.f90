@@ -10,16 +10,15 @@
 module twomem_estimate_disc_flux
    use twomem_base_kinds, only: dp, ip
    use omp_lib, only: omp_get_thread_num
-   use twomem_mesh_triangulation, only: mesh_t, corner_of
+   use twomem_mesh_triangulation, only: mesh_t
    use twomem_fem_problem, only: problem_data_t
    use twomem_fem_assembly, only: p1_gradients
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, frame_of
    use twomem_estimate_shapes, only: shape_classes_t
    use twomem_estimate_coloring, only: coloring_t
-   use twomem_estimate_patch, only: link_edge
    use twomem_estimate_patch_factor, only: solve_condensed_factored
-   use twomem_estimate_patch_classes, only: patch_table_t, patch_signature_t, stored_order, max_patch, edge_signs
-   use twomem_estimate_generic_patch, only: generic_scratch_t, solve_generic
+   use twomem_estimate_patch_classes, only: patch_table_t, patch_signature_t, stored_order, max_patch
+   use twomem_estimate_generic_patch, only: generic_scratch_t, solve_generic, patch_links
    use twomem_estimate_evaluated_iterate, only: evaluated_iterate_t, gradients_on, lifting_on
    implicit none
    private
@@ -147,6 +146,7 @@ contains
                call scratch(me)%gather(space, mesh, generic, patch_ok)
                ok = ok .and. patch_ok
                if (.not. patch_ok) cycle
+               call scratch(me)%fill(mesh, iterate)
             end if
             g = 0
             do m = colors%block_ptr(ib), colors%block_ptr(ib + 1) - 1
@@ -158,10 +158,11 @@ contains
                                       loads, iterate, sigma)
                else
                   g = g + 1
-                  call generic_patch(space, scratch(me), g, mesh, a, mu, loads, iterate, sigma, patch_ok)
+                  call generic_patch(space, scratch(me), g, mesh, a, mu, loads, iterate, patch_ok)
                   ok = ok .and. patch_ok
                end if
             end do
+            if (size(generic) > 0) call scratch(me)%flush(sigma)
          end do
          !$omp end do
       end do
@@ -194,9 +195,10 @@ contains
    end subroutine generic_vertices
 
    !> The patch of vertex a on the generic path: p is its position in the list the scratch was
-   !> gathered for (generic_vertices). The data as in factored_patch, with the integrals of the
-   !> triangle's own operators.
-   subroutine generic_patch(space, scratch, p, mesh, a, mu, loads, iterate, sigma, ok)
+   !> gathered for (generic_vertices), whose slots hold its triangles' operators and the
+   !> iterate's ∇u_α and lifting there. The data as in factored_patch, with the integrals of
+   !> the triangle's own operators; σ goes to the slots' sums.
+   pure subroutine generic_patch(space, scratch, p, mesh, a, mu, loads, iterate, ok)
       type(rt_space_t), intent(in) :: space
       type(generic_scratch_t), intent(inout) :: scratch
       integer, intent(in) :: p
@@ -205,58 +207,37 @@ contains
       real(dp), intent(in) :: mu(2)
       type(load_moments_t), intent(in) :: loads
       type(evaluated_iterate_t), intent(in) :: iterate
-      real(dp), intent(inout) :: sigma(:, :, :)
       logical, intent(out) :: ok
 
-      integer :: ne, k, m, i, n_inner, alpha, s
-      integer(ip) :: t, e, inner(2*(mesh%patch_ptr(a + 1) - mesh%patch_ptr(a))), elements(size(inner)/2)
-      integer(ip) :: v(3)
-      integer :: links(3, size(elements)), corner(size(elements))
-      real(dp) :: signs(3*space%n_trace, size(elements))
-      real(dp) :: rhs_div(space%n_div, size(elements), 2), fgrad(2, size(elements), 2)
-      real(dp) :: patch_sigma(space%n_flux, size(elements), 2)
-      real(dp) :: grad_psi(2), hat_gradients(2, 3), grad_u(2, 2), r(3, 2), lambda_a, f(2)
+      integer :: ne, k, i, alpha, s
+      integer :: links(3, mesh%patch_ptr(a + 1) - mesh%patch_ptr(a)), corner(size(links, 2))
+      real(dp) :: rhs_div(space%n_div, size(links, 2), 2), fgrad(2, size(links, 2), 2), lambda_a, d
       real(dp), parameter :: lambda_sign(2) = [1.0_dp, -1.0_dp]
 
-      ne = size(elements)
+      ne = size(links, 2)
       lambda_a = iterate%lambda(a)
-      n_inner = 0
+      call patch_links(scratch, p, a, mesh%boundary_vertex(a), corner, links)
       associate (slots => scratch%slots(scratch%first(p):scratch%first(p + 1) - 1), ops => scratch%ops)
          do k = 1, ne
-            t = mesh%patch_triangles(mesh%patch_ptr(a) + k - 1)
-            elements(k) = t
-            v = mesh%triangles(:, t)
             s = slots(k)
-            call edge_signs(space%n_trace, v, signs(:, k))
-            hat_gradients = p1_gradients(mesh, t)
-            i = corner_of(mesh, t, a)
-            corner(k) = i
-            do m = 1, 3
-               e = mesh%triangle_edges(m, t)
-               call link_edge(mesh%boundary_edge(e), m == i, mesh%boundary_vertex(a), e, inner, n_inner, links(m, k))
-            end do
-            grad_psi = hat_gradients(:, i)
-            call gradients_on(iterate, mesh, t, hat_gradients, grad_u)
-            call lifting_on(iterate, mesh, t, r)
+            i = corner(k)
             do alpha = 1, 2
-               fgrad(:, k, alpha) = -mu(alpha)*grad_u(:, alpha)
-               if (loads%constant) then
-                  f(alpha) = loads%f(alpha)
-                  rhs_div(:, k, alpha) = f(alpha)*ops%psi_q(:, i, s)
-               else
-                  rhs_div(:, k, alpha) = loads%moments(:, i, t, alpha)
-               end if
-               rhs_div(:, k, alpha) = rhs_div(:, k, alpha) + lambda_sign(alpha)*lambda_a*ops%psi_q(:, i, s) &
-                                      - ops%bary_psi_q(:, 1, i, s)*r(1, alpha) - ops%bary_psi_q(:, 2, i, s)*r(2, alpha) &
-                                      - ops%bary_psi_q(:, 3, i, s)*r(3, alpha) &
-                                      - mu(alpha)*dot_product(grad_u(:, alpha), grad_psi)*ops%q_int(:, s)
+               associate (grad_u => scratch%grad(:, alpha, s), r => scratch%lift(:, alpha, s))
+                  fgrad(:, k, alpha) = -mu(alpha)*grad_u
+                  if (loads%constant) then
+                     rhs_div(:, k, alpha) = loads%f(alpha)*ops%psi_q(:, i, s)
+                  else
+                     rhs_div(:, k, alpha) = loads%moments(:, i, scratch%triangles(s), alpha)
+                  end if
+                  d = mu(alpha)*(grad_u(1)*scratch%hat(1, i, s) + grad_u(2)*scratch%hat(2, i, s))
+                  rhs_div(:, k, alpha) = rhs_div(:, k, alpha) + lambda_sign(alpha)*lambda_a*ops%psi_q(:, i, s) &
+                                         - ops%bary_psi_q(:, 1, i, s)*r(1) - ops%bary_psi_q(:, 2, i, s)*r(2) &
+                                         - ops%bary_psi_q(:, 3, i, s)*r(3) - d*ops%q_int(:, s)
+               end associate
             end do
          end do
-         call solve_generic(space, scratch, slots, corner, links, signs, fgrad, rhs_div, .true., patch_sigma, ok)
+         call solve_generic(space, scratch, slots, corner, links, fgrad, rhs_div, .true., ok)
       end associate
-      do k = 1, ne
-         sigma(:, elements(k), :) = sigma(:, elements(k), :) + patch_sigma(:, k, :)
-      end do
    end subroutine generic_patch
 
    !> The patch of vertex a with its signature's factor (twomem_estimate_patch_classes): the data

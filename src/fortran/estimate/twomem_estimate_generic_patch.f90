@@ -3,8 +3,12 @@
 !> their vertices (twomem_estimate_triangle_ops), so that nothing is stored per triangle, per
 !> shape class or per patch. A patch loop hands over one block of neighbouring patches at a
 !> time (twomem_estimate_coloring): `gather` lists the block's distinct triangles and computes
-!> each one's operators once into thread-private slots (a triangle lies in three patches, mostly
-!> of the same block), and `solve` then solves the block's patches one by one from those slots.
+!> each one's operators, and what the patches read of its mesh data (vertices, edges, trace
+!> signs, P1 gradients), once into thread-private slots (a triangle lies in three patches,
+!> mostly of the same block); the caller adds the iterate's values per slot (`fill`), solves
+!> the block's patches one by one from the slots, each adding its σ to its triangles' slots,
+!> and `flush` adds the slots' sums to the flux field. A mesh numbered without locality (a
+!> mesher's) then costs one scattered access per triangle and block, not one per patch.
 !> The hybridized solve is that of the general path, with the operators at the triangle's own
 !> size (no ratio) and the flux datum σ_0 = ψ_i c entering through z Φ_iᵀ: each triangle's
 !> particular solution σ_K = y G + z Φ_iᵀ c and its traces C σ_K, the zero-flux edge's rows
@@ -15,12 +19,15 @@ module twomem_estimate_generic_patch
    use twomem_base_kinds, only: dp, ip, i8
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_estimate_raviart_thomas, only: rt_space_t
-   use twomem_estimate_patch, only: chol_factor, chol_solve, edge_free, edge_neumann
+   use twomem_estimate_patch, only: chol_factor, chol_solve, edge_free, edge_neumann, link_edge
+   use twomem_estimate_patch_classes, only: edge_signs
    use twomem_estimate_triangle_ops, only: triangle_ops_t
+   use twomem_estimate_evaluated_iterate, only: evaluated_iterate_t, gradients_on, lifting_on
+   use twomem_fem_assembly, only: p1_gradients
    implicit none
    private
 
-   public :: generic_scratch_t, solve_generic
+   public :: generic_scratch_t, solve_generic, patch_links
 
    !> One thread's scratch: the operators of a block's triangles, where each patch's triangles
    !> sit among them, and the work arrays of a patch solve.
@@ -32,12 +39,23 @@ module twomem_estimate_generic_patch
       !> patch p of the gathered list (in the order given) has its triangles, in its patch list's
       !> order, in slots(first(p):first(p+1)−1); `table`: the hash table that finds them
       integer, allocatable :: first(:), slots(:), table(:)
+      !> per slot: the triangle's vertices and edges, which edges lie on ∂Ω, its trace signs
+      !> (twomem_estimate_shapes' trace_signs) and its P1 basis gradients
+      integer(ip), allocatable :: vertices(:, :), edges(:, :)
+      logical, allocatable :: on_boundary(:, :)
+      real(dp), allocatable :: signs(:, :), hat(:, :, :)
+      !> per slot, from `fill`: a gradient per membrane (2, 2) and a lifting's vertex values (3, 2)
+      real(dp), allocatable :: grad(:, :, :), lift(:, :, :)
+      !> per slot: the sum of its patches' σ for both membranes (n_flux, 2), for `flush`
+      real(dp), allocatable :: sigma_sum(:, :, :)
       !> work arrays of solve_generic: the multiplier matrix (n_theta², column by column), its
       !> right-hand sides (n_theta, 2), per patch triangle its particular solution, traces and
       !> zero-flux block's inverse
       real(dp), allocatable :: h(:), b(:, :), part(:, :, :), c_sigma(:, :, :), inv_n(:, :, :)
    contains
       procedure :: gather
+      procedure :: fill
+      procedure :: flush
       procedure :: ensure
       procedure :: free
    end type generic_scratch_t
@@ -103,16 +121,96 @@ contains
       self%first(size(vertices) + 1) = k + 1
       self%n = s
       call self%ops%reserve(space, s)
+      call reserve_slots(self, space, s)
       ok = .true.
       do s = 1, self%n
          t = self%triangles(s)
          do i = 1, 3
-            v(:, i) = mesh%vertices(:, mesh%triangles(i, t))
+            self%vertices(i, s) = mesh%triangles(i, t)
+            self%edges(i, s) = mesh%triangle_edges(i, t)
+            self%on_boundary(i, s) = mesh%boundary_edge(self%edges(i, s))
+            v(:, i) = mesh%vertices(:, self%vertices(i, s))
          end do
+         call edge_signs(space%n_trace, self%vertices(:, s), self%signs(:, s))
+         self%hat(:, :, s) = p1_gradients(mesh, t)
+         self%sigma_sum(:, :, s) = 0.0_dp
          call self%ops%compute(space, s, v, one_ok)
          ok = ok .and. one_ok
       end do
    end subroutine gather
+
+   !> Per-slot arrays for n triangles (kept when there is room).
+   pure subroutine reserve_slots(self, space, n)
+      type(generic_scratch_t), intent(inout) :: self
+      type(rt_space_t), intent(in) :: space
+      integer, intent(in) :: n
+
+      if (allocated(self%vertices)) then
+         if (size(self%vertices, 2) >= n .and. size(self%sigma_sum, 1) == space%n_flux) return
+         deallocate (self%vertices, self%edges, self%on_boundary, self%signs, self%hat, self%grad, self%lift, &
+                     self%sigma_sum)
+      end if
+      allocate (self%vertices(3, n), self%edges(3, n), self%on_boundary(3, n), self%signs(3*space%n_trace, n), &
+                self%hat(2, 3, n), self%grad(2, 2, n), self%lift(3, 2, n), self%sigma_sum(space%n_flux, 2, n))
+   end subroutine reserve_slots
+
+   !> grad(:, :, s) = ∇u_α and lift(:, :, s) = the residual lifting's vertex values of `source`
+   !> on every gathered triangle (its u and shares: an evaluated iterate, or the Riesz
+   !> representer of twomem_estimate_riesz).
+   subroutine fill(self, mesh, source)
+      class(generic_scratch_t), intent(inout) :: self
+      type(mesh_t), intent(in) :: mesh
+      type(evaluated_iterate_t), intent(in) :: source
+
+      integer :: s
+
+      do s = 1, self%n
+         call gradients_on(source, mesh, self%triangles(s), self%hat(:, :, s), self%grad(:, :, s))
+         call lifting_on(source, mesh, self%triangles(s), self%lift(:, :, s))
+      end do
+   end subroutine fill
+
+   !> sigma(:, t, α) += the slots' sums: each gathered triangle's share of the block's patches.
+   subroutine flush(self, sigma)
+      class(generic_scratch_t), intent(in) :: self
+      real(dp), intent(inout) :: sigma(:, :, :)
+
+      integer :: s
+      integer(ip) :: t
+
+      do s = 1, self%n
+         t = self%triangles(s)
+         sigma(:, t, 1) = sigma(:, t, 1) + self%sigma_sum(:, 1, s)
+         sigma(:, t, 2) = sigma(:, t, 2) + self%sigma_sum(:, 2, s)
+      end do
+   end subroutine flush
+
+   !> The local vertex of patch vertex a (corner(k)) in each triangle of the p-th gathered patch
+   !> and its edges' links (solve_patch's links; twomem_estimate_patch%link_edge), from the slots.
+   pure subroutine patch_links(scratch, p, a, a_on_boundary, corner, links)
+      type(generic_scratch_t), intent(in) :: scratch
+      integer, intent(in) :: p
+      integer(ip), intent(in) :: a
+      logical, intent(in) :: a_on_boundary
+      integer, intent(out) :: corner(:), links(:, :)
+
+      integer(ip) :: inner(2*size(corner) + 2)
+      integer :: k, m, n_inner, s, i
+
+      n_inner = 0
+      do k = 1, size(corner)
+         s = scratch%slots(scratch%first(p) + k - 1)
+         i = 1
+         do while (scratch%vertices(i, s) /= a)
+            i = i + 1
+         end do
+         corner(k) = i
+         do m = 1, 3
+            call link_edge(scratch%on_boundary(m, s), m == i, a_on_boundary, scratch%edges(m, s), inner, n_inner, &
+                           links(m, k))
+         end do
+      end do
+   end subroutine patch_links
 
    !> An integer array of at least n entries (kept when it has them).
    pure subroutine grow(x, n)
@@ -153,6 +251,8 @@ contains
       if (allocated(self%slots)) deallocate (self%slots)
       if (allocated(self%table)) deallocate (self%table)
       if (allocated(self%h)) deallocate (self%h, self%b, self%part, self%c_sigma, self%inv_n)
+      if (allocated(self%vertices)) deallocate (self%vertices, self%edges, self%on_boundary, self%signs, self%hat, &
+                                                self%grad, self%lift, self%sigma_sum)
       if (allocated(self%ops%y)) deallocate (self%ops%y, self%ops%zc, self%ops%czc, self%ops%trace, self%ops%z_phi, &
                                              self%ops%psi_q, self%ops%bary_psi_q, self%ops%q_int)
       self%ops%capacity = 0
@@ -160,20 +260,19 @@ contains
    end subroutine free
 
    !> One patch from the gathered operators: patch triangle k is slot slots(k), its patch vertex
-   !> is its local vertex corner(k), signs(:, k) = ±1 turn its local trace rows into the mesh's
-   !> orientation, links(m, k) as in solve_patch (inner edge > 0, edge_free, edge_neumann). For
-   !> both membranes r: fgrad(:, k, r) the constant c of the flux datum ψ_a c (read when
-   !> flux_data), rhs_div(:, k, r) the divergence moments; sigma(:, k, r) returns σ on triangle k.
-   !> ok is .false. if the multiplier system is singular. Written with explicit loops over the
+   !> is its local vertex corner(k), links(m, k) as in solve_patch (inner edge > 0, edge_free,
+   !> edge_neumann); the slot's trace signs turn its local trace rows into the mesh's
+   !> orientation. For both membranes r: fgrad(:, k, r) the constant c of the flux datum ψ_a c
+   !> (read when flux_data), rhs_div(:, k, r) the divergence moments; σ on triangle k is added to
+   !> its slot's sum. ok is .false. if the multiplier system is singular. Written with explicit loops over the
    !> rows (no array sections with vector subscripts: each would be a temporary per use), the
    !> multiplier matrix in a contiguous buffer that the Cholesky kernels take as it is.
-   pure subroutine solve_generic(space, scratch, slots, corner, links, signs, fgrad, rhs_div, flux_data, sigma, ok)
+   pure subroutine solve_generic(space, scratch, slots, corner, links, fgrad, rhs_div, flux_data, ok)
       type(rt_space_t), intent(in) :: space
       type(generic_scratch_t), intent(inout) :: scratch
       integer, intent(in) :: slots(:), corner(:), links(:, :)
-      real(dp), intent(in) :: signs(:, :), fgrad(:, :, :), rhs_div(:, :, :)
+      real(dp), intent(in) :: fgrad(:, :, :), rhs_div(:, :, :)
       logical, intent(in) :: flux_data
-      real(dp), intent(out) :: sigma(:, :, :)
       logical, intent(out) :: ok
 
       integer, parameter :: mc = 6, mt = 2
@@ -195,7 +294,7 @@ contains
          do k = 1, ne
             s = slots(k)
             do i = 1, nc
-               sg(i) = signs(i, k)
+               sg(i) = scratch%signs(i, s)
             end do
             ! the triangle alone: σ = y G + z Φ_iᵀ c, its traces S C σ
             do r = 1, 2
@@ -297,7 +396,7 @@ contains
          do k = 1, ne
             s = slots(k)
             do i = 1, nc
-               sg(i) = signs(i, k)
+               sg(i) = scratch%signs(i, s)
             end do
             call split_rows(links(:, k), nt, nn, rows_n, ni, rows_i, glob)
             mu(1:nc, :) = 0.0_dp
@@ -331,7 +430,7 @@ contains
                   do m = 1, nc
                      acc = acc - ops%zc(i, m, s)*mu(m, r)
                   end do
-                  sigma(i, k, r) = acc
+                  scratch%sigma_sum(i, r, s) = scratch%sigma_sum(i, r, s) + acc
                end do
             end do
          end do
