@@ -61,6 +61,11 @@ module twomem_estimate_estimators
    !> problem); above both, the one-level construction replaces it (docs/input.md,
    !> estimate.alg_levels). A factor of 2^14 unknowns takes a few MB and tens of milliseconds.
    integer(ip), parameter, public :: exact_coarse_max = 16384_ip
+   !> what the hierarchy stores for the patch problems (storage_tier)
+   integer, parameter, public :: tier_none = 0, tier_single = 1, tier_all = 2
+   !> the stored patch data's budget: this many bytes per finest vertex, or this many bytes in
+   !> all, whichever is more (a small problem keeps every class and signature)
+   real(dp), parameter :: setup_per_vertex = 250.0_dp, setup_floor = 256.0_dp*2**20
 
    type :: estimator_t
       type(rt_space_t) :: space
@@ -141,6 +146,7 @@ contains
       integer(ip), intent(in), optional :: exact_max
 
       integer(ip) :: coarse_max
+      integer :: tier
 
       if (present(comm)) self%comm = comm
       call self%ghosts%init(self%comm, hierarchy%meshes(0))
@@ -148,10 +154,11 @@ contains
          call self%space%init(flux_order)
          self%mu = [data%mu1, data%mu2]
          self%c_omega = poincare*sqrt(1/data%mu1 + 1/data%mu2)
-         self%classes = store_classes(hierarchy)
-         if (present(classes)) self%classes = classes
+         tier = storage_tier(hierarchy, flux_order, alg_meshes, self%comm)
+         if (present(classes)) tier = merge(tier_all, tier_none, classes)
+         self%classes = tier /= tier_none
          if (self%classes) then
-            call self%shapes%init(self%space, hierarchy, err)
+            call self%shapes%init(self%space, hierarchy, err, multilevel=tier == tier_all)
             call self%comm%agree(err)
             if (allocated(err)) return
          end if
@@ -163,23 +170,58 @@ contains
             call data_oscillation(self%space, mesh, data, self%mu, self%osc_data)
          coarse_max = exact_coarse_max
          if (present(exact_max)) coarse_max = exact_max
-         call self%alg%init(self%space, hierarchy, data, alg_meshes, self%classes, coarse_max, poincare, err, self%comm)
+         call self%alg%init(self%space, hierarchy, data, alg_meshes, tier == tier_all, coarse_max, poincare, err, &
+                            self%comm)
          call self%comm%agree(err)
          if (allocated(err)) return
          if (self%classes) call patch_tables(self, hierarchy, err)
          call self%comm%agree(err)
+         if (allocated(err)) return
+         ! without refined levels every patch without a signature takes the generic path
+         if (tier == tier_single) call self%shapes%keep_factored_only()
       end associate
    end subroutine init
 
-   !> Whether the hierarchy's triangles repeat enough for per-class operators and per-signature
-   !> factors to pay off: on a refined hierarchy. A single mesh (a Gmsh mesh solved as given)
-   !> has a class per triangle and a signature per patch: the generic path computes what a
-   !> patch needs when it is solved and stores nothing.
-   logical function store_classes(hierarchy)
+   !> What the hierarchy stores for the patch problems (docs/method.md §5, *Estimator cost*):
+   !> tier_all, the shape classes with the multilevel algebraic flux's tables and every patch
+   !> signature's factor, finest mesh and refined levels; tier_single, the classes without those
+   !> tables and the finest mesh's signatures only, the algebraic flux being the one-level
+   !> construction on the finest mesh; tier_none, nothing (every patch on the generic path).
+   !> The first that fits the budget: max(setup_floor, setup_per_vertex per finest vertex),
+   !> with the stored bytes estimated per coarse triangle (set-up data scale with the coarse
+   !> mesh, the rest of a run with the finest). A single mesh has a class per triangle and a
+   !> signature per patch: nothing to share, tier_none.
+   integer function storage_tier(hierarchy, order, alg_meshes, comm) result(tier)
       type(mesh_hierarchy_t), intent(in) :: hierarchy
+      integer, intent(in) :: order, alg_meshes
+      type(comm_t), intent(in) :: comm
 
-      store_classes = hierarchy%levels >= 1
-   end function store_classes
+      real(dp) :: coarse, finest, budget, classes(2), single, refined
+
+      tier = tier_none
+      if (hierarchy%levels == 0) return
+      coarse = comm%sum(real(hierarchy%meshes(0)%nt_owned, dp))
+      finest = comm%sum(real(count(hierarchy%meshes(hierarchy%levels)%in_subdomain()), dp))
+      budget = max(setup_floor, setup_per_vertex*finest)
+      ! per coarse triangle: two classes (as itself and reflected) without and with the
+      ! multilevel tables, the signatures' factors on the finest mesh and on each refined level
+      ! of the algebraic flux (measured on a 1e4-triangle Gmsh mesh refined three times)
+      if (order == 1) then
+         classes = [5.9e3_dp, 11.4e3_dp]*2
+         single = 6.5e3_dp
+         refined = 17.0e3_dp
+      else
+         classes = [2.0e3_dp, 5.0e3_dp]*2
+         single = 3.0e3_dp
+         refined = 5.5e3_dp
+      end if
+      refined = refined*max(0, min(alg_meshes - 1, hierarchy%levels))
+      if (coarse*(classes(2) + single + refined) <= budget) then
+         tier = tier_all
+      else if (coarse*(classes(1) + single) <= budget) then
+         tier = tier_single
+      end if
+   end function storage_tier
 
    !> The patch signatures of every patch mesh: the finest mesh for the discretization flux (and
    !> the single-mesh algebraic flux), the coarse meshes of the refined algebraic-flux levels.
