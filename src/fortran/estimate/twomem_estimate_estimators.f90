@@ -131,10 +131,10 @@ contains
 
    !> flux_order 0 or 1; alg_meshes: how many of the finest meshes the algebraic flux uses;
    !> poincare: h_Ω C_PF. With `comm`, the hierarchy is this rank's piece of a distributed one
-   !> (collective; every rank returns the same error). `classes` and `exact_max` override the
-   !> choices of the stored shape classes (store_classes) and of the algebraic flux's exact
-   !> coarse solve (exact_coarse_max), for tests that compare the paths.
-   subroutine init(self, hierarchy, data, flux_order, alg_meshes, poincare, err, comm, classes, exact_max)
+   !> (collective; every rank returns the same error). `tier` and `exact_max` override the
+   !> choices of what is stored for the patch problems (storage_tier) and of the algebraic
+   !> flux's exact coarse solve (exact_coarse_max), for tests that compare the paths.
+   subroutine init(self, hierarchy, data, flux_order, alg_meshes, poincare, err, comm, tier, exact_max)
       class(estimator_t), intent(out) :: self
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       class(problem_data_t), intent(in) :: data
@@ -142,11 +142,11 @@ contains
       real(dp), intent(in) :: poincare
       type(error_t), allocatable, intent(out) :: err
       type(comm_t), intent(in), optional :: comm
-      logical, intent(in), optional :: classes
+      integer, intent(in), optional :: tier
       integer(ip), intent(in), optional :: exact_max
 
       integer(ip) :: coarse_max
-      integer :: tier
+      integer :: stored
 
       if (present(comm)) self%comm = comm
       call self%ghosts%init(self%comm, hierarchy%meshes(0))
@@ -154,11 +154,14 @@ contains
          call self%space%init(flux_order)
          self%mu = [data%mu1, data%mu2]
          self%c_omega = poincare*sqrt(1/data%mu1 + 1/data%mu2)
-         tier = storage_tier(hierarchy, flux_order, alg_meshes, self%comm)
-         if (present(classes)) tier = merge(tier_all, tier_none, classes)
-         self%classes = tier /= tier_none
+         if (present(tier)) then
+            stored = tier
+         else
+            stored = storage_tier(hierarchy, flux_order, alg_meshes, self%comm)
+         end if
+         self%classes = stored /= tier_none
          if (self%classes) then
-            call self%shapes%init(self%space, hierarchy, err, multilevel=tier == tier_all)
+            call self%shapes%init(self%space, hierarchy, err, multilevel=stored == tier_all)
             call self%comm%agree(err)
             if (allocated(err)) return
          end if
@@ -170,7 +173,7 @@ contains
             call data_oscillation(self%space, mesh, data, self%mu, self%osc_data)
          coarse_max = exact_coarse_max
          if (present(exact_max)) coarse_max = exact_max
-         call self%alg%init(self%space, hierarchy, data, alg_meshes, tier == tier_all, coarse_max, poincare, err, &
+         call self%alg%init(self%space, hierarchy, data, alg_meshes, stored == tier_all, coarse_max, poincare, err, &
                             self%comm)
          call self%comm%agree(err)
          if (allocated(err)) return
@@ -178,7 +181,7 @@ contains
          call self%comm%agree(err)
          if (allocated(err)) return
          ! without refined levels every patch without a signature takes the generic path
-         if (tier == tier_single) call self%shapes%keep_factored_only()
+         if (stored == tier_single) call self%shapes%keep_factored_only()
       end associate
    end subroutine init
 
