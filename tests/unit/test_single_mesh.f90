@@ -14,7 +14,8 @@ module test_single_mesh
    use twomem_linalg_mg_preconditioner, only: mg_preconditioner_t
    use twomem_fem_transfer, only: interior_prolongations
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, make_frame
-   use twomem_estimate_estimators, only: estimator_t, estimates_t, poincare_constant, tier_all, tier_single, tier_none
+   use twomem_estimate_estimators, only: estimator_t, estimates_t, poincare_constant
+   use twomem_estimate_storage, only: tier_all, tier_single, tier_none
    use twomem_estimate_riesz, only: remainder_fraction, max_iterations
    use twomem_testing, only: unittest_t, new_unittest, check, error_t
    use test_estimate, only: random_vector, mesh_problem, poly_data_t, lifting_by_local_solves

@@ -4,8 +4,8 @@
 !> their cost can be reported next to the solver's. When the estimators' algebraic flux is the
 !> one-level construction, it owns the preconditioner of that flux's Riesz problem: one V-cycle
 !> for the finest stiffness on multigrid transfers of its own (the levels that nested iteration
-!> and the Newton preconditioner use), built at the first evaluation that needs it and freed
-!> when evaluations end.
+!> and the Newton preconditioner use), built at an evaluation that needs it and freed with the
+!> evaluation's workspaces (`free_workspaces`, `drop_partial`) and when evaluations end.
 module twomem_app_observer
    use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
    use twomem_base_kinds, only: dp, ip
@@ -170,6 +170,8 @@ contains
       class(run_observer_t), intent(inout) :: self
 
       if (associated(self%estimator)) call self%estimator%free_workspaces()
+      ! the Riesz problem's V-cycle too: the Newton steps until the next evaluation need the room
+      call self%free_riesz()
       self%held = .false.
    end subroutine free_workspaces
 

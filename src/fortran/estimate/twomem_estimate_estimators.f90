@@ -31,7 +31,6 @@ module twomem_estimate_estimators
    use twomem_fem_problem, only: problem_data_t
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_fem_assembly, only: p1_gradients
-   use twomem_linalg_dense, only: lu_factor, lu_solve
    use twomem_linalg_halo, only: halo_t
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, frame_of
    use twomem_estimate_lifting, only: algebraic_residuals
@@ -46,6 +45,8 @@ module twomem_estimate_estimators
    use twomem_estimate_estimates, only: estimates_t
    use twomem_estimate_generic_patch, only: generic_scratch_t
    use twomem_estimate_triangle_ops, only: rt_mass_matrix
+   use twomem_estimate_storage, only: storage_tier, tier_none, tier_single, tier_all
+   use twomem_estimate_element_terms, only: data_oscillation, quadratic_forms, add_in_child_basis
    use twomem_linalg_operators, only: preconditioner_t
    use omp_lib, only: omp_get_max_threads
    implicit none
@@ -61,11 +62,6 @@ module twomem_estimate_estimators
    !> problem); above both, the one-level construction replaces it (docs/input.md,
    !> estimate.alg_levels). A factor of 2^14 unknowns takes a few MB and tens of milliseconds.
    integer(ip), parameter, public :: exact_coarse_max = 16384_ip
-   !> what the hierarchy stores for the patch problems (storage_tier)
-   integer, parameter, public :: tier_none = 0, tier_single = 1, tier_all = 2
-   !> the stored patch data's budget: this many bytes per finest vertex, or this many bytes in
-   !> all, whichever is more (a small problem keeps every class and signature)
-   real(dp), parameter :: setup_per_vertex = 250.0_dp, setup_floor = 256.0_dp*2**20
 
    type :: estimator_t
       type(rt_space_t) :: space
@@ -185,46 +181,6 @@ contains
       end associate
    end subroutine init
 
-   !> What the hierarchy stores for the patch problems (docs/method.md §5, *Estimator cost*):
-   !> tier_all, the shape classes with the multilevel algebraic flux's tables and every patch
-   !> signature's factor, finest mesh and refined levels; tier_single, the classes without those
-   !> tables and the finest mesh's signatures only, the algebraic flux being the one-level
-   !> construction on the finest mesh; tier_none, nothing (every patch on the generic path).
-   !> The first that fits the budget: max(setup_floor, setup_per_vertex per finest vertex),
-   !> with the stored bytes estimated per coarse triangle (set-up data scale with the coarse
-   !> mesh, the rest of a run with the finest). A single mesh has a class per triangle and a
-   !> signature per patch: nothing to share, tier_none.
-   integer function storage_tier(hierarchy, order, alg_meshes, comm) result(tier)
-      type(mesh_hierarchy_t), intent(in) :: hierarchy
-      integer, intent(in) :: order, alg_meshes
-      type(comm_t), intent(in) :: comm
-
-      real(dp) :: coarse, finest, budget, classes(2), single, refined
-
-      tier = tier_none
-      if (hierarchy%levels == 0) return
-      coarse = comm%sum(real(hierarchy%meshes(0)%nt_owned, dp))
-      finest = comm%sum(real(count(hierarchy%meshes(hierarchy%levels)%in_subdomain()), dp))
-      budget = max(setup_floor, setup_per_vertex*finest)
-      ! per coarse triangle: two classes (as itself and reflected) without and with the
-      ! multilevel tables, the signatures' factors on the finest mesh and on each refined level
-      ! of the algebraic flux (measured on a 1e4-triangle Gmsh mesh refined three times)
-      if (order == 1) then
-         classes = [5.9e3_dp, 11.4e3_dp]*2
-         single = 6.5e3_dp
-         refined = 17.0e3_dp
-      else
-         classes = [2.0e3_dp, 5.0e3_dp]*2
-         single = 3.0e3_dp
-         refined = 5.5e3_dp
-      end if
-      refined = refined*max(0, min(alg_meshes - 1, hierarchy%levels))
-      if (coarse*(classes(2) + single + refined) <= budget) then
-         tier = tier_all
-      else if (coarse*(classes(1) + single) <= budget) then
-         tier = tier_single
-      end if
-   end function storage_tier
 
    !> The patch signatures of every patch mesh: the finest mesh for the discretization flux (and
    !> the single-mesh algebraic flux), the coarse meshes of the refined algebraic-flux levels.
@@ -249,53 +205,6 @@ contains
       call self%refined%finish(self%space, self%shapes, err)
    end subroutine patch_tables
 
-   !> (h_K/π) μ_α^{−1/2} ‖f_α − Π_1 f_α‖_K with the load's degree-5 rule.
-   subroutine data_oscillation(space, mesh, data, mu, osc)
-      type(rt_space_t), intent(in) :: space
-      type(mesh_t), intent(in) :: mesh
-      class(problem_data_t), intent(in) :: data
-      real(dp), intent(in) :: mu(2)
-      real(dp), allocatable, intent(out) :: osc(:, :)
-
-      type(rt_frame_t) :: frame
-      real(dp) :: x(2), w, q(3), gram(3, 3), b(3, 2), projection(3, 2), f(2), ff(2)
-      integer :: k, i, alpha, piv(3)
-      logical :: ok
-      integer(ip) :: t
-
-      allocate (osc(2, mesh%nt))
-      !$omp parallel do default(none) shared(space, mesh, data, mu, osc) &
-      !$omp private(t, frame, x, w, q, gram, b, projection, f, ff, k, i, alpha, piv, ok) schedule(static)
-      do t = 1, mesh%nt
-         frame = frame_of(mesh%vertices, mesh%triangles(:, t))
-         gram = 0.0_dp
-         b = 0.0_dp
-         ff = 0.0_dp
-         do k = 1, space%rule%n
-            x = matmul(frame%vertices, space%rule%bary(:, k))
-            w = space%rule%weights(k)*frame%area
-            q = space%div_test_values(frame, x)
-            f = [data%load(1, x), data%load(2, x)]
-            do i = 1, 3
-               gram(:, i) = gram(:, i) + w*q*q(i)
-            end do
-            do alpha = 1, 2
-               b(:, alpha) = b(:, alpha) + w*f(alpha)*q
-            end do
-            ff = ff + w*f**2
-         end do
-         ! ‖f − Π f‖² = ‖f‖² − (Π f, f) = ‖f‖² − bᵀ G⁻¹ b
-         projection = b
-         call lu_factor(gram, piv, ok)
-         call lu_solve(gram, piv, projection)
-         do alpha = 1, 2
-            ! (the frame's scale is the triangle's diameter, mesh_t%diameter_of)
-            osc(alpha, t) = frame%scale/pi/sqrt(mu(alpha))* &
-                            sqrt(max(0.0_dp, ff(alpha) - dot_product(b(:, alpha), projection(:, alpha))))
-         end do
-      end do
-      !$omp end parallel do
-   end subroutine data_oscillation
 
    !> Every estimator for the iterate x = [X1; X2; X3] of the discrete problem p on the finest
    !> mesh. Collective (every rank returns the same error). With `fields` (the default) also the
@@ -740,69 +649,6 @@ contains
       end do
    end subroutine element_estimators
 
-   !> q = (aᵀ M a, bᵀ M b, (a + b)ᵀ M (a + b)) for a contiguous n×n matrix M, in one pass over M:
-   !> the third reuses the columns' products with a and b, (a + b)ᵀ(M a + M b).
-   pure subroutine quadratic_forms(n, m, a, b, q)
-      integer, intent(in) :: n
-      real(dp), intent(in) :: m(n, n), a(n), b(n)
-      real(dp), intent(out) :: q(3)
 
-      integer :: i, j
-      real(dp) :: row_a, row_b
-
-      q = 0.0_dp
-      if (n == 8) then
-         ! RT1: a loop of constant length, unrolled
-         do j = 1, 8
-            row_a = 0.0_dp
-            row_b = 0.0_dp
-            do i = 1, 8
-               row_a = row_a + m(i, j)*a(i)
-               row_b = row_b + m(i, j)*b(i)
-            end do
-            q(1) = q(1) + a(j)*row_a
-            q(2) = q(2) + b(j)*row_b
-            q(3) = q(3) + (a(j) + b(j))*(row_a + row_b)
-         end do
-         return
-      end if
-      do j = 1, n
-         row_a = 0.0_dp
-         row_b = 0.0_dp
-         do i = 1, n
-            row_a = row_a + m(i, j)*a(i)
-            row_b = row_b + m(i, j)*b(i)
-         end do
-         q(1) = q(1) + a(j)*row_a
-         q(2) = q(2) + b(j)*row_b
-         q(3) = q(3) + (a(j) + b(j))*(row_a + row_b)
-      end do
-   end subroutine quadratic_forms
-
-   !> f + the coefficients in the basis of a child triangle of the RT_p field with coefficients c
-   !> in the basis of its ancestor: with ξ_parent = d + κ ξ_child (d the child's barycentre in the
-   !> parent's scaled coordinates, κ the ratio of the scales), each monomial field expands
-   !> exactly, e.g. ξ1 ξ = d1 d + κ(2 d1 ξ1, d2 ξ1 + d1 ξ2) + κ² ξ1 ξ. Added in place, as the
-   !> caller sums the levels: no temporary, and the same sums as adding a converted copy.
-   pure subroutine add_in_child_basis(order, d, kappa, c, f)
-      integer, intent(in) :: order
-      real(dp), intent(in) :: d(2), kappa, c(:)
-      real(dp), intent(inout) :: f(:)
-
-      if (order == 0) then
-         f(1) = f(1) + (c(1) + d(1)*c(3))
-         f(2) = f(2) + (c(2) + d(2)*c(3))
-         f(3) = f(3) + kappa*c(3)
-      else
-         f(1) = f(1) + (c(1) + d(1)*c(3) + d(2)*c(4) + d(1)**2*c(7) + d(1)*d(2)*c(8))
-         f(2) = f(2) + (c(2) + d(1)*c(5) + d(2)*c(6) + d(1)*d(2)*c(7) + d(2)**2*c(8))
-         f(3) = f(3) + kappa*(c(3) + 2*d(1)*c(7) + d(2)*c(8))
-         f(4) = f(4) + kappa*(c(4) + d(1)*c(8))
-         f(5) = f(5) + kappa*(c(5) + d(2)*c(7))
-         f(6) = f(6) + kappa*(c(6) + d(1)*c(7) + 2*d(2)*c(8))
-         f(7) = f(7) + kappa**2*c(7)
-         f(8) = f(8) + kappa**2*c(8)
-      end if
-   end subroutine add_in_child_basis
 
 end module twomem_estimate_estimators
