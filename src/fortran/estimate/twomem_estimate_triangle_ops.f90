@@ -120,26 +120,59 @@ contains
       integer :: i, j, k, q
 
       h = frame%scale
-      gram = reshape([m(mono(0, 0)), m(mono(1, 0)), m(mono(0, 1)), m(mono(1, 0)), m(mono(2, 0)), m(mono(1, 1)), &
-                      m(mono(0, 1)), m(mono(1, 1)), m(mono(0, 2))], [3, 3])
-      am = reshape([m(mono(2, 0)), m(mono(3, 0)), m(mono(2, 1)), m(mono(1, 1)), m(mono(2, 1)), m(mono(1, 2))], [3, 2])
-      em = reshape([m(mono(1, 1)), m(mono(2, 1)), m(mono(1, 2)), m(mono(0, 2)), m(mono(1, 2)), m(mono(0, 3))], [3, 2])
-      d = reshape([m(mono(4, 0)) + m(mono(2, 2)), m(mono(3, 1)) + m(mono(1, 3)), &
-                   m(mono(3, 1)) + m(mono(1, 3)), m(mono(2, 2)) + m(mono(0, 4))], [2, 2])
+      ! (element by element: an array constructor through reshape is a library call per use)
+      gram(1, 1) = m(mono(0, 0))
+      gram(2, 1) = m(mono(1, 0))
+      gram(3, 1) = m(mono(0, 1))
+      gram(2, 2) = m(mono(2, 0))
+      gram(3, 2) = m(mono(1, 1))
+      gram(3, 3) = m(mono(0, 2))
+      gram(1, 2) = gram(2, 1)
+      gram(1, 3) = gram(3, 1)
+      gram(2, 3) = gram(3, 2)
+      am(1, 1) = m(mono(2, 0))
+      am(2, 1) = m(mono(3, 0))
+      am(3, 1) = m(mono(2, 1))
+      am(1, 2) = m(mono(1, 1))
+      am(2, 2) = m(mono(2, 1))
+      am(3, 2) = m(mono(1, 2))
+      em(1, 1) = m(mono(1, 1))
+      em(2, 1) = m(mono(2, 1))
+      em(3, 1) = m(mono(1, 2))
+      em(1, 2) = m(mono(0, 2))
+      em(2, 2) = m(mono(1, 2))
+      em(3, 2) = m(mono(0, 3))
+      d(1, 1) = m(mono(4, 0)) + m(mono(2, 2))
+      d(2, 1) = m(mono(3, 1)) + m(mono(1, 3))
+      d(1, 2) = d(2, 1)
+      d(2, 2) = m(mono(2, 2)) + m(mono(0, 4))
       call inverse3(gram, gi, ok)
       if (.not. ok) return
-      a = matmul(gi, am)
-      e = matmul(gi, em)
-      t = d - matmul(transpose(am), a) - matmul(transpose(em), e)
+      do j = 1, 2
+         do i = 1, 3
+            a(i, j) = gi(i, 1)*am(1, j) + gi(i, 2)*am(2, j) + gi(i, 3)*am(3, j)
+            e(i, j) = gi(i, 1)*em(1, j) + gi(i, 2)*em(2, j) + gi(i, 3)*em(3, j)
+         end do
+      end do
+      do j = 1, 2
+         do i = 1, 2
+            t(i, j) = d(i, j) - (am(1, i)*a(1, j) + am(2, i)*a(2, j) + am(3, i)*a(3, j)) &
+                      - (em(1, i)*e(1, j) + em(2, i)*e(2, j) + em(3, i)*e(3, j))
+         end do
+      end do
       call inverse2(t, ti, ok)
       if (.not. ok) return
-      ta = matmul(a, ti)
-      te = matmul(e, ti)
+      do j = 1, 2
+         do i = 1, 3
+            ta(i, j) = a(i, 1)*ti(1, j) + a(i, 2)*ti(2, j)
+            te(i, j) = e(i, 1)*ti(1, j) + e(i, 2)*ti(2, j)
+         end do
+      end do
       do j = 1, 3
          do i = 1, 3
-            w(xs(i), xs(j)) = gi(i, j) + dot_product(ta(i, :), a(j, :))
-            w(ys(i), ys(j)) = gi(i, j) + dot_product(te(i, :), e(j, :))
-            w(xs(i), ys(j)) = dot_product(ta(i, :), e(j, :))
+            w(xs(i), xs(j)) = gi(i, j) + (ta(i, 1)*a(j, 1) + ta(i, 2)*a(j, 2))
+            w(ys(i), ys(j)) = gi(i, j) + (te(i, 1)*e(j, 1) + te(i, 2)*e(j, 2))
+            w(xs(i), ys(j)) = ta(i, 1)*e(j, 1) + ta(i, 2)*e(j, 2)
             w(ys(j), xs(i)) = w(xs(i), ys(j))
          end do
          do i = 1, 2
@@ -151,10 +184,16 @@ contains
       end do
       w(7:8, 7:8) = ti
       ! Bᵀ on the rows of φ3, φ6, φ7, φ8 (divergence_from_moments)
-      bt(1, :) = [m(mono(0, 0)), m(mono(1, 0)), m(mono(0, 1))]/h
+      bt(1, 1) = m(mono(0, 0))/h
+      bt(1, 2) = m(mono(1, 0))/h
+      bt(1, 3) = m(mono(0, 1))/h
       bt(2, :) = bt(1, :)
-      bt(3, :) = 3*[m(mono(1, 0)), m(mono(2, 0)), m(mono(1, 1))]/h
-      bt(4, :) = 3*[m(mono(0, 1)), m(mono(1, 1)), m(mono(0, 2))]/h
+      bt(3, 1) = 3*m(mono(1, 0))/h
+      bt(3, 2) = 3*m(mono(2, 0))/h
+      bt(3, 3) = 3*m(mono(1, 1))/h
+      bt(4, 1) = 3*m(mono(0, 1))/h
+      bt(4, 2) = 3*m(mono(1, 1))/h
+      bt(4, 3) = 3*m(mono(0, 2))/h
       ! X = M⁻¹ Bᵀ, S = B X, y = X S⁻¹, z = M⁻¹ − y Xᵀ
       do k = 1, 3
          do i = 1, 8
@@ -296,7 +335,10 @@ contains
       ok = det /= 0.0_dp
       if (.not. ok) return
       r = 1/det
-      inv = reshape([a(2, 2), -a(2, 1), -a(1, 2), a(1, 1)], [2, 2])*r
+      inv(1, 1) = a(2, 2)*r
+      inv(2, 1) = -a(2, 1)*r
+      inv(1, 2) = -a(1, 2)*r
+      inv(2, 2) = a(1, 1)*r
    end subroutine inverse2
 
    !> ∫_K ξ1^a ξ2^b for a + b ≤ 4 (mono(a, b) orders them), by the degree-5 rule: exact.
@@ -311,7 +353,7 @@ contains
 
       m = 0.0_dp
       do q = 1, space%rule%n
-         xi = matmul(p, space%rule%bary(:, q))
+         xi = p(:, 1)*space%rule%bary(1, q) + p(:, 2)*space%rule%bary(2, q) + p(:, 3)*space%rule%bary(3, q)
          w = space%rule%weights(q)*frame%area
          pw(0, :) = 1.0_dp
          do a = 1, 4
