@@ -19,7 +19,7 @@ module twomem_estimate_storage
    integer, parameter, public :: tier_none = 0, tier_single = 1, tier_all = 2
    !> the stored patch data's budget: this many bytes per finest vertex, or this many bytes in
    !> all, whichever is more (a small problem keeps every class and signature)
-   real(dp), parameter :: setup_per_vertex = 250.0_dp, setup_floor = 256.0_dp*2**20
+   real(dp), parameter :: setup_per_vertex = 250.0_dp, setup_floor = 128.0_dp*2**20
 
 contains
 
