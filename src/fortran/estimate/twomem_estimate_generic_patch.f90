@@ -19,7 +19,7 @@ module twomem_estimate_generic_patch
    use twomem_base_kinds, only: dp, ip, i8
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_estimate_raviart_thomas, only: rt_space_t
-   use twomem_estimate_patch, only: chol_factor, chol_solve, edge_free, edge_neumann, link_edge
+   use twomem_estimate_patch, only: chol_factor, edge_free, edge_neumann, link_edge
    use twomem_estimate_patch_classes, only: edge_signs
    use twomem_estimate_triangle_ops, only: triangle_ops_t
    use twomem_estimate_evaluated_iterate, only: evaluated_iterate_t, gradients_on, lifting_on
@@ -46,11 +46,11 @@ module twomem_estimate_generic_patch
       real(dp), allocatable :: signs(:, :), hat(:, :, :)
       !> per slot, from `fill`: a gradient per membrane (2, 2) and a lifting's vertex values (3, 2)
       real(dp), allocatable :: grad(:, :, :), lift(:, :, :)
-      !> per slot: the sum of its patches' σ for both membranes (n_flux, 2), for `flush`
+      !> per slot: the sum of its patches' σ, both membranes side by side (2, n_flux), for `flush`
       real(dp), allocatable :: sigma_sum(:, :, :)
       !> work arrays of solve_generic: the multiplier matrix (n_theta², column by column), its
-      !> right-hand sides (n_theta, 2), per patch triangle its particular solution, traces and
-      !> zero-flux block's inverse
+      !> right-hand sides (2, n_theta), per patch triangle its particular solution (2, n_flux),
+      !> traces (2, 3 n_trace) and zero-flux block's inverse
       real(dp), allocatable :: h(:), b(:, :), part(:, :, :), c_sigma(:, :, :), inv_n(:, :, :)
    contains
       procedure :: gather
@@ -146,12 +146,12 @@ contains
       integer, intent(in) :: n
 
       if (allocated(self%vertices)) then
-         if (size(self%vertices, 2) >= n .and. size(self%sigma_sum, 1) == space%n_flux) return
+         if (size(self%vertices, 2) >= n .and. size(self%sigma_sum, 2) == space%n_flux) return
          deallocate (self%vertices, self%edges, self%on_boundary, self%signs, self%hat, self%grad, self%lift, &
                      self%sigma_sum)
       end if
       allocate (self%vertices(3, n), self%edges(3, n), self%on_boundary(3, n), self%signs(3*space%n_trace, n), &
-                self%hat(2, 3, n), self%grad(2, 2, n), self%lift(3, 2, n), self%sigma_sum(space%n_flux, 2, n))
+                self%hat(2, 3, n), self%grad(2, 2, n), self%lift(3, 2, n), self%sigma_sum(2, space%n_flux, n))
    end subroutine reserve_slots
 
    !> grad(:, :, s) = ∇u_α and lift(:, :, s) = the residual lifting's vertex values of `source`
@@ -180,8 +180,8 @@ contains
 
       do s = 1, self%n
          t = self%triangles(s)
-         sigma(:, t, 1) = sigma(:, t, 1) + self%sigma_sum(:, 1, s)
-         sigma(:, t, 2) = sigma(:, t, 2) + self%sigma_sum(:, 2, s)
+         sigma(:, t, 1) = sigma(:, t, 1) + self%sigma_sum(1, :, s)
+         sigma(:, t, 2) = sigma(:, t, 2) + self%sigma_sum(2, :, s)
       end do
    end subroutine flush
 
@@ -234,12 +234,12 @@ contains
 
       nc = 3*space%n_trace
       if (allocated(self%h)) then
-         if (size(self%b, 1) < n_theta .or. size(self%part, 2) < ne .or. size(self%part, 1) /= space%n_flux) &
+         if (size(self%b, 2) < n_theta .or. size(self%part, 3) < ne .or. size(self%part, 2) /= space%n_flux) &
             deallocate (self%h, self%b, self%part, self%c_sigma, self%inv_n)
       end if
       ! room for a little more than asked: the next patches are about as large
-      if (.not. allocated(self%h)) allocate (self%h(max(n_theta + 8, 1)**2), self%b(max(n_theta + 8, 1), 2), &
-                                             self%part(space%n_flux, ne + 4, 2), self%c_sigma(nc, 2, ne + 4), &
+      if (.not. allocated(self%h)) allocate (self%h(max(n_theta + 8, 1)**2), self%b(2, max(n_theta + 8, 1)), &
+                                             self%part(2, space%n_flux, ne + 4), self%c_sigma(2, nc, ne + 4), &
                                              self%inv_n(space%n_trace, space%n_trace, ne + 4))
    end subroutine ensure
 
@@ -264,9 +264,11 @@ contains
    !> edge_neumann); the slot's trace signs turn its local trace rows into the mesh's
    !> orientation. For both membranes r: fgrad(:, k, r) the constant c of the flux datum ψ_a c
    !> (read when flux_data), rhs_div(:, k, r) the divergence moments; σ on triangle k is added to
-   !> its slot's sum. ok is .false. if the multiplier system is singular. Written with explicit loops over the
-   !> rows (no array sections with vector subscripts: each would be a temporary per use), the
-   !> multiplier matrix in a contiguous buffer that the Cholesky kernels take as it is.
+   !> its slot's sum. ok is .false. if the multiplier system is singular. Written with explicit
+   !> loops over the rows (no array sections with vector subscripts: each would be a temporary
+   !> per use), the two membranes' values side by side (each operator entry read once for both,
+   !> the pair one vector operation), the multiplier matrix in a contiguous buffer that the
+   !> Cholesky factorization takes as it is.
    pure subroutine solve_generic(space, scratch, slots, corner, links, fgrad, rhs_div, flux_data, ok)
       type(rt_space_t), intent(in) :: space
       type(generic_scratch_t), intent(inout) :: scratch
@@ -276,9 +278,9 @@ contains
       logical, intent(out) :: ok
 
       integer, parameter :: mc = 6, mt = 2
-      integer :: nt, nf, nd, nc, ne, n, k, s, r, i, j, q, nn, ni, l, m, c0
+      integer :: nt, nf, nd, nc, ne, n, k, s, i, j, q, nn, ni, l, m, c0, ci
       integer :: rows_n(mt), rows_i(mc), glob(mc)
-      real(dp) :: czc(mc, mc), sg(mc), acc, x(mt, mc + 2), mu(mc, 2), part(8, 2)
+      real(dp) :: czc(mc, mc), sg(mc), acc, acc2(2), x(mt, mc), xr(2, mt), mu(2, mc), part(2, 8), g2(2, 3), f2(2, 2)
 
       nt = space%n_trace
       nf = space%n_flux
@@ -289,37 +291,44 @@ contains
       call scratch%ensure(space, ne, n)
       associate (ops => scratch%ops, h => scratch%h, b => scratch%b, c_sigma => scratch%c_sigma, inv_n => scratch%inv_n)
          h(1:n*n) = 0.0_dp
-         b(1:n, :) = 0.0_dp
+         b(:, 1:n) = 0.0_dp
          ok = .true.
          do k = 1, ne
             s = slots(k)
+            ci = corner(k)
             do i = 1, nc
                sg(i) = scratch%signs(i, s)
             end do
-            ! the triangle alone: σ = y G + z Φ_iᵀ c, its traces S C σ
-            do r = 1, 2
-               do i = 1, nf
-                  acc = 0.0_dp
-                  do q = 1, nd
-                     acc = acc + ops%y(i, q, s)*rhs_div(q, k, r)
-                  end do
-                  if (flux_data) acc = acc + ops%z_phi(i, 1, corner(k), s)*fgrad(1, k, r) &
-                                       + ops%z_phi(i, 2, corner(k), s)*fgrad(2, k, r)
-                  part(i, r) = acc
-                  scratch%part(i, k, r) = acc
-               end do
+            do q = 1, nd
+               g2(:, q) = rhs_div(q, k, :)
             end do
+            ! the triangle alone: σ = y G + z Φ_iᵀ c, its traces S C σ
+            if (flux_data) then
+               f2(:, 1) = fgrad(1, k, :)
+               f2(:, 2) = fgrad(2, k, :)
+               do i = 1, nf
+                  acc2 = ops%z_phi(i, 1, ci, s)*f2(:, 1) + ops%z_phi(i, 2, ci, s)*f2(:, 2)
+                  do q = 1, nd
+                     acc2 = acc2 + ops%y(i, q, s)*g2(:, q)
+                  end do
+                  part(:, i) = acc2
+               end do
+            else
+               do i = 1, nf
+                  acc2 = 0.0_dp
+                  do q = 1, nd
+                     acc2 = acc2 + ops%y(i, q, s)*g2(:, q)
+                  end do
+                  part(:, i) = acc2
+               end do
+            end if
+            scratch%part(:, 1:nf, k) = part(:, 1:nf)
             do i = 1, nc
-               acc = 0.0_dp
+               acc2 = 0.0_dp
                do q = 1, nf
-                  acc = acc + ops%trace(i, q, s)*part(q, 1)
+                  acc2 = acc2 + ops%trace(i, q, s)*part(:, q)
                end do
-               c_sigma(i, 1, k) = sg(i)*acc
-               acc = 0.0_dp
-               do q = 1, nf
-                  acc = acc + ops%trace(i, q, s)*part(q, 2)
-               end do
-               c_sigma(i, 2, k) = sg(i)*acc
+               c_sigma(:, i, k) = sg(i)*acc2
             end do
             do j = 1, nc
                do i = 1, nc
@@ -331,19 +340,22 @@ contains
                ! zero flux through the patch boundary: the edge's rows by their Schur complement
                call small_inverse(nt, czc, rows_n, inv_n(:, :, k), ok)
                if (.not. ok) return
-               ! x = N⁻¹ [czc(n, inner) | S C σ(n)]
-               do j = 1, ni + 2
+               ! x = N⁻¹ czc(n, inner), xr = N⁻¹ S C σ(n)
+               do j = 1, ni
                   do l = 1, nn
                      acc = 0.0_dp
                      do q = 1, nn
-                        if (j <= ni) then
-                           acc = acc + inv_n(l, q, k)*czc(rows_n(q), rows_i(j))
-                        else
-                           acc = acc + inv_n(l, q, k)*c_sigma(rows_n(q), j - ni, k)
-                        end if
+                        acc = acc + inv_n(l, q, k)*czc(rows_n(q), rows_i(j))
                      end do
                      x(l, j) = acc
                   end do
+               end do
+               do l = 1, nn
+                  acc2 = 0.0_dp
+                  do q = 1, nn
+                     acc2 = acc2 + inv_n(l, q, k)*c_sigma(:, rows_n(q), k)
+                  end do
+                  xr(:, l) = acc2
                end do
                do j = 1, ni
                   c0 = (glob(j) - 1)*n
@@ -355,14 +367,12 @@ contains
                      h(c0 + glob(i)) = h(c0 + glob(i)) + acc
                   end do
                end do
-               do r = 1, 2
-                  do i = 1, ni
-                     acc = c_sigma(rows_i(i), r, k)
-                     do q = 1, nn
-                        acc = acc - czc(rows_i(i), rows_n(q))*x(q, ni + r)
-                     end do
-                     b(glob(i), r) = b(glob(i), r) + acc
+               do i = 1, ni
+                  acc2 = c_sigma(:, rows_i(i), k)
+                  do q = 1, nn
+                     acc2 = acc2 - czc(rows_i(i), rows_n(q))*xr(:, q)
                   end do
+                  b(:, glob(i)) = b(:, glob(i)) + acc2
                end do
             else
                do j = 1, ni
@@ -371,10 +381,8 @@ contains
                      h(c0 + glob(i)) = h(c0 + glob(i)) + czc(rows_i(i), rows_i(j))
                   end do
                end do
-               do r = 1, 2
-                  do i = 1, ni
-                     b(glob(i), r) = b(glob(i), r) + c_sigma(rows_i(i), r, k)
-                  end do
+               do i = 1, ni
+                  b(:, glob(i)) = b(:, glob(i)) + c_sigma(:, rows_i(i), k)
                end do
             end if
          end do
@@ -386,11 +394,11 @@ contains
                   h((i - 1)*n + 1) = 0.0_dp
                end do
                h(1) = 1.0_dp
-               b(1, :) = 0.0_dp
+               b(:, 1) = 0.0_dp
             end if
             call chol_factor(n, h(1:n*n), ok)
             if (.not. ok) return
-            call chol_solve(n, h(1:n*n), 2, b(1:n, :))
+            call paired_solve(n, h(1:n*n), b(:, 1:n))
          end if
          ! σ_K = particular − z Cᵀ S μ, μ: θ on inner rows, the solved zero-flux rows, 0 on free rows
          do k = 1, ne
@@ -399,43 +407,65 @@ contains
                sg(i) = scratch%signs(i, s)
             end do
             call split_rows(links(:, k), nt, nn, rows_n, ni, rows_i, glob)
-            mu(1:nc, :) = 0.0_dp
+            mu(:, 1:nc) = 0.0_dp
             do i = 1, ni
-               mu(rows_i(i), :) = b(glob(i), :)
+               mu(:, rows_i(i)) = b(:, glob(i))
             end do
             if (nn > 0) then
-               do r = 1, 2
-                  do l = 1, nn
-                     acc = c_sigma(rows_n(l), r, k)
-                     do i = 1, ni
-                        acc = acc - sg(rows_n(l))*sg(rows_i(i))*ops%czc(rows_n(l), rows_i(i), s)*mu(rows_i(i), r)
-                     end do
-                     x(l, r) = acc
+               do l = 1, nn
+                  acc2 = c_sigma(:, rows_n(l), k)
+                  do i = 1, ni
+                     acc2 = acc2 - (sg(rows_n(l))*sg(rows_i(i))*ops%czc(rows_n(l), rows_i(i), s))*mu(:, rows_i(i))
                   end do
-                  do l = 1, nn
-                     acc = 0.0_dp
-                     do q = 1, nn
-                        acc = acc + inv_n(l, q, k)*x(q, r)
-                     end do
-                     mu(rows_n(l), r) = acc
+                  xr(:, l) = acc2
+               end do
+               do l = 1, nn
+                  acc2 = 0.0_dp
+                  do q = 1, nn
+                     acc2 = acc2 + inv_n(l, q, k)*xr(:, q)
                   end do
+                  mu(:, rows_n(l)) = acc2
                end do
             end if
-            do r = 1, 2
+            do m = 1, nc
+               mu(:, m) = sg(m)*mu(:, m)
+            end do
+            do i = 1, nf
+               acc2 = scratch%part(:, i, k)
                do m = 1, nc
-                  mu(m, r) = sg(m)*mu(m, r)
+                  acc2 = acc2 - ops%zc(i, m, s)*mu(:, m)
                end do
-               do i = 1, nf
-                  acc = scratch%part(i, k, r)
-                  do m = 1, nc
-                     acc = acc - ops%zc(i, m, s)*mu(m, r)
-                  end do
-                  scratch%sigma_sum(i, r, s) = scratch%sigma_sum(i, r, s) + acc
-               end do
+               scratch%sigma_sum(:, i, s) = scratch%sigma_sum(:, i, s) + acc2
             end do
          end do
       end associate
    end subroutine solve_generic
+
+   !> b = (L Lᵀ)⁻¹ b for two right-hand sides side by side (b(r, i): right-hand side r, unknown
+   !> i), with the factor of chol_factor: each entry of L read once for both.
+   pure subroutine paired_solve(n, a, b)
+      integer, intent(in) :: n
+      real(dp), intent(in) :: a(n, n)
+      real(dp), intent(inout) :: b(:, :)
+
+      integer :: i, k
+      real(dp) :: x(2)
+
+      do k = 1, n
+         x = b(:, k)/a(k, k)
+         b(:, k) = x
+         do i = k + 1, n
+            b(:, i) = b(:, i) - a(i, k)*x
+         end do
+      end do
+      do k = n, 1, -1
+         x = b(:, k)
+         do i = k + 1, n
+            x = x - a(i, k)*b(:, i)
+         end do
+         b(:, k) = x/a(k, k)
+      end do
+   end subroutine paired_solve
 
    !> The trace rows of one patch triangle: nn on its zero-flux edge, ni on inner edges with
    !> their patch multipliers glob.
