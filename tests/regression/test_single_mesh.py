@@ -23,8 +23,11 @@ import pytest
 
 from twomem_testlib import EXE, SOURCE, out_file, run
 
-#: interior spacing; the circle gets a third of it. About 1.9e4 vertices.
-SPACING = 0.0135
+#: the debug build (-O0, every check) runs a mesh of 4e3 vertices: the generic path, but the
+#: exact coarse solve; the release build one of 1.9e4 (interior spacing; the circle gets a third
+#: of it), past 2^14 unknowns: the one-level flux
+DEBUG = os.environ.get("TWOMEM_BUILD_TYPE", "").lower() == "debug"
+SPACING = 0.03 if DEBUG else 0.0135
 METHODS = {
     "direct": ("newton.linear=direct",),
     # from (g, 0, 0), every check evaluated: several iterates far from the solution
@@ -86,7 +89,7 @@ def solve(mesh, name, *args):
 @pytest.mark.parametrize("flux", ["rt1", "rt0"])
 def test_bound_holds_on_a_fine_single_mesh(mesh, method, flux):
     h, s = solve(mesh, f"{method}-{flux}", f"estimate.flux={flux}", *METHODS[method])
-    assert s["nv"] > 16384 and s["levels"] == 0
+    assert s["levels"] == 0 and (DEBUG or s["nv"] > 16384)
     eta, err = h["eta_total"], h["energy_error"]
     recorded = np.isfinite(eta) & np.isfinite(err)
     assert recorded.sum() >= 2
@@ -101,8 +104,9 @@ def test_bound_holds_on_a_fine_single_mesh(mesh, method, flux):
     assert np.isfinite(rem) and 0 <= rem <= s["eta_alg"]
     if method == "gmres":
         assert np.nanmax(h["eta_alg"][recorded]/eta[recorded]) > 1e-3
-    # RT1 is sharp (the paper: 1.03–1.09); RT0's oscillation term takes all of f ∓ λ_h − Π_0(f ∓ λ_h)
-    if flux == "rt1":
+    # at the discrete solution RT1 is sharp (the paper: 1.03–1.09); RT0's oscillation term takes
+    # all of f ∓ λ_h − Π_0(f ∓ λ_h); the inexact methods stop with η_lin and η_alg in the bound
+    if flux == "rt1" and method == "direct":
         assert s["effectivity"] < 1.2
 
 
