@@ -14,6 +14,7 @@ Needs numpy, scipy and h5py (bench/setup_petsc.sh installs Debian's).
 """
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import os
@@ -24,12 +25,20 @@ import tempfile
 import time
 from pathlib import Path
 
-import h5py
-import numpy as np
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
-
 ROOT = Path(__file__).resolve().parents[1]
+# bound by import_numerics() once the arguments are parsed, so that `--help` needs none of them
+h5py = np = sp = spla = None
+
+
+def import_numerics() -> None:
+    global h5py, np, sp, spla
+    try:
+        import h5py
+        import numpy as np
+        import scipy.sparse as sp
+        import scipy.sparse.linalg as spla
+    except ImportError as exc:
+        sys.exit(f"coarse_solve: {exc.name} is not importable under {sys.executable}: run bench/setup_petsc.sh")
 
 
 def disk_mesh(exe: str, n_target: int, tmp: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -73,12 +82,16 @@ def solve_seconds(a: sp.csc_matrix, repeat: int = 50) -> float:
 
 
 def main() -> int:
-    if len(sys.argv) != 3:
-        sys.exit("usage: coarse_solve.py TWOMEM_EXE N1,N2,...")
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0] + " " + __doc__.splitlines()[1])
+    ap.add_argument("twomem", help="twomem executable")
+    ap.add_argument("sizes", help="target vertex counts, comma-separated (e.g. 1000,4000,16000)")
+    args = ap.parse_args()
+    sizes = [int(v) for v in args.sizes.split(",")]
+    import_numerics()
     result = {}
     with tempfile.TemporaryDirectory() as tmp:
-        for n in (int(v) for v in sys.argv[2].split(",")):
-            x, t = disk_mesh(sys.argv[1], n, Path(tmp))
+        for n in sizes:
+            x, t = disk_mesh(args.twomem, n, Path(tmp))
             result[len(x)] = solve_seconds(laplacian(x, t))
     print(json.dumps(result))
     return 0

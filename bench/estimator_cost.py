@@ -21,12 +21,14 @@ fields, /estimators and the history written, as a real run writes them. From the
   difference of their evaluation counts: an evaluation into arrays already in use, which is
   what every further Newton step of an adaptive run pays. Below 5·10^5 vertices an evaluation
   takes tens of milliseconds, and two of them (S = 3) are a small difference of two noisy
-  totals (JSON: us_per_vertex_range, the spread over the repeats). On this virtual machine the
-  first touch of fresh memory costs 0.4–2.2 s per GiB, a large share of the first evaluation;
-- µs/vertex = s/eval / N · 1e6; the speed-up is that of the later evaluations;
+  totals (JSON: us_per_vertex_range, the spread over the repeats). On a virtual machine the
+  first touch of fresh memory can be slow (docs/performance.md, *Measuring*), a large share of
+  the first evaluation;
+- µs/vertex = s/eval / N · 1e6; the speed-up is that of the later evaluations; on the most
+  threads the later column adds the range over the repeats;
 - peak KB/vertex = the whole run's peak resident memory (/performance: the largest phase peak)
-  over N, in KiB; `est. KB/vertex` the same for the peak up to the estimator phase minus the
-  peak before it (the mesh and the linear system), i.e. what the estimators add.
+  over N, in KiB; `KB/vertex added by the estimators` the same for the peak up to the
+  estimator phase minus the peak before it (the mesh and the linear system).
 With --repeat R each run is repeated and the median taken. The machine is shared: times are
 noisy, compare medians; instruction counts (valgrind --tool=callgrind) are the stable measure.
 """
@@ -80,8 +82,16 @@ def main() -> int:
     out_dir = Path(args.output)
     out_dir.mkdir(parents=True, exist_ok=True)
     rows = []
-    head = ("| flux | vertices | " + " | ".join(f"first µs/vertex, {t} thr | later µs/vertex, {t} thr" for t in threads)
-            + (" | speed-up" if len(threads) > 1 else "") + " | peak KB/vertex | est. KB/vertex |")
+    # the table of docs/performance.md (bench/update_performance.py replaces it with this one);
+    # the later evaluation on the most threads, the headline, with the range of the runs
+    def thr(t: int) -> str:
+        return f"{t} thread{'s' if t > 1 else ''}"
+
+    head = ("| flux | vertices | "
+            + " | ".join(f"first µs/vertex, {thr(t)} | later µs/vertex, {thr(t)}"
+                         + (" (range of the runs)" if t == threads[-1] else "") for t in threads)
+            + (" | speed-up (later)" if len(threads) > 1 else "")
+            + " | peak KB/vertex (whole run) | KB/vertex added by the estimators |")
     print(head)
     print("|" + " --- |" * (head.count("|") - 1))
     with tempfile.TemporaryDirectory() as tmp:
@@ -116,11 +126,13 @@ def main() -> int:
                        "peak_kb_per_vertex": 1024 * per[threads[-1]]["peak_mib"] / nv,
                        "estimators_kb_per_vertex": 1024 * per[threads[-1]]["estimators_mib"] / nv}
                 rows.append(row)
+                lo, hi = row["us_per_vertex_range"][threads[-1]]
+                spread = f"({lo:.2f}–{hi:.2f})" if args.repeat > 1 else "(one run)"
                 cells = " | ".join(f"{row['us_per_vertex_first'][t]:.2f} | {row['us_per_vertex'][t]:.2f}"
-                                   for t in threads)
+                                   + (f" {spread}" if t == threads[-1] else "") for t in threads)
                 speed = (f" | {row['s_later'][threads[0]] / row['s_later'][threads[-1]]:.2f}"
                          if len(threads) > 1 else "")
-                print(f"| {flux} | {nv} | {cells}{speed} | {row['peak_kb_per_vertex']:.2f} | "
+                print(f"| {flux.upper()} | {nv} | {cells}{speed} | {row['peak_kb_per_vertex']:.2f} | "
                       f"{row['estimators_kb_per_vertex']:.2f} |", flush=True)
     (out_dir / "estimator_cost.json").write_text(json.dumps(rows, indent=1))
     plot(rows, threads, out_dir / "estimator_cost.png")

@@ -5,7 +5,7 @@ method next to the paper's values, with run time and peak memory.
     .venv/bin/python bench/paper_bbbv.py [--exe build/release/twomem]
 
 The paper reports η_disc and the effectivity index, not the error; its implied energy error is
-η_disc / effectivity (literature/paper_figure_data.md): 0.0261/1.038, 0.01301/1.035,
+η_disc / effectivity (its Figs. 3 and 7, postproc/twomem_post/paper.py): 0.0261/1.038, 0.01301/1.035,
 0.00605/1.034.
 """
 from __future__ import annotations

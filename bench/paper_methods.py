@@ -2,7 +2,7 @@
 """The paper's set-up on `bbbv` (Newton-min, ILU(0)-preconditioned GMRES, initial guess
 (g, 0, 0), criteria every ν = 10 iterations) at its three mesh sizes: Newton steps and
 cumulated GMRES iterations of the exact, inexact and adaptive methods next to the paper's
-(literature/paper_figure_data.md), the estimate and its effectivity, and the time per GMRES
+(its Fig. 6, as in postproc/twomem_post/paper.py), the estimate and its effectivity, and the time per GMRES
 iteration (estimator time excluded). --gamma-table adds the paper's γ sensitivity table on
 the largest mesh.
 

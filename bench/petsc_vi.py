@@ -40,14 +40,19 @@ import re
 import statistics
 import subprocess
 import sys
+import sysconfig
 import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PETSC_DIR = "/usr/lib/petscdir/petsc3.18/x86_64-linux-gnu-real"
+# Debian's PETSc for this machine's architecture (x86_64-linux-gnu, aarch64-linux-gnu, ...)
+PETSC_DIR = f"/usr/lib/petscdir/petsc3.18/{sysconfig.get_config_var('MULTIARCH') or 'x86_64-linux-gnu'}-real"
 PROG = "petsc_vi.py"
+# bound by import_numerics() once the arguments are parsed
+h5py = np = sp = None
+RULE5_BARY = RULE5_WEIGHTS = None
 
 
 def fail(message: str, code: int = 2) -> None:
@@ -76,19 +81,18 @@ def import_petsc(extra_options: list[str]):
     return PETSc
 
 
-def import_numerics():
+def import_numerics() -> None:
+    """h5py, numpy and scipy as the module's globals, and the quadrature rule built on them: after
+    the arguments are parsed, so that `--help` needs none of them."""
+    global h5py, np, sp, RULE5_BARY, RULE5_WEIGHTS
     try:
-        import h5py  # noqa: F401
-        import numpy  # noqa: F401
-        import scipy.sparse  # noqa: F401
+        import h5py
+        import numpy as np
+        import scipy.sparse as sp
     except ImportError as exc:
         fail(f"{exc.name} is not importable under {sys.executable}: run bench/setup_petsc.sh", 3)
-
-
-import_numerics()
-import h5py  # noqa: E402
-import numpy as np  # noqa: E402
-import scipy.sparse as sp  # noqa: E402
+    RULE5_BARY, RULE5_WEIGHTS = _dunavant5()
+    _check_rule5()
 
 
 # --------------------------------------------------------------------------------------------
@@ -255,9 +259,6 @@ def _dunavant5() -> tuple[np.ndarray, np.ndarray]:
     return np.array(pts), np.array(wts)
 
 
-RULE5_BARY, RULE5_WEIGHTS = _dunavant5()
-
-
 def _check_rule5() -> None:
     """∫ x^i y^j over the reference triangle is i! j! / (i + j + 2)!: exact for i + j ≤ 5."""
     from math import factorial
@@ -267,9 +268,6 @@ def _check_rule5() -> None:
             exact = factorial(i) * factorial(j) / factorial(i + j + 2)
             if abs(0.5 * RULE5_WEIGHTS @ (x ** i * y ** j) - exact) > 1e-14:
                 fail(f"degree-5 rule is not exact for x^{i} y^{j}")
-
-
-_check_rule5()
 
 
 @dataclass
@@ -710,6 +708,7 @@ def build_rows(m: Measurements, fine: Level, case: Case, ref: dict, perm: np.nda
 
 def main(argv: list[str]) -> int:
     args = parse_args(argv)
+    import_numerics()
     PETSc = import_petsc(args.petsc_options.split())
     exe = Path(args.twomem)
     if not exe.is_file() or not os.access(exe, os.X_OK):

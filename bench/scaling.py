@@ -9,7 +9,7 @@ the number of vertices, from about 10^4 to 4.5·10^6, as a table and log–log p
 Every run is the unit disk with a coarse mesh of 1262 vertices (coarse_h = 0.1, boundary
 vertices 0.02 apart, the same coarse mesh at every size) refined `levels` times, nested
 iteration (the default), the multigrid preconditioner (the default) and no estimators: the
-"solve" of the issue, everything but the estimators. The cases: `membranes` (μ1 = 2, μ2 = 0.5,
+solve, everything but the estimators. The cases: `membranes` (μ1 = 2, μ2 = 0.5,
 f1 = −2, f2 = 1, g = 0.05: a large contact zone) and `bbbv` (the paper's, with its known
 solution; its exact error is not computed here, as it is not part of a solve). Times are the
 run's own phase clock (`/performance` of the result file), the median over `--repeat` runs;
@@ -25,9 +25,8 @@ many fresh bytes as the run's peak once (one thread, 4-KiB pages) and reports it
 seconds (`touch kernel s`, median; `touch s/GiB` per GiB written). Where the two kernel times
 agree, the run's kernel time is the host's price of its peak, paid by any program of that size.
 Both wait `--settle` seconds first: a virtual machine's host takes freed memory back within a
-few seconds, and a process that touches memory another one has just freed may pay a fraction
-of the price (on the development machine 1.6–4.5 s of kernel time for 3.9 GiB against
-4.6–5.7 s after a pause).
+few seconds, and a process that touches memory another one has just freed may pay only a
+fraction of the price (docs/performance.md, *Measuring*).
 """
 from __future__ import annotations
 

@@ -5,14 +5,34 @@
 # dependency; twomem itself never links PETSc.
 #
 #   bench/setup_petsc.sh        # idempotent: installs only what is missing, then checks
+#   bench/setup_petsc.sh --help # this text; nothing installed
 set -euo pipefail
 
+# the comment block above, as the help text (bash alone: the ctest of --help runs without PATH)
+usage() {
+  local line
+  {
+    read -r line
+    while read -r line && [[ $line == "#"* ]]; do
+      line=${line#"#"}
+      printf '%s\n' "${line# }"
+    done
+  } <"${BASH_SOURCE[0]}"
+}
 say() { printf '[setup_petsc] %s\n' "$*"; }
 die() { printf '[setup_petsc] error: %s\n' "$*" >&2; exit 1; }
 
-export PETSC_DIR=${PETSC_DIR:-/usr/lib/petscdir/petsc3.18/x86_64-linux-gnu-real}
+# arguments first: anything but --help is refused before a package is touched
+case "${1:-}" in
+  "") ;;
+  -h|--help) usage; exit 0 ;;
+  *) usage >&2; exit 2 ;;
+esac
+
 py=/usr/bin/python3
 [ -x "$py" ] || die "$py not found (Debian's petsc4py runs under the system interpreter)"
+# Debian's PETSc lives under the architecture's triplet (x86_64-linux-gnu, aarch64-linux-gnu, ...)
+export PETSC_DIR=${PETSC_DIR:-/usr/lib/petscdir/petsc3.18/$("$py" -c 'import sysconfig; print(sysconfig.get_config_var("MULTIARCH"))')-real}
 
 packages=(python3-petsc4py python3-h5py python3-scipy python3-numpy)
 # shellcheck source=scripts/debian_packages.sh

@@ -19,8 +19,8 @@ say() { printf '[bootstrap] %s\n' "$*"; }
 
 # --- Debian packages ---------------------------------------------------------------------
 # libopenblas0-openmp: UMFPACK's factorizations are dense products of frontal matrices, and
-# Debian's default reference BLAS makes them about half as fast (the direct method at 2.6e5
-# vertices: 30-32 s against 14 s). Installing it makes OpenBLAS the system's libblas.so.3
+# Debian's default reference BLAS makes them about half as fast (docs/performance.md,
+# "Measuring"). Installing it makes OpenBLAS the system's libblas.so.3
 # (a Debian alternative); its OpenMP build follows OMP_NUM_THREADS like twomem's own loops.
 packages=(gfortran gcc g++ cmake ninja-build pkg-config libsuitesparse-dev libmetis-dev
           libopenblas0-openmp libhdf5-dev libopenmpi-dev openmpi-bin python3 python3-venv python3-pip)

@@ -4,8 +4,8 @@ Source: J. Dabaghi, V. Martin, M. Vohralík, "Adaptive inexact semismooth Newton
 the contact problem between two membranes", J. Sci. Comput. 84:28 (2020), §8.1: p = 1, the
 test case 'bbbv', Newton-min with ILU(0)-preconditioned GMRES(30), estimators every ν = 10
 GMRES iterations, γ_alg = γ_lin = 0.3, initial guess (g, 0, 0). Iteration counts from Fig. 6,
-estimators at convergence from Fig. 3, effectivity indices from Fig. 7, as transcribed in
-literature/paper_figure_data.md. Keys are our own names: the /summary attributes and the
+estimators at convergence from Fig. 3, effectivity indices from Fig. 7, read off the
+figures. Keys are our own names: the /summary attributes and the
 study's method names (methods.py), so a value is looked up the way ours is.
 """
 from __future__ import annotations

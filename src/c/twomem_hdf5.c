@@ -1,4 +1,5 @@
-/* The HDF5 side of twomem's result files, called only from the Fortran module twomem_io_hdf5.
+/* The HDF5 side of twomem's files (results, nodal loads), called only from the Fortran module
+ * twomem_hdf5_file.
  * Every entry point returns a status (0 = success) and, on failure, writes a one-line message
  * into the caller's buffer: the HDF5 error stack's outermost description (what the API call
  * was asked to do) followed by its innermost one (the actual cause, e.g. the errno of open(2)).

@@ -105,12 +105,11 @@ int twomem_sys_getpid(void) { return (int)getpid(); }
  * mmap threshold (at most 32 MiB) with fresh mappings and unmaps them on free, and gives the
  * heap's free top back to the kernel: a run that allocates and frees mesh-sized arrays again
  * and again (a Newton step's vectors, an evaluation's workspaces, the output's gathered
- * copies) then has the kernel zero the same memory each time, which this machine's kernel does
- * at 0.4-2.2 s per GiB. With no mmapped blocks and no trimming, a freed block is reused.
- * Measured (median of paired runs): the whole adaptive run at 10^6 vertices about 1 s less in
- * the kernel and 11% faster, peak within 1%; a Newton-min run at 4.5 10^6 vertices 28 -> 21-23 s
- * (no mmapped blocks alone: 27-32 s). The price is on small runs: the default case peaks 7%
- * higher (9 MiB). Other C libraries keep their own policy. */
+ * copies) then has the kernel zero the same memory each time, which is slow on a virtual
+ * machine. With no mmapped blocks and no trimming, a freed block is reused: large runs spend
+ * far less time in the kernel, at the price of a somewhat higher peak on small runs
+ * (docs/performance.md, "Measurements behind design choices"). Other C libraries keep their
+ * own policy. */
 void twomem_sys_keep_freed_memory(void)
 {
 #ifdef __GLIBC__
@@ -124,10 +123,10 @@ void twomem_sys_keep_freed_memory(void)
  * stays resident; a phase that frees a large structure for a differently shaped one (the
  * multigrid hierarchies before the algebraic flux's arrays) would otherwise keep both in the
  * resident peak, since the new arrays do not fit the holes the old ones left. Below 16 MiB of
- * free heap it keeps them: the kernel would zero them again when reused, and on the default
- * case (a few MiB free) that cost 6% of the run for a peak no one needs lowered. At 64 MiB a
- * run of 1.5 10^5 vertices kept its evaluation's workspaces (45 MiB) resident beside the
- * Krylov basis that followed them, and peaked 8% above what it does now. */
+ * free heap it keeps them: the kernel would zero them again when reused, which costs a small
+ * run more time than its lower peak is worth; a higher threshold left mid-sized runs with an
+ * evaluation's workspaces resident beside the Krylov basis that followed them
+ * (docs/performance.md). */
 void twomem_sys_return_freed_memory(void)
 {
 #ifdef __GLIBC__

@@ -25,13 +25,12 @@ typedef struct {
 
 /* The UMFPACK version and the BLAS its dense kernels run on, into text (at most cap bytes, NUL
  * included), for `twomem --version` and the result file. A factorization spends its time in the
- * dense products of its frontal matrices: Debian's default reference BLAS made the direct
- * method's run at 2.6 10^5 vertices 2.2 times as slow as OpenBLAS (30-32 s against 14 s,
- * measured 2026-11-27), which is why scripts/bootstrap.sh installs OpenBLAS, and why a run
- * should say which one it got. The BLAS is named by the file that defines the dgemm_ the
- * process resolves (the one UMFPACK calls: an LD_LIBRARY_PATH or a Debian alternative can put
- * another library there than the one the build saw), and OpenBLAS's own description is added
- * when that file is OpenBLAS or loads it. */
+ * dense products of its frontal matrices, which Debian's default reference BLAS computes about
+ * half as fast as OpenBLAS (docs/performance.md, "Measuring"): that is why
+ * scripts/bootstrap.sh installs OpenBLAS, and why a run should say which one it got. The BLAS
+ * is named by the file that defines the dgemm_ the process resolves (the one UMFPACK calls: an
+ * LD_LIBRARY_PATH or a Debian alternative can put another library there than the one the build
+ * saw), and OpenBLAS's own description is added when that file is OpenBLAS or loads it. */
 void twomem_umf_library(char *text, size_t cap) {
   Dl_info info;
   void *dgemm = dlsym(RTLD_DEFAULT, "dgemm_");
@@ -73,9 +72,10 @@ int twomem_umf_analyse(int n, const int *row_ptr, const int *col, const double *
   for (int i = 0; i <= n; ++i) h->ap[i] = row_ptr[i] - 1;
   for (int k = 0; k < nnz; ++k) h->ai[k] = col[k] - 1;
   umfpack_di_defaults(h->control);
-  /* Nested dissection suits 2D finite-element graphs: on the radial disk case with 4 levels
-   * (111k unknowns, 27 Newton steps) METIS ordering took the run from 88 s to 28 s against
-   * UMFPACK's default AMD/COLAMD choice, with less memory (measured 2026-11-22). */
+  /* Nested dissection suits 2D finite-element graphs: METIS ordering gives the Newton systems
+   * smaller factors, and far shorter factorizations, than UMFPACK's default AMD/COLAMD choice
+   * (docs/performance.md). A matrix factorized once per run (minimum_degree) saves less by it
+   * than METIS's own analysis costs. */
   h->control[UMFPACK_ORDERING] = minimum_degree ? UMFPACK_ORDERING_AMD : UMFPACK_ORDERING_METIS;
   int status = umfpack_di_symbolic(n, n, h->ap, h->ai, val, &h->symbolic, h->control, h->info);
   if (status != UMFPACK_OK) {

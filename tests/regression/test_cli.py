@@ -1,4 +1,4 @@
-"""The command-line contract of `twomem` (docs/input.md, README), probed as a demanding user.
+"""The command-line contract of `twomem` (docs/input.md, docs/usage.md), probed as a demanding user.
 
 Every bad input (usage, namelist file, override, mesh file) must exit 2, every output that
 cannot be written must exit 3 before any solving, and each must print exactly one stderr line

@@ -1,5 +1,5 @@
 """Every estimator value against the values of the estimator code as it was before its rewrite
-for speed and memory (issue "Estimators at scale"): the new evaluation must reproduce the old one
+for speed and memory (shape classes, patch signatures): the new evaluation must reproduce the old one
 to round-off.
 
 How the references were made: with the release and debug builds of commit 30774a0 (main with

@@ -1,4 +1,4 @@
-"""The a posteriori estimators through the whole program (issue 4, paper §§4–6).
+"""The a posteriori estimators through the whole program (paper §§4–6).
 
 The guaranteed bound η ≥ |||u − u_h||| is checked at every recorded iterate of every method on
 the two cases with a closed-form solution. The meshes resolve the circle finely (boundary_h

@@ -3,6 +3,8 @@
 module test_config
    use twomem_base_kinds, only: dp, i8
    use twomem_base_errors, only: exit_bad_input
+   use twomem_base_options, only: c_function_min, c_function_fb, domain_disk, domain_gmsh, domain_square, exact_none, &
+      method_direct, method_gmres, method_adaptive, precond_mg, precond_jacobi
    use twomem_input_config, only: config_t, string_t, load_config, load_config_text, config_echo
    use twomem_input_values, only: format_real, scan_real, scan_integer, scan_logical
    use twomem_testing, only: unittest_t, new_unittest, check, error_t
@@ -184,15 +186,15 @@ contains
       type(config_t) :: ref
 
       ! the documented defaults, spelled out once
-      call check(err, ref%mesh%domain == 'disk' .and. ref%mesh%file == '' .and. ref%mesh%levels == 4 &
+      call check(err, ref%mesh%domain == domain_disk .and. ref%mesh%file == '' .and. ref%mesh%levels == 4 &
                  .and. ref%mesh%coarse_h == 0.25_dp, 'mesh defaults')
       call check(err, ref%problem%mu1 == 1 .and. ref%problem%mu2 == 1 .and. ref%problem%f1 == -0.25_dp &
-                 .and. ref%problem%f2 == 0.25_dp .and. ref%problem%g == 0.05_dp .and. ref%problem%exact == 'none', &
+                 .and. ref%problem%f2 == 0.25_dp .and. ref%problem%g == 0.05_dp .and. ref%problem%exact == exact_none, &
                  'problem defaults')
-      call check(err, ref%newton%cfun == 'min' .and. ref%newton%linear == 'adaptive' .and. ref%newton%max_it == 100 &
+      call check(err, ref%newton%cfun == c_function_min .and. ref%newton%linear == method_adaptive .and. ref%newton%max_it == 100 &
                  .and. ref%newton%tol == 1.0e-10_dp .and. ref%newton%gamma_lin == 0.3_dp, 'newton defaults')
       call check(err, ref%gmres%restart == 30 .and. ref%gmres%max_it == 5000 .and. ref%gmres%rtol == 1.0e-10_dp &
-                 .and. ref%gmres%precond == 'mg', 'gmres defaults')
+                 .and. ref%gmres%precond == precond_mg, 'gmres defaults')
       call check(err, ref%estimate%gamma_alg == 0.3_dp .and. ref%estimate%enabled, 'estimate defaults')
       call check(err, ref%output%file == '' .and. ref%output%fields .and. ref%output%estimators &
                  .and. ref%output%history .and. ref%output%xdmf, 'output defaults')
@@ -233,17 +235,17 @@ contains
                         '/'//nl)
       call load_config(path, no_overrides(), cfg, err)
       if (allocated(err)) return
-      call check(err, cfg%mesh%domain == 'gmsh', 'domain')
+      call check(err, cfg%mesh%domain == domain_gmsh, 'domain')
       call check(err, cfg%mesh%file == 'meshes/it''s a "mesh".msh', 'file with quotes: '//trim(cfg%mesh%file))
       call check(err, cfg%mesh%coarse_h == 0.125_dp .and. cfg%mesh%levels == 6, 'coarse_h, levels')
       call check(err, cfg%problem%mu1 == 2 .and. cfg%problem%mu2 == 3, 'mu')
       call check(err, cfg%problem%f1 == -1.0e-3_dp .and. cfg%problem%f2 == 5 .and. cfg%problem%g == 0.1_dp, 'f, g')
-      call check(err, cfg%problem%exact == 'none', 'exact')
-      call check(err, cfg%newton%cfun == 'fb' .and. cfg%newton%linear == 'gmres', 'cfun, linear')
+      call check(err, cfg%problem%exact == exact_none, 'exact')
+      call check(err, cfg%newton%cfun == c_function_fb .and. cfg%newton%linear == method_gmres, 'cfun, linear')
       call check(err, cfg%newton%max_it == 7 .and. cfg%newton%tol == 1.0e-8_dp .and. cfg%newton%gamma_lin == 1, &
                  'newton numbers')
       call check(err, cfg%gmres%restart == 50 .and. cfg%gmres%max_it == 123 .and. cfg%gmres%rtol == 1.5e-6_dp &
-                 .and. cfg%gmres%precond == 'jacobi', 'gmres')
+                 .and. cfg%gmres%precond == precond_jacobi, 'gmres')
       call check(err, cfg%estimate%gamma_alg == 0.5_dp .and. .not. cfg%estimate%enabled, 'estimate')
       call check(err, cfg%output%file == 'out/full.h5', 'output file')
       call check(err, .not. cfg%output%fields .and. cfg%output%estimators .and. .not. cfg%output%history &
@@ -411,10 +413,10 @@ contains
       call load_config(path, words('newton.cfun=fb', 'output.file=out/a.h5', 'MESH.Levels=5', &
                                   "mesh.domain='Square'", ' problem.mu1 = 2.5 ', 'estimate.enabled=F'), cfg, err)
       if (allocated(err)) return
-      call check(err, cfg%newton%cfun == 'fb', 'unquoted word')
+      call check(err, cfg%newton%cfun == c_function_fb, 'unquoted word')
       call check(err, cfg%output%file == 'out/a.h5', 'unquoted path with a slash: '//trim(cfg%output%file))
       call check(err, cfg%mesh%levels == 5, 'override beats the file')
-      call check(err, cfg%mesh%domain == 'square', 'quoted word, lower-cased')
+      call check(err, cfg%mesh%domain == domain_square, 'quoted word, lower-cased')
       call check(err, cfg%problem%mu1 == 2.5_dp, 'blanks around the override')
       call check(err, .not. cfg%estimate%enabled, 'logical')
       if (allocated(err)) return
@@ -433,7 +435,7 @@ contains
       path = write_case('config_fixable.nml', '&problem mu1 = -1 /'//nl//'&mesh file = ''x.msh'' /'//nl)
       call load_config(path, words('problem.mu1=1', 'mesh.domain=gmsh'), cfg, err)
       if (allocated(err)) return
-      call check(err, cfg%problem%mu1 == 1 .and. cfg%mesh%domain == 'gmsh' .and. cfg%mesh%file == 'x.msh', &
+      call check(err, cfg%problem%mu1 == 1 .and. cfg%mesh%domain == domain_gmsh .and. cfg%mesh%file == 'x.msh', &
                  'fixed by overrides')
    end subroutine test_override_fixes_file
 
@@ -474,11 +476,11 @@ contains
                         '&gmres PRECOND = JACOBI RTOL = 1E-8 /'//nl)
       call load_config(path, no_overrides(), cfg, err)
       if (allocated(err)) return
-      call check(err, cfg%mesh%domain == 'square' .and. cfg%mesh%levels == 2, 'mesh')
-      call check(err, cfg%newton%cfun == 'fb' .and. cfg%newton%linear == 'direct', 'words lower-cased')
+      call check(err, cfg%mesh%domain == domain_square .and. cfg%mesh%levels == 2, 'mesh')
+      call check(err, cfg%newton%cfun == c_function_fb .and. cfg%newton%linear == method_direct, 'words lower-cased')
       call check(err, cfg%output%file == 'Out/Mixed.H5', 'file names verbatim')
       call check(err, .not. cfg%output%xdmf, 'logical')
-      call check(err, cfg%gmres%precond == 'jacobi' .and. cfg%gmres%rtol == 1.0e-8_dp, 'gmres')
+      call check(err, cfg%gmres%precond == precond_jacobi .and. cfg%gmres%rtol == 1.0e-8_dp, 'gmres')
    end subroutine test_case_insensitive
 
    subroutine test_echo_round_trip(err)

@@ -5,6 +5,7 @@
 !> computed here (exact P1/barycentric integrals), not taken from the code under test.
 module test_estimate
    use twomem_base_kinds, only: dp, ip
+   use twomem_base_options, only: method_direct
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_mesh_generators, only: make_disk, make_square
    use twomem_mesh_hierarchy, only: mesh_hierarchy_t, parent_triangle
@@ -13,7 +14,7 @@ module test_estimate
    use twomem_fem_assembly, only: p1_gradients
    use twomem_fem_cases, only: make_problem
    use twomem_linalg_dense, only: cholesky_factor, lu_factor, lu_solve
-   use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_solve, method_direct
+   use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_solve
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, make_frame, edge_gauss
    use twomem_estimate_lifting, only: algebraic_residuals
    use twomem_estimate_disc_flux, only: discretization_flux, load_moments_t
@@ -650,7 +651,8 @@ contains
    !> of the interior one, twice refined: the polygon's geometric error, invisible to the
    !> estimators, stays well below the discretization error), solved by exact Newton-min.
    subroutine solved_disk(exact, data, h, p, res, err)
-      character(len=*), intent(in) :: exact
+      !> exact_radial or exact_bbbv
+      integer, intent(in) :: exact
       class(problem_data_t), allocatable, intent(out) :: data
       type(mesh_hierarchy_t), intent(out) :: h
       type(discrete_problem_t), intent(out) :: p

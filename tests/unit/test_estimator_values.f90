@@ -5,6 +5,7 @@
 !> values are computed here, not taken from the code under test.
 module test_estimator_values
    use twomem_base_kinds, only: dp, ip
+   use twomem_base_options, only: exact_radial, exact_bbbv, domain_disk, domain_square, domain_gmsh
    use twomem_mesh_hierarchy, only: mesh_hierarchy_t
    use twomem_fem_problem, only: problem_data_t
    use twomem_fem_discrete, only: discrete_problem_t
@@ -41,6 +42,7 @@ contains
    subroutine test_at_solution(err)
       type(error_t), allocatable, intent(out) :: err
       character(len=6), parameter :: cases(2) = ['radial', 'bbbv  ']
+      integer, parameter :: kinds(2) = [exact_radial, exact_bbbv]
       type(mesh_hierarchy_t) :: h
       class(problem_data_t), allocatable :: data
       type(discrete_problem_t) :: p
@@ -52,13 +54,13 @@ contains
       character(len=16) :: what
 
       do c = 1, 2
-         call solved_disk(trim(cases(c)), data, h, p, res, err)
+         call solved_disk(kinds(c), data, h, p, res, err)
          if (allocated(err)) return
          energy = norm2(energy_error_per_element(h%meshes(2), data, p%to_nodal(res%x(1:p%n), p%g), &
                                                  p%to_nodal(res%x(p%n + 1:2*p%n), 0.0_dp)))
          do order = 0, 1
             write (what, '(a," RT",i0)') trim(cases(c)), order
-            call estimator%init(h, data, order, 3, poincare_constant('disk', 2.0_dp), err)
+            call estimator%init(h, data, order, 3, poincare_constant(domain_disk, 2.0_dp), err)
             if (allocated(err)) return
             call estimator%evaluate(h, data, p, res%x, est, err)
             if (allocated(err)) return
@@ -93,12 +95,12 @@ contains
       if (allocated(err)) return
       n = p%n
       x = random_vector(3*n, 40)
-      call estimator%init(h, data, 1, 2, poincare_constant('disk', 2.0_dp), err)
+      call estimator%init(h, data, 1, 2, poincare_constant(domain_disk, 2.0_dp), err)
       if (allocated(err)) return
       call estimator%evaluate(h, data, p, x, est, err)
       if (allocated(err)) return
       mu = [p%mu1, p%mu2]
-      c_omega = poincare_constant('disk', 2.0_dp)*sqrt(1/mu(1) + 1/mu(2))
+      c_omega = poincare_constant(domain_disk, 2.0_dp)*sqrt(1/mu(1) + 1/mu(2))
       associate (mesh => h%meshes(1))
          u = reshape([p%to_nodal(x(1:n), p%g), p%to_nodal(x(n + 1:2*n), 0.0_dp)], [mesh%nv, 2])
          lambda = p%to_nodal(x(2*n + 1:), 0.0_dp)
@@ -155,11 +157,11 @@ contains
       type(error_t), allocatable, intent(out) :: err
       real(dp) :: c
 
-      c = poincare_constant('disk', 2.0_dp)
+      c = poincare_constant(domain_disk, 2.0_dp)
       call check(err, abs(bessel_j0(1/c)) < 1.0e-15_dp, 'J_0(1/C) = 0')
       call check(err, bessel_j0(0.999_dp/c) > 0 .and. bessel_j0(1.001_dp/c) < 0, 'first zero of J_0')
-      call check_close(err, poincare_constant('square', 2*sqrt(2.0_dp)), 1/sqrt(pi**2/2), 1.0e-15_dp, 0.0_dp, 'square')
-      call check_close(err, poincare_constant('gmsh', 3.0_dp), 3/pi, 1.0e-15_dp, 0.0_dp, 'diameter/pi')
+      call check_close(err, poincare_constant(domain_square, 2*sqrt(2.0_dp)), 1/sqrt(pi**2/2), 1.0e-15_dp, 0.0_dp, 'square')
+      call check_close(err, poincare_constant(domain_gmsh, 3.0_dp), 3/pi, 1.0e-15_dp, 0.0_dp, 'diameter/pi')
    end subroutine test_poincare
 
    !> (64a) compares the patch sum √Σ η_alg,K² with the min over the patch of γ max(η_disc, η_lin),
@@ -224,11 +226,11 @@ contains
       call mesh_problem('disk', 0.5_dp, 2, data, h, p, err)
       if (allocated(err)) return
       x = random_vector(3*p%n, 41)
-      call kept%init(h, data, 1, 3, poincare_constant('disk', 2.0_dp), err)
+      call kept%init(h, data, 1, 3, poincare_constant(domain_disk, 2.0_dp), err)
       if (allocated(err)) return
       call kept%evaluate(h, data, p, x, expected, err, fields=.true.)
       if (allocated(err)) return
-      call ended%init(h, data, 1, 3, poincare_constant('disk', 2.0_dp), err)
+      call ended%init(h, data, 1, 3, poincare_constant(domain_disk, 2.0_dp), err)
       if (allocated(err)) return
       call ended%evaluate(h, data, p, x, est, err, fields=.false.)
       if (allocated(err)) return

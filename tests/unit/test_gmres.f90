@@ -10,7 +10,8 @@ module test_gmres
                                       csr_operator_t, identity_preconditioner_t, &
                                       euclidean_product_t
    use twomem_linalg_gmres, only: gmres_solve, gmres_options_t, gmres_monitor_t, &
-                                  gmres_workspace_t
+                                  gmres_workspace_t, gmres_converged, gmres_iteration_limit, gmres_breakdown, &
+                                  gmres_stagnation
    use twomem_testing, only: unittest_t, new_unittest, check, check_close, error_t
    implicit none
    private
@@ -273,7 +274,7 @@ contains
       opt%rtol = 1.0e-13_dp
       call solve_dense(d, b, opt, x, mon, err)
       if (allocated(err)) return
-      call check(err, mon%converged .and. mon%reason == 'converged', 'converged: '//mon%reason)
+      call check(err, mon%converged .and. mon%reason == gmres_converged, 'converged: '//mon%reason_text())
       call check(err, mon%iterations <= n, 'at most n iterations')
       call check(err, maxval(abs(x - ref)) <= 1.0e-10_dp*maxval(abs(ref)), 'x matches LU')
    end subroutine test_dense_spd
@@ -297,7 +298,7 @@ contains
       opt%restart = 4
       call solve_dense(d, b, opt, x, mon, err)
       if (allocated(err)) return
-      call check(err, mon%converged, 'converged: '//mon%reason)
+      call check(err, mon%converged, 'converged: '//mon%reason_text())
       call check(err, mon%restarts > 0, 'GMRES(4) on n = 12 restarts')
       call check(err, maxval(abs(x - ref)) <= 1.0e-10_dp*maxval(abs(ref)), 'x matches LU')
    end subroutine test_dense_nonsymmetric
@@ -319,7 +320,7 @@ contains
       opt%restart = n
       call solve_dense(d, b, opt, x, mon, err)
       if (allocated(err)) return
-      call check(err, mon%converged, 'converged: '//mon%reason)
+      call check(err, mon%converged, 'converged: '//mon%reason_text())
       call check(err, mon%iterations <= n .and. mon%restarts == 0, 'at most n iterations, no restart')
       call check(err, size(mon%residual_history) == mon%iterations + 1, 'history length')
       call check(err, maxval(abs(x - ref)) <= 1.0e-12_dp*maxval(abs(ref)), 'x matches LU')
@@ -338,7 +339,7 @@ contains
       call solve_csr(a, b, opt, x, mon, err)
       if (allocated(err)) return
       res = true_residual(a, b, x)
-      call check(err, mon%converged .and. mon%reason == 'converged', 'converged: '//mon%reason)
+      call check(err, mon%converged .and. mon%reason == gmres_converged, 'converged: '//mon%reason_text())
       call check(err, res <= (1.0_dp + 1.0e-6_dp)*1.0e-10_dp*norm2(b), 'true residual ≤ rtol ‖b‖')
       call check_close(err, mon%final_residual, res, 1.0e-6_dp, 0.0_dp, 'final_residual')
       call check_close(err, mon%initial_residual, norm2(b), 100*eps, 0.0_dp, 'initial_residual')
@@ -386,7 +387,7 @@ contains
       opt%restart = 8
       call solve_csr(a, b, opt, x, mon, err)
       if (allocated(err)) return
-      call check(err, .not. mon%converged .and. mon%reason == 'iteration limit', 'reason: '//mon%reason)
+      call check(err, .not. mon%converged .and. mon%reason == gmres_iteration_limit, 'reason: '//mon%reason_text())
       call check(err, mon%iterations == 20 .and. size(mon%residual_history) == 21, 'counts')
       call check_close(err, mon%final_residual, true_residual(a, b, x), 1.0e-10_dp, 0.0_dp, &
                        'final residual is the true one')
@@ -395,7 +396,7 @@ contains
       opt%max_it = 0
       call solve_csr(a, b, opt, x, mon, err)
       if (allocated(err)) return
-      call check(err, mon%reason == 'iteration limit' .and. mon%iterations == 0 .and. all(x == 0), &
+      call check(err, mon%reason == gmres_iteration_limit .and. mon%iterations == 0 .and. all(x == 0), &
                  'max_it = 0 returns the guess')
    end subroutine test_limit
 
@@ -430,7 +431,7 @@ contains
       call solve_dense(reshape([1.0_dp, 0.0_dp, 0.0_dp, 0.0_dp], [2, 2]), [1.0_dp, 1.0_dp], &
                        opt, x, mon, err)
       if (allocated(err)) return
-      call check(err, .not. mon%converged .and. mon%reason == 'breakdown', 'reason: '//mon%reason)
+      call check(err, .not. mon%converged .and. mon%reason == gmres_breakdown, 'reason: '//mon%reason_text())
       call check(err, mon%iterations == 2, 'two iterations')
       call check_close(err, mon%final_residual, 1.0_dp, 1.0e-14_dp, 0.0_dp, 'least-squares residual')
       call check(err, maxval(abs(x - 1.0_dp)) <= 10*eps, 'least-squares solution')
@@ -447,7 +448,7 @@ contains
       call solve_dense(reshape([0.0_dp, -1.0_dp, 1.0_dp, 0.0_dp], [2, 2]), [1.0_dp, 0.0_dp], &
                        opt, x, mon, err)
       if (allocated(err)) return
-      call check(err, .not. mon%converged .and. mon%reason == 'stagnation', 'reason: '//mon%reason)
+      call check(err, .not. mon%converged .and. mon%reason == gmres_stagnation, 'reason: '//mon%reason_text())
       call check(err, mon%iterations == 3 .and. mon%restarts == 2, 'three cycles')
    end subroutine test_stagnation
 
@@ -490,7 +491,7 @@ contains
       x = 0.0_dp
       call gmres_solve(op, jac, dot, b, x, opt, pre, err)
       if (allocated(err)) return
-      call check(err, pre%converged, 'Jacobi-preconditioned GMRES converges: '//pre%reason)
+      call check(err, pre%converged, 'Jacobi-preconditioned GMRES converges: '//pre%reason_text())
       call check(err, true_residual(a, b, x) <= 1.0e-10_dp*norm2(b)*(1 + 1.0e-6_dp), 'true residual')
       call check(err, 3*pre%iterations < plain%iterations, 'Jacobi cuts the iterations')
    end subroutine test_jacobi
@@ -510,7 +511,7 @@ contains
       opt%atol = 1.0e-3_dp
       call solve_csr(a, b, opt, x, loose, err)
       if (allocated(err)) return
-      call check(err, loose%converged, 'converged on atol: '//loose%reason)
+      call check(err, loose%converged, 'converged on atol: '//loose%reason_text())
       call check(err, true_residual(a, b, x) <= 1.0e-3_dp*(1 + 1.0e-6_dp), 'true residual ≤ atol')
       call check(err, loose%iterations < tight%iterations, 'atol target reached earlier')
       if (allocated(err)) return
@@ -543,7 +544,7 @@ contains
       opt%restart = 400
       call gmres_solve(op, id, dot, b, x, opt, mon, err)
       if (allocated(err)) return
-      call check(err, mon%converged, 'converged: '//mon%reason)
+      call check(err, mon%converged, 'converged: '//mon%reason_text())
       call check(err, mon%false_convergences >= 1 .and. mon%restarts >= 1, &
                  'false convergence recorded and followed by a restart')
       call op%apply(x, ax)
@@ -609,7 +610,8 @@ contains
       b(37) = ieee_value(1.0_dp, ieee_quiet_nan)
       call gmres_solve(op, id, dot, b, x, opt, mon, err)
       if (allocated(err)) return
-      call check(err, .not. mon%converged .and. mon%reason == 'breakdown', 'NaN right-hand side: breakdown, got '//mon%reason)
+      call check(err, .not. mon%converged .and. mon%reason == gmres_breakdown, &
+                 'NaN right-hand side: breakdown, got '//mon%reason_text())
       call check(err, all(x == 1.0_dp), 'x left as it was')
    end subroutine test_nan_rhs
 

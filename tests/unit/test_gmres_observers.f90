@@ -9,7 +9,8 @@ module test_gmres_observers
    use twomem_linalg_csr, only: csr_t
    use twomem_linalg_operators, only: csr_operator_t, identity_preconditioner_t
    use twomem_linalg_gmres, only: gmres_solve, gmres_options_t, gmres_monitor_t, gmres_observer_t, &
-                                  gmres_workspace_t
+                                  gmres_workspace_t, gmres_stopped_by_observer, gmres_iteration_limit, &
+                                  gmres_non_finite_correction
    use twomem_testing, only: unittest_t, new_unittest, check, check_close, error_t
    use test_gmres, only: laplacian, load, true_residual, solve_csr, serial_product_t
    implicit none
@@ -91,7 +92,7 @@ contains
       if (allocated(err)) return
       call solve_csr(a, b, opt, xplain, plain, err, dot)
       if (allocated(err)) return
-      call check(err, mon%converged, 'converged with a passive observer: '//mon%reason)
+      call check(err, mon%converged, 'converged with a passive observer: '//mon%reason_text())
       call check(err, obs%calls >= mon%iterations/10, 'observer called every ν iterations')
       call check(err, obs%on_schedule, 'observer called at multiples of ν or of m, once each')
       call check(err, obs%max_mismatch <= 1.0e-8_dp, 'observed iterates have the reported residual')
@@ -104,8 +105,8 @@ contains
       x = 0.0_dp
       call gmres_solve(op, id, dot, b, x, opt, mon, err, observer=obs)
       if (allocated(err)) return
-      call check(err, mon%reason == 'stopped by observer' .and. .not. mon%converged, &
-                 'reason: '//mon%reason)
+      call check(err, mon%reason == gmres_stopped_by_observer .and. .not. mon%converged, &
+                 'reason: '//mon%reason_text())
       call check(err, mon%iterations == obs%last_iteration .and. mon%iterations < plain%iterations, &
                  'stopped at the observed iteration, early')
       call check(err, obs%max_mismatch <= 1.0e-8_dp, 'observed iterates have the reported residual')
@@ -145,8 +146,8 @@ contains
       x = 0.0_dp
       call gmres_solve(op, id, dot, b, x, opt, mon, err, observer=deferring, workspace=ws)
       if (allocated(err)) return
-      call check(err, ref%reason == 'stopped by observer' .and. ref%iterations == 10, 'reference: '//ref%reason)
-      call check(err, mon%reason == 'stopped by observer' .and. mon%iterations == 10, 'reason: '//mon%reason)
+      call check(err, ref%reason == gmres_stopped_by_observer .and. ref%iterations == 10, 'reference: '//ref%reason_text())
+      call check(err, mon%reason == gmres_stopped_by_observer .and. mon%iterations == 10, 'reason: '//mon%reason_text())
       call check(err, deferring%finished .and. deferring%same_iterate, 'called again with the same iterate')
       call check(err, deferring%columns_then == 0, 'the basis and the residual were freed')
       call check(err, all(x == deferring%first_x) .and. all(x == x_ref), 'x is the iterate, as a stop at once')
@@ -157,7 +158,7 @@ contains
       call gmres_solve(op, id, dot, b, x, opt, mon, err, observer=deferring, workspace=ws)
       if (allocated(err)) return
       call check(err, deferring%finished .and. deferring%same_iterate, 'called again with the same iterate')
-      call check(err, mon%converged .and. mon%restarts >= 1, 'went on from a restart: '//mon%reason)
+      call check(err, mon%converged .and. mon%restarts >= 1, 'went on from a restart: '//mon%reason_text())
       call check(err, true_residual(a, b, x) <= 1.0e-10_dp*norm2(b)*(1 + 1.0e-6_dp), 'to the solution')
    end subroutine test_pending_observer
 
@@ -195,8 +196,8 @@ contains
       call gmres_solve(op, poisoned, dot, b, x, opt, mon, err)
       call ieee_set_halting_mode(ieee_invalid, halting)
       if (allocated(err)) return
-      call check(err, first%reason == 'iteration limit', 'the reference stops after one cycle: '//first%reason)
-      call check(err, mon%reason == 'non-finite correction' .and. .not. mon%converged, 'reason: '//mon%reason)
+      call check(err, first%reason == gmres_iteration_limit, 'the reference stops after one cycle: '//first%reason_text())
+      call check(err, mon%reason == gmres_non_finite_correction .and. .not. mon%converged, 'reason: '//mon%reason_text())
       call check(err, poisoned%applications > poisoned%healthy, 'the second cycle ran')
       call check(err, all(x == x_first), 'x is the last finite iterate, bit for bit')
    end subroutine test_nonfinite_correction

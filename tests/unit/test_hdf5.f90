@@ -4,7 +4,7 @@ module test_hdf5
    use twomem_base_kinds, only: dp, ip, i8
    use twomem_base_errors, only: exit_io
    use twomem_base_system, only: make_directories, file_exists, remove_file, process_id
-   use twomem_io_hdf5, only: h5_file_t
+   use twomem_hdf5_file, only: h5_file_t
    use twomem_io_xdmf, only: write_xdmf
    use twomem_testing, only: unittest_t, new_unittest, check, error_t
    use twomem_base_text, only: int_text

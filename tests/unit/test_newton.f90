@@ -3,6 +3,7 @@
 !> back as a status rather than a crash.
 module test_newton
    use twomem_base_kinds, only: dp, ip
+   use twomem_base_options, only: c_function_min, c_function_fb
    use twomem_mesh_hierarchy, only: mesh_hierarchy_t
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_newton_cfun, only: cfun_min, cfun_fb
@@ -13,7 +14,6 @@ module test_newton
    use twomem_newton_settle, only: settle_contact
    use twomem_newton_system, only: newton_system_t
    use twomem_newton_residual, only: nonlinear_residual_t
-   use twomem_newton_cfun, only: c_function_min, c_function_fb
    use twomem_testing, only: unittest_t, new_unittest, check, check_close, error_t
    use test_refinement, only: square_problem
    implicit none

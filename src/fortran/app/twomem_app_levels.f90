@@ -2,14 +2,17 @@
 !> guess (g, 0, 0), or by nested iteration, from T_0 up, each level's solution interpolated as
 !> the next one's initial guess, its contact set settled vertex by vertex where interpolation
 !> broke complementarity (`twomem_newton_settle`), which keeps the Newton count on the finest
-!> level nearly independent of the mesh. The multigrid
-!> transfers of the whole hierarchy (prolongations, each level's interface in a distributed run,
-!> the keys of the coarsest level's gathered solve) are built once here and serve every level.
+!> level nearly independent of the mesh. Nested iteration starts below the coarsest mesh too
+!> when that mesh is large (a user's fine mesh given as it is): on meshes coarsened from it
+!> (`twomem_app_coarse_meshes`). The multigrid transfers of the whole hierarchy are built once
+!> here and serve every level (`twomem_app_transfers`).
 module twomem_app_levels
    use, intrinsic :: iso_fortran_env, only: output_unit
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t
    use twomem_base_comm, only: comm_t
+   use twomem_base_options, only: method_direct, method_gmres, method_adaptive, forcing_finish, precond_mg, &
+      initial_nested
    use twomem_base_timer, only: wall_time
    use twomem_base_text, only: fixed
    use twomem_base_phases, only: phase_clock_t, phase_assembly, phase_solve
@@ -17,23 +20,16 @@ module twomem_app_levels
    use twomem_mesh_hierarchy, only: mesh_hierarchy_t
    use twomem_fem_problem, only: problem_data_t
    use twomem_fem_discrete, only: discrete_problem_t
-   use twomem_fem_transfer, only: interior_prolongations, interior_numbering, interior_vertices, interior_halo
-   use twomem_linalg_csr, only: csr_t
-   use twomem_linalg_halo, only: halo_t
    use twomem_linalg_multigrid, only: multigrid_transfer_t
    use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_observer_t, newton_solve, &
-      method_direct, method_gmres, method_adaptive, forcing_finish, automatic_every
-   use twomem_newton_linear, only: precond_mg
+      automatic_every
    use twomem_newton_settle, only: settle_contact
+   use twomem_app_transfers, only: hierarchy_transfer
+   use twomem_app_coarse_meshes, only: coarse_work_t, coarsened_start, cold_start
    implicit none
    private
 
    public :: solve_levels, coarse_work_t
-
-   !> Work spent on the coarser levels of nested iteration.
-   type :: coarse_work_t
-      integer :: newton_iterations = 0, gmres_iterations = 0
-   end type coarse_work_t
 
 contains
 
@@ -56,29 +52,30 @@ contains
       type(multigrid_transfer_t), target :: transfer
       real(dp), allocatable :: fine(:, :), x0(:)
       real(dp) :: t_level
-      integer :: l, finest, bottom
+      integer :: l, finest, bottom, shift
+      logical :: nested
 
       finest = hierarchy%levels
       bottom = hierarchy%first_with_unknowns(comm)
-      call build_transfer(comm, hierarchy, bottom, options, transfer, err)
+      nested = cfg%newton%initial == initial_nested
+      call hierarchy_transfer(comm, hierarchy, bottom, p, options%precond == precond_mg .and. &
+                              options%linear /= method_direct, transfer, err)
       if (allocated(err)) return
-      if (trim(cfg%newton%initial) /= 'nested' .or. finest == bottom) then
-         x0 = [spread(data%g, 1, p%n), spread(0.0_dp, 1, 2*p%n)]
-         call newton_solve(p, options, x0, newton, err, observer, transfer, finest - bottom)
+      ! level l of the hierarchy is level l + shift of the transfers
+      shift = transfer%algebraic - bottom
+      quiet = coarse_options(cfg, options)
+      if (.not. nested) then
+         x0 = cold_start(p)
+         call newton_solve(p, options, x0, newton, err, observer, transfer, finest + shift)
          return
       end if
       if (bottom > 0 .and. comm%is_root()) write (output_unit, '("nested: levels 0..",i0,&
          &" have no interior vertex (the boundary values decide them): starting on level ",i0)') bottom - 1, bottom
-      quiet = options
-      quiet%verbose = .false.
-      ! the estimators live on the finest hierarchy: coarser levels of an adaptive run use the
-      ! inexact GMRES instead (the paper's forcing, finishing the last solve), checked as often as
-      ! that method is
-      if (quiet%linear == method_adaptive) then
-         quiet%linear = method_gmres
-         quiet%forcing = forcing_finish
-         if (cfg%estimate%every == 0) &
-            quiet%gmres%observe_every = automatic_every(quiet%linear, quiet%cfun, quiet%precond, quiet%fb_active_set)
+      if (finest == bottom) then
+         call coarsened_start(hierarchy%meshes(finest), data, p, quiet, comm, x0, coarse, err)
+         if (allocated(err)) return
+         call newton_solve(p, options, x0, newton, err, observer, transfer, finest + shift)
+         return
       end if
       do l = bottom, finest - 1
          t_level = wall_time()
@@ -93,12 +90,13 @@ contains
             call clock%switch(phase_solve)
             if (allocated(err)) return
             if (l == bottom) then
-               x0 = [spread(data%g, 1, pl%n), spread(0.0_dp, 1, 2*pl%n)]
+               call coarsened_start(hierarchy%meshes(l), data, pl, quiet, comm, x0, coarse, err)
+               if (allocated(err)) return
             else
                x0 = interior_values(pl, fine)
                call settle_contact(pl, x0)
             end if
-            call newton_solve(pl, quiet, x0, step, err, transfer=transfer, level=l - bottom)
+            call newton_solve(pl, quiet, x0, step, err, transfer=transfer, level=l + shift)
             if (allocated(err)) return
             coarse%newton_iterations = coarse%newton_iterations + step%iterations
             coarse%gmres_iterations = coarse%gmres_iterations + step%linear_iterations
@@ -115,36 +113,26 @@ contains
       x0 = interior_values(p, fine)
       call settle_contact(p, x0)
       deallocate (fine)
-      call newton_solve(p, options, x0, newton, err, observer, transfer, finest - bottom)
+      call newton_solve(p, options, x0, newton, err, observer, transfer, finest + shift)
    end subroutine solve_levels
 
-   !> The multigrid transfers of levels bottom..top of the hierarchy (level l of the hierarchy is
-   !> level l − bottom of the transfers; top = bottom when no solve uses multigrid). Collective.
-   subroutine build_transfer(comm, hierarchy, bottom, options, transfer, err)
-      type(comm_t), intent(in) :: comm
-      type(mesh_hierarchy_t), intent(in) :: hierarchy
-      integer, intent(in) :: bottom
+   !> The options of Newton on the coarser levels of nested iteration: quiet, and in an adaptive
+   !> run the inexact GMRES (the paper's forcing, finishing the last solve), checked as often as
+   !> that method is, since the estimators live on the finest hierarchy.
+   function coarse_options(cfg, options) result(quiet)
+      type(config_t), intent(in) :: cfg
       type(newton_options_t), intent(in) :: options
-      type(multigrid_transfer_t), intent(inout) :: transfer
-      type(error_t), allocatable, intent(out) :: err
+      type(newton_options_t) :: quiet
 
-      type(halo_t), allocatable :: halos(:)
-      type(csr_t), allocatable :: prolongations(:)
-      integer(ip), allocatable :: unknown(:), interior(:), keys(:)
-      integer :: l, top
-
-      ! the multigrid preconditioner of every level uses the levels below it
-      top = merge(hierarchy%levels, bottom, options%precond == precond_mg .and. options%linear /= method_direct)
-      allocate (halos(0:top - bottom))
-      do l = bottom, top
-         unknown = interior_numbering(hierarchy%meshes(l))
-         interior = interior_vertices(unknown)
-         call interior_halo(hierarchy%meshes(l), interior, comm, halos(l - bottom))
-         if (l == bottom) keys = hierarchy%meshes(l)%global_vertex_of(interior)
-      end do
-      prolongations = interior_prolongations(hierarchy, top)
-      call transfer%init(prolongations(bottom + 1:top), err, halos=halos, coarse_keys=keys)
-   end subroutine build_transfer
+      quiet = options
+      quiet%verbose = .false.
+      if (quiet%linear == method_adaptive) then
+         quiet%linear = method_gmres
+         quiet%forcing = forcing_finish
+         if (cfg%estimate%every == 0) &
+            quiet%gmres%observe_every = automatic_every(quiet%linear, quiet%cfun, quiet%precond, quiet%fb_active_set)
+      end if
+   end function coarse_options
 
    !> fine(:, k): the nodal fields u1, u2, λ of level l's solution x, interpolated to level l+1.
    subroutine interpolate(hierarchy, l, pl, g, x, fine)

@@ -14,7 +14,7 @@ module twomem_app_loads
    use twomem_fem_problem, only: problem_data_t
    use twomem_fem_cases, only: make_problem
    use twomem_fem_user_data, only: user_data_t, new_user_data
-   use twomem_io_hdf5, only: h5_file_t
+   use twomem_hdf5_file, only: h5_file_t
    use twomem_base_text, only: int_text
    implicit none
    private
@@ -40,7 +40,7 @@ contains
       associate (p => cfg%problem)
          if (len_trim(p%f1_formula//p%f2_formula//p%f1_file//p%f2_file) == 0) then
             ! numbers and built-in cases: the same objects, hence bit for bit the same runs
-            call make_problem(trim(p%exact), p%mu1, p%mu2, p%f1, p%f2, p%g, data, err)
+            call make_problem(p%exact, p%mu1, p%mu2, p%f1, p%f2, p%g, data, err)
             return
          end if
          call new_user_data(p%mu1, p%mu2, p%g, [p%f1, p%f2], [p%f1_formula, p%f2_formula], user, err)

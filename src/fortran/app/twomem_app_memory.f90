@@ -11,6 +11,7 @@ module twomem_app_memory
    use twomem_base_kinds, only: dp, ip, i8
    use twomem_base_errors, only: error_t, make_error, exit_bad_input
    use twomem_base_system, only: memory_allowed_bytes
+   use twomem_base_options, only: method_direct, method_adaptive
    use twomem_base_text, only: int_text
    use twomem_input_config, only: config_t
    use twomem_mesh_triangulation, only: mesh_t
@@ -60,13 +61,13 @@ contains
       end do
       est%vertices = nv
       est%triangles = nt
-      select case (trim(cfg%newton%linear))
-      case ('direct')
+      select case (cfg%newton%linear)
+      case (method_direct)
          per_vertex = per_vertex_direct + per_vertex_direct_log*log(max(nv, 2.0_dp))/log(2.0_dp)
       case default
          per_vertex = per_vertex_iterative
       end select
-      if (trim(cfg%newton%linear) == 'adaptive' .or. cfg%estimate%enabled) &
+      if (cfg%newton%linear == method_adaptive .or. cfg%estimate%enabled) &
          per_vertex = per_vertex + per_vertex_estimators
       est%bytes = base_bytes + per_vertex*nv
    end function estimate_memory

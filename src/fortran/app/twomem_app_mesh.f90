@@ -8,7 +8,10 @@ module twomem_app_mesh
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_bad_input
    use twomem_base_comm, only: comm_t
+   use twomem_base_options, only: domain_disk, domain_square, domain_gmsh, exact_none
    use twomem_input_config, only: config_t
+   use twomem_input_keys, only: k_exact
+   use twomem_input_options, only: word_of_kind
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_mesh_hierarchy, only: mesh_hierarchy_t
    use twomem_mesh_generators, only: make_disk, make_square, disk_boundary_spacing
@@ -66,26 +69,26 @@ contains
       real(dp) :: boundary_h
       integer(ip) :: n_unused
 
-      select case (trim(cfg%mesh%domain))
-      case ('disk')
+      select case (cfg%mesh%domain)
+      case (domain_disk)
          boundary_h = cfg%mesh%boundary_h
          if (boundary_h <= 0.0_dp) boundary_h = disk_boundary_spacing(cfg%mesh%coarse_h, cfg%mesh%levels)
          write (output_unit, '("mesh: unit disk, coarse_h ",g0.4,", boundary spacing ",g0.4,", ",i0," levels")') &
             cfg%mesh%coarse_h, boundary_h, cfg%mesh%levels
          call make_disk(cfg%mesh%coarse_h, boundary_h, coarse, err)
-      case ('square')
+      case (domain_square)
          write (output_unit, '("mesh: square (-1,1)^2, coarse_h ",g0.4,", ",i0," levels")') &
             cfg%mesh%coarse_h, cfg%mesh%levels
          call make_square(cfg%mesh%coarse_h, coarse, err)
-      case ('gmsh')
+      case (domain_gmsh)
          write (output_unit, '("mesh: ",a,", ",i0," levels")') trim(cfg%mesh%file), cfg%mesh%levels
          call read_gmsh(trim(cfg%mesh%file), coarse, err, n_unused)
          if (allocated(err)) return
          if (n_unused > 0) write (output_unit, '("  note: ",i0," nodes used by no triangle dropped")') n_unused
          if (coarse%n_flipped > 0) write (output_unit, &
             '("  note: ",i0," clockwise triangles reoriented")') coarse%n_flipped
-         if (trim(cfg%problem%exact) /= 'none') call check_unit_disk(coarse, trim(cfg%mesh%file), &
-                                                                    trim(cfg%problem%exact), err)
+         if (cfg%problem%exact /= exact_none) call check_unit_disk(coarse, trim(cfg%mesh%file), &
+                                                                  word_of_kind(k_exact, cfg%problem%exact), err)
       end select
    end subroutine coarse_mesh
 

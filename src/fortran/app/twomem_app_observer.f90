@@ -57,6 +57,7 @@ module twomem_app_observer
       type(multigrid_transfer_t), allocatable :: transfer
       type(mg_preconditioner_t), allocatable :: riesz
    contains
+      procedure :: init
       procedure :: observe
       procedure :: linearization_estimate
       procedure :: discretization_estimate
@@ -70,6 +71,32 @@ module twomem_app_observer
    end type run_observer_t
 
 contains
+
+   !> The observer of a run on `hierarchy` (its finest level is p's mesh) with `data`: the exact
+   !> error when `with_error`, the estimators of `estimator` when `with_estimates`, and the
+   !> local criteria (64) with γ_alg, γ_lin when `local_criteria`. All four objects must outlive
+   !> the observer.
+   subroutine init(self, hierarchy, data, p, estimator, with_error, with_estimates, gamma_alg, gamma_lin, &
+                   local_criteria)
+      class(run_observer_t), intent(inout) :: self
+      type(mesh_hierarchy_t), target, intent(in) :: hierarchy
+      class(problem_data_t), target, intent(in) :: data
+      type(discrete_problem_t), target, intent(in) :: p
+      type(estimator_t), target, intent(inout) :: estimator
+      logical, intent(in) :: with_error, with_estimates
+      real(dp), intent(in) :: gamma_alg, gamma_lin
+      logical, intent(in) :: local_criteria
+
+      self%hierarchy => hierarchy
+      self%data => data
+      self%p => p
+      self%estimator => estimator
+      self%with_error = with_error
+      self%with_estimates = with_estimates
+      self%gamma_alg = gamma_alg
+      self%gamma_lin = gamma_lin
+      self%local_criteria = local_criteria
+   end subroutine init
 
    subroutine observe(self, x, row, estimates)
       class(run_observer_t), intent(inout) :: self

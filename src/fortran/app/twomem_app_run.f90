@@ -14,6 +14,8 @@ module twomem_app_run
    use twomem_base_phases, only: phase_clock_t, phase_mesh, phase_assembly, phase_solve, phase_estimators, &
       phase_error, phase_output
    use twomem_base_comm, only: comm_t
+   use twomem_base_options, only: method_direct, method_adaptive, c_function_fb, precond_mg, exact_bbbv, flux_rt1, &
+      line_search_on, line_search_off, fb_finish_active_set, criteria_local, checks_predicted
    use omp_lib, only: omp_get_max_threads
    use twomem_base_version, only: twomem_version
    use twomem_linalg_umfpack, only: umfpack_library
@@ -23,15 +25,13 @@ module twomem_app_run
    use twomem_fem_problem, only: problem_data_t
    use twomem_app_loads, only: make_data
    use twomem_fem_discrete, only: discrete_problem_t
-   use twomem_newton_solver, only: newton_options_t, newton_result_t, method_direct, method_adaptive, &
-      method_kind, forcing_kind, automatic_every
-   use twomem_newton_cfun, only: cfun_kind, c_function_fb
-   use twomem_newton_linear, only: precond_kind, precond_mg
+   use twomem_newton_solver, only: newton_options_t, newton_result_t, automatic_every
    use twomem_estimate_estimators, only: estimator_t, estimates_t, poincare_constant
    use twomem_app_observer, only: run_observer_t
    use twomem_app_mesh, only: build_hierarchy
    use twomem_app_levels, only: solve_levels, coarse_work_t
-   use twomem_io_result, only: result_record_t, output_choice_t, write_result, xdmf_path_for
+   use twomem_io_result, only: result_record_t, history_columns_t, output_choice_t, write_result, xdmf_path_for
+   use twomem_newton_history, only: history_t
    use twomem_io_gather, only: gather_plan_t
    implicit none
    private
@@ -107,22 +107,18 @@ contains
       need_estimates = options%linear == method_adaptive .or. cfg%estimate%enabled
       if (need_estimates) then
          call clock%switch(phase_estimators)
-         call estimator%init(hierarchy, data, merge(1, 0, trim(cfg%estimate%flux) == 'rt1'), cfg%estimate%alg_levels, &
-                             poincare_constant(trim(cfg%mesh%domain), hierarchy%meshes(finest)%diameter), err, comm)
+         call estimator%init(hierarchy, data, merge(1, 0, cfg%estimate%flux == flux_rt1), cfg%estimate%alg_levels, &
+                             poincare_constant(cfg%mesh%domain, hierarchy%meshes(finest)%diameter), err, comm)
          if (allocated(err)) then
             exit_code = err%code
             return
          end if
       end if
-      observer%hierarchy => hierarchy
-      observer%data => data
-      observer%p => p
-      observer%estimator => estimator
-      observer%gamma_alg = cfg%estimate%gamma_alg
-      observer%gamma_lin = cfg%newton%gamma_lin
-      observer%local_criteria = options%local_criteria
-      observer%with_error = data%has_exact() .and. cfg%output%history
-      observer%with_estimates = options%linear == method_adaptive .or. (cfg%estimate%enabled .and. cfg%output%history)
+      call observer%init(hierarchy, data, p, estimator, with_error=data%has_exact() .and. cfg%output%history, &
+                         with_estimates=options%linear == method_adaptive .or. &
+                                        (cfg%estimate%enabled .and. cfg%output%history), &
+                         gamma_alg=cfg%estimate%gamma_alg, gamma_lin=cfg%newton%gamma_lin, &
+                         local_criteria=options%local_criteria)
 
       call clock%switch(phase_solve)
       if (observer%with_error .or. observer%with_estimates) then
@@ -248,7 +244,7 @@ contains
       rec%input_text = config_echo(cfg)
       rec%status = newton%status
       rec%levels = hierarchy%levels
-      rec%history = newton%history
+      call history_columns(newton%history, rec%history)
       rec%newton_iterations = newton%iterations
       rec%gmres_iterations = newton%linear_iterations
       rec%newton_iterations_coarse = coarse%newton_iterations
@@ -317,21 +313,21 @@ contains
       type(comm_t), intent(in) :: comm
       type(newton_options_t), intent(out) :: options
 
-      options%cfun = cfun_kind(trim(cfg%newton%cfun))
-      options%linear = method_kind(trim(cfg%newton%linear))
+      options%cfun = cfg%newton%cfun
+      options%linear = cfg%newton%linear
       options%max_it = cfg%newton%max_it
       options%tol = cfg%newton%tol
-      select case (trim(cfg%newton%line_search))
-      case ('on')
+      select case (cfg%newton%line_search)
+      case (line_search_on)
          options%line_search = .true.
-      case ('off')
+      case (line_search_off)
          options%line_search = .false.
       case default
          options%line_search = options%cfun == c_function_fb
       end select
-      options%fb_active_set = trim(cfg%newton%fb_finish) == 'active_set'
-      options%forcing = forcing_kind(trim(cfg%gmres%forcing))
-      options%precond = precond_kind(trim(cfg%gmres%precond))
+      options%fb_active_set = cfg%newton%fb_finish == fb_finish_active_set
+      options%forcing = cfg%gmres%forcing
+      options%precond = cfg%gmres%precond
       options%gmres%restart = cfg%gmres%restart
       options%gmres%max_it = cfg%gmres%max_it
       options%gmres%rtol = cfg%gmres%rtol
@@ -341,8 +337,8 @@ contains
                                                          options%fb_active_set)
       options%gamma_lin = cfg%newton%gamma_lin
       options%gamma_alg = cfg%estimate%gamma_alg
-      options%local_criteria = trim(cfg%estimate%criteria) == 'local'
-      options%predicted_checks = trim(cfg%estimate%checks) == 'predicted'
+      options%local_criteria = cfg%estimate%criteria == criteria_local
+      options%predicted_checks = cfg%estimate%checks == checks_predicted
       options%verbose = comm%is_root()
    end subroutine newton_options_from
 
@@ -375,7 +371,7 @@ contains
       type(comm_t), intent(in) :: comm
       type(error_t), allocatable, intent(out) :: err
 
-      if (trim(cfg%problem%exact) == 'bbbv') then
+      if (cfg%problem%exact == exact_bbbv) then
          ! the paper's case fixes its data; show the values actually used
          cfg%problem%mu1 = 1.0_dp
          cfg%problem%mu2 = 1.0_dp
@@ -385,7 +381,7 @@ contains
       write (output_unit, '(a)') 'twomem '//twomem_version//': case '''//trim(cfg%case_name)// &
          ''' from '//trim(cfg%source)
       write (output_unit, '(a)') config_echo(cfg)
-      if (trim(cfg%problem%exact) == 'bbbv') write (output_unit, '(a)') &
+      if (cfg%problem%exact == exact_bbbv) write (output_unit, '(a)') &
          'note: problem.exact=''bbbv'' sets mu1 = mu2 = 1, g = 0.05 and its own loads (f1, f2 unused)'
    end subroutine prepare
 
@@ -423,4 +419,26 @@ contains
       call unregister_temporary()
    end subroutine check_output_writable
 
+   !> The solver's history rows as the result file's columns.
+   subroutine history_columns(history, columns)
+      type(history_t), intent(in) :: history
+      type(history_columns_t), intent(out) :: columns
+
+      associate (r => history%rows(1:history%n))
+         columns%newton_it = int(r%newton_it, ip)
+         columns%gmres_it = int(r%gmres_it, ip)
+         columns%eta_disc = r%eta_disc
+         columns%eta_lin = r%eta_lin
+         columns%eta_alg = r%eta_alg
+         columns%eta_total = r%eta_total
+         columns%energy_error = r%energy_error
+         columns%lin_residual = r%lin_residual
+         columns%alg_residual = r%alg_residual
+         columns%active = int(r%active, ip)
+         columns%active_changed = int(r%active_changed, ip)
+         columns%step = r%step
+         columns%inner = int(merge(1, 0, r%inner), ip)
+         columns%wall_time = r%wall_time
+      end associate
+   end subroutine history_columns
 end module twomem_app_run

@@ -142,7 +142,7 @@ contains
       is_directory = c_is_directory(trim(path)//c_null_char) == 1
    end function is_directory
 
-   !> End the program with exit status `code` (docs/input.md, README), after flushing standard output
+   !> End the program with exit status `code` (docs/input.md, docs/usage.md), after flushing standard output
    !> and error so that the last progress line and the error message are not lost.
    subroutine exit_program(code)
       integer, intent(in) :: code

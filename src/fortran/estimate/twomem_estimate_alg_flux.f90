@@ -160,11 +160,10 @@ contains
          inside = base_mesh%in_subdomain()
          ghost_only = pack([(a, a=1, base_mesh%nv)], .not. (inside .or. base_mesh%boundary_vertex))
          self%rho_vertices = [self%coarse%interior, ghost_only]
-         ! factorized once per run: METIS's analysis (0.23 s of 0.47 at 65k unknowns) would cost
-         ! more than its smaller factor saves in a handful of solves. No iterative refinement:
-         ! the Poisson matrix is SPD and well conditioned, the solve's backward error is
-         ! round-off without it, and UMFPACK's one step tripled every solve (35 -> 11 ms at 62509
-         ! unknowns, 10^6 finest vertices: 4% of an RT0 evaluation for two solves)
+         ! factorized once per run: METIS's analysis would cost more than its smaller factor
+         ! saves in a handful of solves, so minimum degree. No iterative refinement: the Poisson
+         ! matrix is SPD and well conditioned, the solve's backward error is round-off without
+         ! it, and UMFPACK's one step tripled every solve (docs/performance.md)
          call self%coarse_solver%init(self%comm, base_mesh%global_vertex_of(self%rho_vertices), &
                                       [self%coarse%halo%owned, spread(.false., 1, size(ghost_only))], &
                                       ordering_minimum_degree, refinement_steps=0)

@@ -6,10 +6,9 @@
 !> numbers per triangle for RT1). A block is the vertices whose first patch triangle lies in one
 !> run of consecutive triangles; red refinement numbers triangles along its tree, so a block is a
 !> compact piece of the domain and one thread works through its patches with their triangles'
-!> data in cache. A colouring of single vertices (no two of a colour sharing a triangle) needed
-!> a sweep over all triangle data per colour, about seven: the four evaluations of the default
-!> case at 10^6 vertices took about 12 s with it in vertex order, 10.6 s in first-triangle order
-!> and 8.1 s by blocks (medians of three alternating runs for the last two). Blocks are coloured
+!> data in cache. A colouring of single vertices (no two of a colour sharing a triangle) needs
+!> a sweep over all triangle data per colour, about seven, and so several times the memory
+!> traffic (docs/performance.md, "Measurements behind design choices"). Blocks are coloured
 !> greedily in order and run their vertices in order, so a result is summed in the same order
 !> whatever the number of threads. On a rank's piece of a distributed mesh only the vertices of
 !> its own triangles are listed: their patches are whole there (the ghost layer), the others'

@@ -26,6 +26,7 @@ module twomem_estimate_estimators
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_io
    use twomem_base_comm, only: comm_t
+   use twomem_base_options, only: domain_disk, domain_square
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_mesh_hierarchy, only: mesh_hierarchy_t
    use twomem_fem_problem, only: problem_data_t
@@ -110,15 +111,16 @@ contains
    !> diameter over π, safe for any domain (Ω lies in a strip of that width, where the
    !> one-dimensional Friedrichs inequality applies across the strip).
    pure real(dp) function poincare_constant(domain, diameter) result(c)
-      character(len=*), intent(in) :: domain
+      !> domain_disk, domain_square or domain_gmsh
+      integer, intent(in) :: domain
       real(dp), intent(in) :: diameter
 
       real(dp), parameter :: bessel_j0_first_zero = 2.404825557695773_dp
 
       select case (domain)
-      case ('disk')
+      case (domain_disk)
          c = 1/bessel_j0_first_zero
-      case ('square')
+      case (domain_square)
          c = sqrt(2.0_dp)/pi
       case default
          c = diameter/pi

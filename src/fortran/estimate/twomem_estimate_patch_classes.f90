@@ -14,9 +14,8 @@
 !> (multilevel algebraic flux), whose multipliers inside each coarse triangle come first as a
 !> block (twomem_estimate_patch). The patches of vertices on ∂Ω have signatures too: their edges
 !> on ∂Ω are free (no multiplier, nothing pinned). Boundary patches are O(√N) of all, but each
-!> took several times an interior one's time on the general path: about a tenth of an RT0
-!> evaluation at 2·10^4 vertices. Only patches too large for the fixed-size factors keep the
-!> general path.
+!> takes several times an interior one's time on the general path, which weighs on small
+!> meshes. Only patches too large for the fixed-size factors keep the general path.
 module twomem_estimate_patch_classes
    use twomem_base_kinds, only: dp, ip, i8
    use twomem_base_errors, only: error_t, make_error, exit_io
@@ -56,8 +55,8 @@ module twomem_estimate_patch_classes
       integer, allocatable :: id(:)
       !> per vertex with a signature: the canonical order of its patch triangles (patch_order)
       !> as their positions in the patch list, coded 3 bits each (stored_order); no_code for
-      !> a patch of more than max_coded triangles. Every evaluation visits every patch, and
-      !> sorting its triangles by class there took about 5% of an RT0 evaluation.
+      !> a patch of more than max_coded triangles. Every evaluation visits every patch, so the
+      !> order is found once here instead of by a sort in every evaluation.
       integer, allocatable :: order(:)
    end type level_ids_t
 
@@ -190,7 +189,7 @@ contains
    !> New signatures are factorized at `finish`. The vertices go in the order of their first
    !> patch triangle: red refinement numbers triangles along its tree, so consecutive patches
    !> in that order share their triangles' data in cache (key building waits on memory, not on
-   !> arithmetic: in vertex order it took 0.35 s at 10^6 vertices). The keys of a chunk are built
+   !> arithmetic). The keys of a chunk are built
    !> and looked up among the known signatures in parallel; the new ones are then numbered in
    !> that order, so that the numbering does not depend on the threads.
    subroutine add_mesh(self, space, coarse, fine, level)
@@ -478,7 +477,7 @@ contains
       end do
       !$omp end parallel do
       ! the spare slots of `sig` stay: they hold nothing, and trimming the array would copy every
-      ! factor (0.06 s of set-up at 10^6 vertices)
+      ! factor
       if (allocated(self%hash)) deallocate (self%hash)
       if (.not. all_ok) call make_error(err, exit_io, 'estimators', 'a patch system is singular (degenerate triangles?)')
    end subroutine finish

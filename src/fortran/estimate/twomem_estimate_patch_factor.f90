@@ -30,7 +30,7 @@ module twomem_estimate_patch_factor
    !> tail columns cols(1:n_cols) each block touches, s: the inverse of the tail's Schur
    !> complement (of the whole H when n_blocks = 0). Inverses, not Cholesky factors: the factor
    !> serves thousands of patches, and a product with an inverse has no chain of dependent
-   !> operations, unlike the two triangular substitutions (which took a tenth of an evaluation).
+   !> operations, unlike the two triangular substitutions.
    !> Both products of block_apply with x take its columns whole, times both membranes' values
    !> at once (a transposed copy of x for the tail update held 13 MB at 10⁶ vertices).
    type :: patch_factor_t

@@ -5,6 +5,7 @@
 module twomem_fem_cases
    use twomem_base_kinds, only: dp
    use twomem_base_errors, only: error_t, make_error, exit_bad_input
+   use twomem_base_options, only: exact_none, exact_radial, exact_bbbv
    use twomem_fem_problem, only: problem_data_t, constant_data_t
    implicit none
    private
@@ -31,22 +32,23 @@ module twomem_fem_cases
 
 contains
 
-   !> Build the data of a case: `exact` is 'none', 'radial' or 'bbbv' (bbbv ignores the values).
+   !> Build the data of a case: `exact` is exact_none, exact_radial or exact_bbbv (bbbv ignores
+   !> the values).
    subroutine make_problem(exact, mu1, mu2, f1, f2, g, problem, err)
-      character(len=*), intent(in) :: exact
+      integer, intent(in) :: exact
       real(dp), intent(in) :: mu1, mu2, f1, f2, g
       class(problem_data_t), allocatable, intent(out) :: problem
       type(error_t), allocatable, intent(out) :: err
 
       select case (exact)
-      case ('none')
+      case (exact_none)
          allocate (problem, source=constant_data_t(mu1=mu1, mu2=mu2, g=g, name='constant', f1=f1, f2=f2))
-      case ('bbbv')
+      case (exact_bbbv)
          problem = new_bbbv()
-      case ('radial')
+      case (exact_radial)
          problem = new_radial(mu1, mu2, f1, f2, g)
       case default
-         call make_error(err, exit_bad_input, 'problem.exact', 'unknown case '''//trim(exact)//'''')
+         call make_error(err, exit_bad_input, 'problem.exact', 'unknown case')
       end select
    end subroutine make_problem
 
@@ -197,8 +199,8 @@ contains
 
    !> [∇u1, ∇u2] at x, from S = μ1 u1 + μ2 u2 and w = u1 − u2 (both radial): ∇v = (v'(r)/r) x,
    !> with v'/r finite at the centre. Only r² is needed: no square root (the energy error
-   !> evaluates this at some 5·10^7 points at 10^6 vertices, where norm2's scaled sum cost a
-   !> third of the error's time).
+   !> evaluates this at every quadrature point of every triangle, where norm2's scaled sum was
+   !> a large part of the error's time).
    pure function radial_gradient(self, x) result(grad)
       class(radial_data_t), intent(in) :: self
       real(dp), intent(in) :: x(2)

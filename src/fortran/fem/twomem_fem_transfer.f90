@@ -26,8 +26,8 @@ contains
    !> order: red refinement numbers the midpoints of a level after all the vertices of the level
    !> below, so in vertex order every matrix row reaches into two distant ranges of a vector, and
    !> above the cache's size each sparse product waited on memory. Along the triangles' tree a
-   !> row's neighbours are numbered close to it (the stiffness product at 4.5·10⁶ vertices took
-   !> half the time in a benchmark of both orders on the same mesh).
+   !> row's neighbours are numbered close to it (docs/performance.md has a benchmark of both
+   !> orders).
    function interior_numbering(mesh) result(unknown)
       type(mesh_t), intent(in) :: mesh
       integer(ip), allocatable :: unknown(:)

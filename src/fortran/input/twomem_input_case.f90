@@ -1,9 +1,13 @@
 !> The case description: one derived type per namelist group of the case file, with the
-!> documented defaults as default initialization. Text components have the fixed length
-!> `config_len` so that defaults can be default initialization; the loader rejects longer
-!> values rather than truncating them (`twomem_input_config`).
+!> documented defaults as default initialization. A word is held as its kind
+!> (`twomem_base_options`), which loading resolves and validation checks
+!> (`twomem_input_options`), so no word travels past the input. Text components (file names,
+!> formulas) have the fixed length `config_len` so that defaults can be default initialization;
+!> the loader rejects longer values rather than truncating them (`twomem_input_config`).
 module twomem_input_case
    use twomem_base_kinds, only: dp
+   use twomem_base_options, only: domain_disk, exact_none, c_function_min, method_adaptive, initial_nested, &
+      line_search_auto, fb_finish_active_set, precond_mg, forcing_finish, flux_rt1, criteria_global, checks_predicted
    implicit none
    private
 
@@ -14,7 +18,8 @@ module twomem_input_case
    integer, parameter :: config_len = 256
 
    type :: mesh_config_t
-      character(len=config_len) :: domain = 'disk'
+      !> domain_disk, domain_square or domain_gmsh
+      integer :: domain = domain_disk
       character(len=config_len) :: file = ''
       real(dp) :: coarse_h = 0.25_dp
       integer :: levels = 4
@@ -29,7 +34,8 @@ module twomem_input_case
       real(dp) :: f1 = -0.25_dp
       real(dp) :: f2 = 0.25_dp
       real(dp) :: g = 0.05_dp
-      character(len=config_len) :: exact = 'none'
+      !> exact_none, exact_radial or exact_bbbv
+      integer :: exact = exact_none
       !> the loads as formulas of x, y, r (`twomem_input_formula`); '' when they are numbers
       character(len=config_len) :: f1_formula = ''
       character(len=config_len) :: f2_formula = ''
@@ -39,29 +45,33 @@ module twomem_input_case
    end type problem_config_t
 
    type :: newton_config_t
-      character(len=config_len) :: cfun = 'min'
-      character(len=config_len) :: linear = 'adaptive'
+      !> c_function_min or c_function_fb
+      integer :: cfun = c_function_min
+      !> method_direct, method_gmres or method_adaptive
+      integer :: linear = method_adaptive
       integer :: max_it = 100
       real(dp) :: tol = 1.0e-10_dp
       real(dp) :: gamma_lin = 0.3_dp
-      !> 'paper': (u1, u2, λ) = (g, 0, 0); 'nested': solve on each coarser level first
-      character(len=config_len) :: initial = 'nested'
-      !> 'auto' (on for fb, off for min), 'on', 'off'
-      character(len=config_len) :: line_search = 'auto'
-      !> 'active_set': Fischer–Burmeister finishes with Newton-min steps once its contact set
-      !> settles; 'none': FB throughout (the paper's method)
-      character(len=config_len) :: fb_finish = 'active_set'
+      !> initial_paper: (u1, u2, λ) = (g, 0, 0); initial_nested: solve on each coarser level first
+      integer :: initial = initial_nested
+      !> line_search_auto (on for fb, off for min), line_search_on, line_search_off
+      integer :: line_search = line_search_auto
+      !> fb_finish_active_set: Fischer–Burmeister finishes with Newton-min steps once its
+      !> contact set settles; fb_finish_none: FB throughout (the paper's method)
+      integer :: fb_finish = fb_finish_active_set
    end type newton_config_t
 
    type :: gmres_config_t
       integer :: restart = 30
       integer :: max_it = 5000
       real(dp) :: rtol = 1.0e-10_dp
-      !> 'mg' (block elimination, one multigrid V-cycle per SPD block), 'ilu0', 'jacobi', 'none'
-      character(len=config_len) :: precond = 'mg'
-      !> 'paper': stop when the relative algebraic residual ≤ the relative linearization
-      !> residual (the paper's inexact method); 'fixed': at gmres.rtol
-      character(len=config_len) :: forcing = 'finish'
+      !> precond_mg (block elimination, one multigrid V-cycle per SPD block), precond_ilu0,
+      !> precond_jacobi, precond_none
+      integer :: precond = precond_mg
+      !> forcing_paper: stop when the relative algebraic residual ≤ the relative linearization
+      !> residual (the paper's inexact method); forcing_finish: the same until the iterate takes
+      !> the step's branches; forcing_fixed: at gmres.rtol
+      integer :: forcing = forcing_finish
    end type gmres_config_t
 
    type :: estimate_config_t
@@ -71,15 +81,16 @@ module twomem_input_case
       !> multigrid preconditioner, which needs a handful of iterations per Newton step, and
       !> the paper's 10 otherwise)
       integer :: every = 0
-      !> flux reconstruction space: 'rt1' (the paper) or 'rt0'
-      character(len=config_len) :: flux = 'rt1'
+      !> flux reconstruction space: flux_rt1 (the paper) or flux_rt0
+      integer :: flux = flux_rt1
       !> how many of the finest meshes the multilevel algebraic flux uses (the paper: 3)
       integer :: alg_levels = 3
-      !> adaptive stopping: 'global' (paper eq. (63)) or 'local' (eq. (64), implies the global)
-      character(len=config_len) :: criteria = 'global'
-      !> how much of the estimators the adaptive method's checks compute: 'predicted' (η_lin
-      !> first, then η_disc and the rest only while Newton's test can hold) or 'all' (the paper)
-      character(len=config_len) :: checks = 'predicted'
+      !> adaptive stopping: criteria_global (paper eq. (63)) or criteria_local (eq. (64),
+      !> implies the global)
+      integer :: criteria = criteria_global
+      !> how much of the estimators the adaptive method's checks compute: checks_predicted (η_lin
+      !> first, then η_disc and the rest only while Newton's test can hold) or checks_all (the paper)
+      integer :: checks = checks_predicted
    end type estimate_config_t
 
    type :: output_config_t

@@ -13,7 +13,13 @@ module twomem_input_config
    use twomem_base_text, only: int_text, to_lower
    use twomem_input_case, only: config_t, mesh_config_t, problem_config_t, newton_config_t, gmres_config_t, &
                                 estimate_config_t, output_config_t, config_len
-   use twomem_input_keys
+   use twomem_input_keys, only: keys, n_keys, n_groups, group_names, find_group, find_key, group_list, key_list, &
+      type_word, type_path, type_real, type_int, type_logical, type_load, &
+      k_domain, k_mesh_file, k_coarse_h, k_levels, k_boundary_h, k_mu1, k_mu2, k_f1, k_f2, k_g, k_exact, &
+      k_f1_file, k_f2_file, k_cfun, k_linear, k_newton_max_it, k_tol, k_gamma_lin, k_initial, k_line_search, &
+      k_fb_finish, k_restart, k_gmres_max_it, k_rtol, k_precond, k_forcing, k_gamma_alg, k_enabled, k_every, &
+      k_flux, k_alg_levels, k_criteria, k_checks, k_output_file, k_fields, k_estimators, k_history, k_xdmf
+   use twomem_input_options, only: kind_of_word, word_of_kind
    use twomem_input_rules, only: validate
    implicit none
    private
@@ -65,8 +71,9 @@ contains
 
       type(nml_group_t), allocatable :: groups(:)
       ! where each key's value came from, for validation messages: 'file:line', the override,
-      ! or just the file for a default
-      type(string_t) :: origin(n_keys)
+      ! or just the file for a default; and each word as given, which validation names when it
+      ! is none of its key's words
+      type(string_t) :: origin(n_keys), given(n_keys)
       integer :: ig, ia, gid, id, i
 
       if (len(path) > config_len) then
@@ -96,7 +103,7 @@ contains
                                   //': '//excerpt(a%key), 'unknown key (valid keys: '//key_list(gid)//')')
                   return
                end if
-               call set_value(cfg, id, a%value, a%quoted, err)
+               call set_value(cfg, id, a%value, a%quoted, given(id), err)
                if (allocated(err)) then
                   call prefix_error(err, line_where(path, a%line)//': &'//groups(ig)%name//': '//a%key)
                   return
@@ -107,22 +114,24 @@ contains
       end do
 
       do i = 1, size(overrides)
-         call apply_override(cfg, overrides(i)%s, id, err)
+         call apply_override(cfg, overrides(i)%s, id, given, err)
          if (allocated(err)) return
          origin(id)%s = "override '"//excerpt(overrides(i)%s)//"'"
       end do
 
-      call validate(cfg, origin, err)
+      call validate(cfg, origin, given, err)
       if (allocated(err)) return
       if (len_trim(cfg%output%file) == 0) cfg%output%file = 'results/'//trim(cfg%case_name)//'.h5'
    end subroutine load_lines
 
    !> One `GROUP.KEY=VALUE`; the value uses namelist syntax but text may go unquoted, so
-   !> `output.file=out/a.h5` works from a shell. Returns the key's row in `id`.
-   subroutine apply_override(cfg, text, id, err)
+   !> `output.file=out/a.h5` works from a shell. Returns the key's row in `id`; a word goes to
+   !> given(id) too.
+   subroutine apply_override(cfg, text, id, given, err)
       type(config_t), intent(inout) :: cfg
       character(len=*), intent(in) :: text
       integer, intent(out) :: id
+      type(string_t), intent(inout) :: given(:)
       type(error_t), allocatable, intent(out) :: err
 
       character(len=:), allocatable :: where, name, group, key, raw, value, what
@@ -167,18 +176,20 @@ contains
          call make_error(err, exit_bad_input, where, what)
          return
       end if
-      call set_value(cfg, id, value, quoted, err)
+      call set_value(cfg, id, value, quoted, given(id), err)
       if (allocated(err)) call prefix_error(err, where)
    end subroutine apply_override
 
-   !> Convert `value` to the type of key `id` and store it. Words are stored lower-case, file
-   !> names verbatim. Range and word checks wait for `validate`, so an override can still fix
-   !> a bad file value; only what cannot be converted fails here.
-   subroutine set_value(cfg, id, value, quoted, err)
+   !> Convert `value` to the type of key `id` and store it. A word is stored as its kind,
+   !> lower-cased first (0 when it is none of the key's words; `given` keeps its text for the
+   !> message), file names verbatim. Range and word checks wait for `validate`, so an override
+   !> can still fix a bad file value; only what cannot be converted fails here.
+   subroutine set_value(cfg, id, value, quoted, given, err)
       type(config_t), intent(inout) :: cfg
       integer, intent(in) :: id
       character(len=*), intent(in) :: value
       logical, intent(in) :: quoted
+      type(string_t), intent(inout) :: given
       type(error_t), allocatable, intent(out) :: err
 
       character(len=:), allocatable :: what
@@ -186,33 +197,34 @@ contains
       integer :: n
       logical :: b
 
-      select case (key_kinds(id))
-      case (kind_word, kind_path)
+      select case (keys(id)%type)
+      case (type_word, type_path)
          if (len(value) > config_len) then
             what = 'text longer than '//int_text(config_len)//' characters'
          else if (has_control_character(value)) then
             ! a newline would break the echo, which must reload as a case file
             what = 'text with a control character, got '//quote(excerpt(value))
-         else if (key_kinds(id) == kind_word) then
-            call store_text(cfg, id, to_lower(trim(adjustl(value))))
+         else if (keys(id)%type == type_word) then
+            given%s = to_lower(trim(adjustl(value)))
+            call store_kind(cfg, id, kind_of_word(id, given%s))
          else
             call store_text(cfg, id, value)
          end if
-      case (kind_real)
+      case (type_real)
          if (quoted) then
             what = 'expected a real number, got the string '//quote(excerpt(value))
          else
             call scan_real(value, x, what)
             if (.not. allocated(what)) call store_real(cfg, id, x)
          end if
-      case (kind_int)
+      case (type_int)
          if (quoted) then
             what = 'expected an integer, got the string '//quote(excerpt(value))
          else
             call scan_integer(value, n, what)
             if (.not. allocated(what)) call store_int(cfg, id, n)
          end if
-      case (kind_load)
+      case (type_load)
          ! a number stays a number (bit-for-bit the same run as before formulas existed), quoted
          ! or not; anything else is kept as a formula and parsed by `validate`
          call scan_real(value, x, what)
@@ -232,7 +244,7 @@ contains
             deallocate (what)
             call store_text(cfg, id, trim(adjustl(value)))
          end if
-      case (kind_logical)
+      case (type_logical)
          if (quoted) then
             what = 'expected a logical (.true. or .false.), got the string '//quote(excerpt(value))
          else
@@ -249,19 +261,7 @@ contains
       character(len=*), intent(in) :: s
 
       select case (id)
-      case (k_domain); cfg%mesh%domain = s
       case (k_mesh_file); cfg%mesh%file = s
-      case (k_exact); cfg%problem%exact = s
-      case (k_cfun); cfg%newton%cfun = s
-      case (k_linear); cfg%newton%linear = s
-      case (k_precond); cfg%gmres%precond = s
-      case (k_initial); cfg%newton%initial = s
-      case (k_line_search); cfg%newton%line_search = s
-      case (k_fb_finish); cfg%newton%fb_finish = s
-      case (k_checks); cfg%estimate%checks = s
-      case (k_forcing); cfg%gmres%forcing = s
-      case (k_flux); cfg%estimate%flux = s
-      case (k_criteria); cfg%estimate%criteria = s
       case (k_output_file); cfg%output%file = s
       case (k_f1); cfg%problem%f1_formula = s
       case (k_f2); cfg%problem%f2_formula = s
@@ -269,6 +269,48 @@ contains
       case (k_f2_file); cfg%problem%f2_file = s
       end select
    end subroutine store_text
+
+   subroutine store_kind(cfg, id, kind)
+      type(config_t), intent(inout) :: cfg
+      integer, intent(in) :: id, kind
+
+      select case (id)
+      case (k_domain); cfg%mesh%domain = kind
+      case (k_exact); cfg%problem%exact = kind
+      case (k_cfun); cfg%newton%cfun = kind
+      case (k_linear); cfg%newton%linear = kind
+      case (k_initial); cfg%newton%initial = kind
+      case (k_line_search); cfg%newton%line_search = kind
+      case (k_fb_finish); cfg%newton%fb_finish = kind
+      case (k_precond); cfg%gmres%precond = kind
+      case (k_forcing); cfg%gmres%forcing = kind
+      case (k_flux); cfg%estimate%flux = kind
+      case (k_criteria); cfg%estimate%criteria = kind
+      case (k_checks); cfg%estimate%checks = kind
+      end select
+   end subroutine store_kind
+
+   !> The kind of word key `id` (0 for another key).
+   pure integer function kind_value(cfg, id) result(kind)
+      type(config_t), intent(in) :: cfg
+      integer, intent(in) :: id
+
+      select case (id)
+      case (k_domain); kind = cfg%mesh%domain
+      case (k_exact); kind = cfg%problem%exact
+      case (k_cfun); kind = cfg%newton%cfun
+      case (k_linear); kind = cfg%newton%linear
+      case (k_initial); kind = cfg%newton%initial
+      case (k_line_search); kind = cfg%newton%line_search
+      case (k_fb_finish); kind = cfg%newton%fb_finish
+      case (k_precond); kind = cfg%gmres%precond
+      case (k_forcing); kind = cfg%gmres%forcing
+      case (k_flux); kind = cfg%estimate%flux
+      case (k_criteria); kind = cfg%estimate%criteria
+      case (k_checks); kind = cfg%estimate%checks
+      case default; kind = 0
+      end select
+   end function kind_value
 
    subroutine store_real(cfg, id, x)
       type(config_t), intent(inout) :: cfg
@@ -331,21 +373,24 @@ contains
       do gid = 1, n_groups
          text = text//'&'//trim(group_names(gid))//nl
          do id = 1, n_keys
-            if (key_group(id) /= gid) cycle
-            text = text//'   '//trim(key_names(id))//' = '//value_text(cfg, id)//nl
+            if (keys(id)%group /= gid) cycle
+            text = text//'   '//trim(keys(id)%name)//' = '//value_text(cfg, id)//nl
          end do
          text = text//'/'//nl
       end do
    end function config_echo
 
-   !> The namelist literal of key `id`.
+   !> The namelist literal of key `id`; a word's from its kind, by the table that read it.
    function value_text(cfg, id) result(s)
       type(config_t), intent(in) :: cfg
       integer, intent(in) :: id
       character(len=:), allocatable :: s
 
+      if (keys(id)%type == type_word) then
+         s = quote(word_of_kind(id, kind_value(cfg, id)))
+         return
+      end if
       select case (id)
-      case (k_domain); s = quote(trim(cfg%mesh%domain))
       case (k_mesh_file); s = quote(trim(cfg%mesh%file))
       case (k_coarse_h); s = format_real(cfg%mesh%coarse_h)
       case (k_boundary_h); s = format_real(cfg%mesh%boundary_h)
@@ -357,25 +402,14 @@ contains
       case (k_f1_file); s = quote(trim(cfg%problem%f1_file))
       case (k_f2_file); s = quote(trim(cfg%problem%f2_file))
       case (k_g); s = format_real(cfg%problem%g)
-      case (k_exact); s = quote(trim(cfg%problem%exact))
-      case (k_cfun); s = quote(trim(cfg%newton%cfun))
-      case (k_linear); s = quote(trim(cfg%newton%linear))
       case (k_newton_max_it); s = int_text(cfg%newton%max_it)
       case (k_tol); s = format_real(cfg%newton%tol)
       case (k_gamma_lin); s = format_real(cfg%newton%gamma_lin)
       case (k_restart); s = int_text(cfg%gmres%restart)
       case (k_gmres_max_it); s = int_text(cfg%gmres%max_it)
       case (k_rtol); s = format_real(cfg%gmres%rtol)
-      case (k_precond); s = quote(trim(cfg%gmres%precond))
-      case (k_initial); s = quote(trim(cfg%newton%initial))
-      case (k_line_search); s = quote(trim(cfg%newton%line_search))
-      case (k_fb_finish); s = quote(trim(cfg%newton%fb_finish))
-      case (k_checks); s = quote(trim(cfg%estimate%checks))
-      case (k_forcing); s = quote(trim(cfg%gmres%forcing))
       case (k_every); s = int_text(cfg%estimate%every)
-      case (k_flux); s = quote(trim(cfg%estimate%flux))
       case (k_alg_levels); s = int_text(cfg%estimate%alg_levels)
-      case (k_criteria); s = quote(trim(cfg%estimate%criteria))
       case (k_gamma_alg); s = format_real(cfg%estimate%gamma_alg)
       case (k_enabled); s = logical_text(cfg%estimate%enabled)
       case (k_output_file); s = quote(trim(cfg%output%file))

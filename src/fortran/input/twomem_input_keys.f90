@@ -1,55 +1,102 @@
-!> The keys of the case file: one row per key (its group, name and kind of value), in the
+!> The keys of the case file: one table of `key_t` rows (group, name, type of value), in the
 !> order of the documentation and of the echoed input, and the lookups by name. Loading,
-!> validation and the echo all go by this table, so a key is added in one place.
+!> validation and the echo all go by this table. A key is a named row number (`k_*`) and its
+!> row; the rest is where it is used (its component in `config_t`, its store and echo lines,
+!> its rule). The names have a fixed width, checked at compile time.
 module twomem_input_keys
    implicit none
    private
 
-   public :: n_groups, n_keys, group_names, key_group, key_names, key_kinds
-   public :: kind_word, kind_path, kind_real, kind_int, kind_logical, kind_load
-   public :: k_domain, k_mesh_file, k_coarse_h, k_levels, k_mu1, k_mu2, k_f1, k_f2, k_g, k_exact, &
-             k_cfun, k_linear, k_newton_max_it, k_tol, k_gamma_lin, k_restart, k_gmres_max_it, k_rtol, &
-             k_precond, k_gamma_alg, k_enabled, k_output_file, k_fields, k_estimators, k_history, k_xdmf, &
-             k_boundary_h, k_initial, k_line_search, k_forcing, k_every, k_flux, k_alg_levels, k_criteria, &
-             k_f1_file, k_f2_file, k_fb_finish, k_checks
-   public :: find_group, find_key, group_list, key_list
+   public :: key_t, keys, n_keys, n_groups, group_names
+   public :: type_word, type_path, type_real, type_int, type_logical, type_load
+   public :: k_domain, k_mesh_file, k_coarse_h, k_levels, k_boundary_h, &
+             k_mu1, k_mu2, k_f1, k_f2, k_g, k_exact, k_f1_file, k_f2_file, &
+             k_cfun, k_linear, k_newton_max_it, k_tol, k_gamma_lin, k_initial, k_line_search, k_fb_finish, &
+             k_restart, k_gmres_max_it, k_rtol, k_precond, k_forcing, &
+             k_gamma_alg, k_enabled, k_every, k_flux, k_alg_levels, k_criteria, k_checks, &
+             k_output_file, k_fields, k_estimators, k_history, k_xdmf
+   public :: find_group, find_key, group_list, key_list, key_name, group_name
 
-   integer, parameter :: n_groups = 6, n_keys = 38
-   character(len=*), parameter :: group_names(n_groups) = [character(len=8) :: &
+   !> width of group and key names
+   integer, parameter :: name_len = 16
+
+   integer, parameter :: group_mesh = 1, group_problem = 2, group_newton = 3, group_gmres = 4, &
+                         group_estimate = 5, group_output = 6
+   character(len=name_len), parameter :: group_names(*) = [character(len=name_len) :: &
       'mesh', 'problem', 'newton', 'gmres', 'estimate', 'output']
-   !> kind_load: a real number, or a formula (quoted in a file; a bare override that is not a
-   !> number is a formula too)
-   integer, parameter :: kind_word = 1, kind_path = 2, kind_real = 3, kind_int = 4, kind_logical = 5, &
-      kind_load = 6
-   integer, parameter :: k_domain = 1, k_mesh_file = 2, k_coarse_h = 3, k_levels = 4, &
-      k_mu1 = 5, k_mu2 = 6, k_f1 = 7, k_f2 = 8, k_g = 9, k_exact = 10, &
-      k_cfun = 11, k_linear = 12, k_newton_max_it = 13, k_tol = 14, k_gamma_lin = 15, &
-      k_restart = 16, k_gmres_max_it = 17, k_rtol = 18, k_precond = 19, &
-      k_gamma_alg = 20, k_enabled = 21, &
-      k_output_file = 22, k_fields = 23, k_estimators = 24, k_history = 25, k_xdmf = 26, &
-      k_boundary_h = 27, k_initial = 28, k_line_search = 29, k_forcing = 30, k_every = 31, &
-      k_flux = 32, k_alg_levels = 33, k_criteria = 34, k_f1_file = 35, k_f2_file = 36, k_fb_finish = 37, &
-      k_checks = 38
-   integer, parameter :: key_group(n_keys) = [1, 1, 1, 1, 2, 2, 2, 2, 2, 2, 3, 3, 3, 3, 3, &
-                                              4, 4, 4, 4, 5, 5, 6, 6, 6, 6, 6, 1, 3, 3, 4, 5, 5, 5, 5, &
-                                              2, 2, 3, 5]
-   character(len=*), parameter :: key_names(n_keys) = [character(len=12) :: &
-      'domain', 'file', 'coarse_h', 'levels', &
-      'mu1', 'mu2', 'f1', 'f2', 'g', 'exact', &
-      'cfun', 'linear', 'max_it', 'tol', 'gamma_lin', &
-      'restart', 'max_it', 'rtol', 'precond', &
-      'gamma_alg', 'enabled', &
-      'file', 'fields', 'estimators', 'history', 'xdmf', 'boundary_h', &
-      'initial', 'line_search', 'forcing', 'every', 'flux', 'alg_levels', 'criteria', 'f1_file', 'f2_file', &
-      'fb_finish', 'checks']
-   integer, parameter :: key_kinds(n_keys) = [kind_word, kind_path, kind_real, kind_int, &
-      kind_real, kind_real, kind_load, kind_load, kind_real, kind_word, &
-      kind_word, kind_word, kind_int, kind_real, kind_real, &
-      kind_int, kind_int, kind_real, kind_word, &
-      kind_real, kind_logical, &
-      kind_path, kind_logical, kind_logical, kind_logical, kind_logical, kind_real, &
-      kind_word, kind_word, kind_word, kind_int, kind_word, kind_int, kind_word, kind_path, kind_path, &
-      kind_word, kind_word]
+   integer, parameter :: n_groups = size(group_names)
+
+   !> the type of a key's value. type_load: a real number, or a formula (quoted in a file; a bare
+   !> override that is not a number is a formula too)
+   integer, parameter :: type_word = 1, type_path = 2, type_real = 3, type_int = 4, type_logical = 5, &
+                         type_load = 6
+
+   type :: key_t
+      !> its row in `keys` (k_*), repeated so that a row shows which name it is
+      integer :: id
+      integer :: group
+      character(len=name_len) :: name
+      integer :: type
+   end type key_t
+
+   integer, parameter :: k_domain = 1, k_mesh_file = 2, k_coarse_h = 3, k_levels = 4, k_boundary_h = 5, &
+      k_mu1 = 6, k_mu2 = 7, k_f1 = 8, k_f2 = 9, k_g = 10, k_exact = 11, k_f1_file = 12, k_f2_file = 13, &
+      k_cfun = 14, k_linear = 15, k_newton_max_it = 16, k_tol = 17, k_gamma_lin = 18, k_initial = 19, &
+      k_line_search = 20, k_fb_finish = 21, &
+      k_restart = 22, k_gmres_max_it = 23, k_rtol = 24, k_precond = 25, k_forcing = 26, &
+      k_gamma_alg = 27, k_enabled = 28, k_every = 29, k_flux = 30, k_alg_levels = 31, k_criteria = 32, &
+      k_checks = 33, &
+      k_output_file = 34, k_fields = 35, k_estimators = 36, k_history = 37, k_xdmf = 38
+
+   !> Within a group, the order of the echo and of the "valid keys" lists.
+   type(key_t), parameter :: keys(*) = [ &
+      key_t(k_domain, group_mesh, 'domain', type_word), &
+      key_t(k_mesh_file, group_mesh, 'file', type_path), &
+      key_t(k_coarse_h, group_mesh, 'coarse_h', type_real), &
+      key_t(k_levels, group_mesh, 'levels', type_int), &
+      key_t(k_boundary_h, group_mesh, 'boundary_h', type_real), &
+      key_t(k_mu1, group_problem, 'mu1', type_real), &
+      key_t(k_mu2, group_problem, 'mu2', type_real), &
+      key_t(k_f1, group_problem, 'f1', type_load), &
+      key_t(k_f2, group_problem, 'f2', type_load), &
+      key_t(k_g, group_problem, 'g', type_real), &
+      key_t(k_exact, group_problem, 'exact', type_word), &
+      key_t(k_f1_file, group_problem, 'f1_file', type_path), &
+      key_t(k_f2_file, group_problem, 'f2_file', type_path), &
+      key_t(k_cfun, group_newton, 'cfun', type_word), &
+      key_t(k_linear, group_newton, 'linear', type_word), &
+      key_t(k_newton_max_it, group_newton, 'max_it', type_int), &
+      key_t(k_tol, group_newton, 'tol', type_real), &
+      key_t(k_gamma_lin, group_newton, 'gamma_lin', type_real), &
+      key_t(k_initial, group_newton, 'initial', type_word), &
+      key_t(k_line_search, group_newton, 'line_search', type_word), &
+      key_t(k_fb_finish, group_newton, 'fb_finish', type_word), &
+      key_t(k_restart, group_gmres, 'restart', type_int), &
+      key_t(k_gmres_max_it, group_gmres, 'max_it', type_int), &
+      key_t(k_rtol, group_gmres, 'rtol', type_real), &
+      key_t(k_precond, group_gmres, 'precond', type_word), &
+      key_t(k_forcing, group_gmres, 'forcing', type_word), &
+      key_t(k_gamma_alg, group_estimate, 'gamma_alg', type_real), &
+      key_t(k_enabled, group_estimate, 'enabled', type_logical), &
+      key_t(k_every, group_estimate, 'every', type_int), &
+      key_t(k_flux, group_estimate, 'flux', type_word), &
+      key_t(k_alg_levels, group_estimate, 'alg_levels', type_int), &
+      key_t(k_criteria, group_estimate, 'criteria', type_word), &
+      key_t(k_checks, group_estimate, 'checks', type_word), &
+      key_t(k_output_file, group_output, 'file', type_path), &
+      key_t(k_fields, group_output, 'fields', type_logical), &
+      key_t(k_estimators, group_output, 'estimators', type_logical), &
+      key_t(k_history, group_output, 'history', type_logical), &
+      key_t(k_xdmf, group_output, 'xdmf', type_logical)]
+   integer, parameter :: n_keys = size(keys)
+
+   !> Compile-time guards, through an invalid kind (-1) when they fail: every row sits at its
+   !> own number, and every name is shorter than its field (a longer name, cut to the field,
+   !> would fill it).
+   integer(merge(kind(1), -1, keys(1)%id == 1 .and. all(keys(2:)%id - keys(:n_keys - 1)%id == 1))), &
+      parameter :: rows_in_order = 0
+   integer(merge(kind(1), -1, all(len_trim(keys%name) < name_len) .and. &
+                  all(len_trim(group_names) < name_len))), parameter :: names_fit = 0
 
 contains
 
@@ -67,10 +114,25 @@ contains
       character(len=*), intent(in) :: key
 
       do id = 1, n_keys
-         if (key_group(id) == gid .and. key_names(id) == key) return
+         if (keys(id)%group == gid .and. keys(id)%name == key) return
       end do
       id = 0
    end function find_key
+
+   !> The name of key `id`, and of its group.
+   pure function key_name(id) result(name)
+      integer, intent(in) :: id
+      character(len=:), allocatable :: name
+
+      name = trim(keys(id)%name)
+   end function key_name
+
+   pure function group_name(id) result(name)
+      integer, intent(in) :: id
+      character(len=:), allocatable :: name
+
+      name = trim(group_names(keys(id)%group))
+   end function group_name
 
    pure function group_list() result(list)
       character(len=:), allocatable :: list
@@ -91,9 +153,9 @@ contains
 
       list = ''
       do id = 1, n_keys
-         if (key_group(id) /= gid) cycle
+         if (keys(id)%group /= gid) cycle
          if (len(list) > 0) list = list//', '
-         list = list//trim(key_names(id))
+         list = list//trim(keys(id)%name)
       end do
    end function key_list
 end module twomem_input_keys

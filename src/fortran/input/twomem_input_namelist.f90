@@ -5,7 +5,7 @@
 !> `twomem_input_values` converts the values and `twomem_input_config` knows what the keys mean.
 module twomem_input_namelist
    use twomem_base_errors, only: error_t, make_error, exit_bad_input, excerpt
-   use twomem_input_values, only: quote
+   use twomem_input_values, only: quote, scan_quoted
    use twomem_base_text, only: int_text, to_lower
    implicit none
    private
@@ -365,12 +365,11 @@ contains
       type(token_t), allocatable, intent(out) :: t(:)
       integer, intent(out) :: n
 
-      integer :: il, p, q, m, k
+      integer :: il, p, q, m
       character(len=:), allocatable :: s, word
-      character :: c, delim
+      character :: c
 
       allocate (t(64))
-      allocate (character(len=256) :: word)
       n = 0
       do il = 1, size(lines)
          s = lines(il)%s
@@ -407,36 +406,12 @@ contains
                end if
                p = q
             else if (c == "'" .or. c == '"') then
-               delim = c
-               ! the text goes into a buffer as long as the line: appending one character at a
-               ! time to a growing string costs quadratic time, minutes on a long line
-               if (len(word) < m) then
-                  deallocate (word)
-                  allocate (character(len=m) :: word)
+               call scan_quoted(s, p, word, q)
+               if (q == 0) then
+                  call push_token(t, n, tk_error, 'unterminated string (a string ends on its line)', il)
+                  return
                end if
-               k = 0
-               q = p + 1
-               do
-                  if (q > m) then
-                     call push_token(t, n, tk_error, 'unterminated string (a string ends on its line)', il)
-                     return
-                  end if
-                  if (s(q:q) == delim) then
-                     if (q < m) then
-                        if (s(q + 1:q + 1) == delim) then
-                           k = k + 1
-                           word(k:k) = delim
-                           q = q + 2
-                           cycle
-                        end if
-                     end if
-                     exit
-                  end if
-                  k = k + 1
-                  word(k:k) = s(q:q)
-                  q = q + 1
-               end do
-               call push_token(t, n, tk_string, word(1:k), il)
+               call push_token(t, n, tk_string, word, il)
                p = q + 1
             else
                q = p

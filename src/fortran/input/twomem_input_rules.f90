@@ -11,7 +11,12 @@ module twomem_input_rules
    use twomem_input_formula, only: formula_t
    use twomem_input_formula_parser, only: parse_formula
    use twomem_input_case, only: config_t
-   use twomem_input_keys
+   use twomem_input_options, only: has_kind, word_of_kind, word_list
+   use twomem_base_options, only: domain_disk, domain_square, domain_gmsh, exact_none
+   use twomem_input_keys, only: key_name, group_name, k_domain, k_mesh_file, k_coarse_h, k_levels, k_boundary_h, &
+      k_mu1, k_mu2, k_f1, k_f2, k_g, k_exact, k_f1_file, k_f2_file, k_cfun, k_linear, k_newton_max_it, k_tol, &
+      k_gamma_lin, k_initial, k_line_search, k_fb_finish, k_restart, k_gmres_max_it, k_rtol, k_precond, &
+      k_forcing, k_gamma_alg, k_every, k_flux, k_alg_levels, k_criteria, k_checks
    implicit none
    private
 
@@ -20,18 +25,21 @@ module twomem_input_rules
 contains
 
    !> The rules of docs/input.md, in table order; the first violation is reported where the
-   !> offending value came from. Each check does nothing once `err` is set.
-   subroutine validate(cfg, origin, err)
+   !> offending value came from (`origin`, per key). A word key whose kind is none of its
+   !> key's is reported with the word as given (`given`, per key). Each check does nothing
+   !> once `err` is set; past this one, every word key holds one of its kinds.
+   subroutine validate(cfg, origin, given, err)
       type(config_t), intent(in) :: cfg
-      type(string_t), intent(in) :: origin(:)
+      type(string_t), intent(in) :: origin(:), given(:)
       type(error_t), allocatable, intent(out) :: err
 
       associate (m => cfg%mesh, p => cfg%problem, n => cfg%newton, g => cfg%gmres)
-         call check_word(err, origin, k_domain, m%domain, [character(len=8) :: 'disk', 'square', 'gmsh'])
-         call require(err, origin, k_domain, m%domain /= 'gmsh' .or. len_trim(m%file) > 0, &
+         call check_word(err, origin, given, k_domain, m%domain)
+         call require(err, origin, k_domain, m%domain /= domain_gmsh .or. len_trim(m%file) > 0, &
                       "mesh.file must name the mesh when mesh.domain='gmsh'")
-         call require(err, origin, k_mesh_file, m%domain == 'gmsh' .or. len_trim(m%file) == 0, &
-                      "mesh.file is only read when mesh.domain='gmsh' (here domain='"//trim(m%domain)//"')")
+         call require(err, origin, k_mesh_file, m%domain == domain_gmsh .or. len_trim(m%file) == 0, &
+                      "mesh.file is only read when mesh.domain='gmsh' (here domain='"//word_of_kind(k_domain, m%domain) &
+                      //"')")
          call check_real(err, origin, k_coarse_h, m%coarse_h, ge=1.0e-4_dp, le=2.0_dp)
          call check_int(err, origin, k_levels, m%levels, 0, 12)
          call check_real(err, origin, k_boundary_h, m%boundary_h, ge=0.0_dp, le=2.0_dp)
@@ -39,7 +47,7 @@ contains
          if (.not. allocated(err)) &
             call require(err, origin, k_boundary_h, m%boundary_h <= m%coarse_h, &
                          'mesh.boundary_h must not exceed mesh.coarse_h (0 chooses it automatically)')
-         call require(err, origin, k_boundary_h, m%boundary_h == 0.0_dp .or. m%domain == 'disk', &
+         call require(err, origin, k_boundary_h, m%boundary_h == 0.0_dp .or. m%domain == domain_disk, &
                       "mesh.boundary_h is only used with mesh.domain='disk'")
 
          call check_real(err, origin, k_mu1, p%mu1, gt=0.0_dp)
@@ -47,39 +55,39 @@ contains
          call check_load(err, origin, k_f1, p%f1, p%f1_formula)
          call check_load(err, origin, k_f2, p%f2, p%f2_formula)
          call check_real(err, origin, k_g, p%g, gt=0.0_dp)
-         call check_word(err, origin, k_exact, p%exact, [character(len=8) :: 'none', 'radial', 'bbbv'])
+         call check_word(err, origin, given, k_exact, p%exact)
          ! on a Gmsh mesh the mesh reader checks that its boundary lies on the unit circle
-         call require(err, origin, k_exact, p%exact == 'none' .or. m%domain /= 'square', &
-                      "exact='"//trim(p%exact)//"' needs the unit disk: mesh.domain='disk' or a Gmsh mesh of "// &
-                      "the disk (here '"//trim(m%domain)//"')")
+         call require(err, origin, k_exact, p%exact == exact_none .or. m%domain /= domain_square, &
+                      "exact='"//word_of_kind(k_exact, p%exact)//"' needs the unit disk: mesh.domain='disk' or a "// &
+                      "Gmsh mesh of the disk (here '"//word_of_kind(k_domain, m%domain)//"')")
          call check_load_file(err, origin, k_f1_file, p%f1_file, p%f1_formula, 'f1')
          call check_load_file(err, origin, k_f2_file, p%f2_file, p%f2_formula, 'f2')
-         call require(err, origin, k_exact, p%exact == 'none' .or. len_trim(p%f1_formula // p%f2_formula // &
-                      p%f1_file // p%f2_file) == 0, "exact='"//trim(p%exact)//"' has its own loads: "// &
+         call require(err, origin, k_exact, p%exact == exact_none .or. len_trim(p%f1_formula // p%f2_formula // &
+                      p%f1_file // p%f2_file) == 0, "exact='"//word_of_kind(k_exact, p%exact)//"' has its own loads: "// &
                       'f1 and f2 must be numbers, and f1_file, f2_file empty')
 
-         call check_word(err, origin, k_cfun, n%cfun, [character(len=8) :: 'min', 'fb'])
-         call check_word(err, origin, k_linear, n%linear, [character(len=8) :: 'direct', 'gmres', 'adaptive'])
+         call check_word(err, origin, given, k_cfun, n%cfun)
+         call check_word(err, origin, given, k_linear, n%linear)
          call check_int(err, origin, k_newton_max_it, n%max_it, 1, 100000)
          call check_real(err, origin, k_tol, n%tol, gt=0.0_dp, lt=1.0_dp)
          call check_real(err, origin, k_gamma_lin, n%gamma_lin, gt=0.0_dp, le=1.0_dp)
-         call check_word(err, origin, k_initial, n%initial, [character(len=8) :: 'paper', 'nested'])
-         call check_word(err, origin, k_line_search, n%line_search, [character(len=8) :: 'auto', 'on', 'off'])
-         call check_word(err, origin, k_fb_finish, n%fb_finish, [character(len=10) :: 'active_set', 'none'])
+         call check_word(err, origin, given, k_initial, n%initial)
+         call check_word(err, origin, given, k_line_search, n%line_search)
+         call check_word(err, origin, given, k_fb_finish, n%fb_finish)
 
          call check_int(err, origin, k_restart, g%restart, 1, 1000)
          call check_int(err, origin, k_gmres_max_it, g%max_it, 1, huge(1))
          call check_real(err, origin, k_rtol, g%rtol, gt=0.0_dp, lt=1.0_dp)
-         call check_word(err, origin, k_precond, g%precond, [character(len=8) :: 'mg', 'ilu0', 'jacobi', 'none'])
-         call check_word(err, origin, k_forcing, g%forcing, [character(len=8) :: 'finish', 'paper', 'fixed'])
+         call check_word(err, origin, given, k_precond, g%precond)
+         call check_word(err, origin, given, k_forcing, g%forcing)
       end associate
 
       call check_real(err, origin, k_gamma_alg, cfg%estimate%gamma_alg, gt=0.0_dp, le=1.0_dp)
       call check_int(err, origin, k_every, cfg%estimate%every, 0, 100000)
-      call check_word(err, origin, k_flux, cfg%estimate%flux, [character(len=8) :: 'rt1', 'rt0'])
+      call check_word(err, origin, given, k_flux, cfg%estimate%flux)
       call check_int(err, origin, k_alg_levels, cfg%estimate%alg_levels, 1, 13)
-      call check_word(err, origin, k_criteria, cfg%estimate%criteria, [character(len=8) :: 'global', 'local'])
-      call check_word(err, origin, k_checks, cfg%estimate%checks, [character(len=9) :: 'predicted', 'all'])
+      call check_word(err, origin, given, k_criteria, cfg%estimate%criteria)
+      call check_word(err, origin, given, k_checks, cfg%estimate%checks)
    end subroutine validate
 
    !> A load: finite when a number, parsed when a formula (the message gives the column).
@@ -132,7 +140,7 @@ contains
       character(len=*), intent(in) :: what
 
       if (allocated(err) .or. ok) return
-      call make_error(err, exit_bad_input, origin(id)%s//': &'//trim(group_names(key_group(id))), what)
+      call make_error(err, exit_bad_input, origin(id)%s//': &'//group_name(id), what)
    end subroutine require
 
    !> `<origin>: &group: key must be ...`
@@ -142,28 +150,22 @@ contains
       integer, intent(in) :: id
       character(len=*), intent(in) :: what
 
-      call make_error(err, exit_bad_input, origin(id)%s//': &'//trim(group_names(key_group(id))), &
-                      trim(key_names(id))//' '//what)
+      call make_error(err, exit_bad_input, origin(id)%s//': &'//group_name(id), key_name(id)//' '//what)
    end subroutine fail
 
-   subroutine check_word(err, origin, id, value, allowed)
+   !> Word key `id` holds one of its kinds (`kind`), or fails naming its words and the one given.
+   subroutine check_word(err, origin, given, id, kind)
       type(error_t), allocatable, intent(inout) :: err
-      type(string_t), intent(in) :: origin(:)
-      integer, intent(in) :: id
-      character(len=*), intent(in) :: value
-      character(len=*), intent(in) :: allowed(:)
+      type(string_t), intent(in) :: origin(:), given(:)
+      integer, intent(in) :: id, kind
 
-      character(len=:), allocatable :: list
-      integer :: i
+      character(len=:), allocatable :: got
 
       if (allocated(err)) return
-      if (any(allowed == value)) return
-      list = ''
-      do i = 1, size(allowed)
-         if (i > 1) list = list//', '
-         list = list//quote(trim(allowed(i)))
-      end do
-      call fail(err, origin, id, 'must be one of '//list//', got '//quote(excerpt(trim(value))))
+      if (has_kind(id, kind)) return
+      got = ''
+      if (allocated(given(id)%s)) got = given(id)%s
+      call fail(err, origin, id, 'must be one of '//word_list(id)//', got '//quote(excerpt(got)))
    end subroutine check_word
 
    !> Finite, and within the bounds given (`gt`: >, `ge`: >=, `lt`: <, `le`: <=). Finiteness is

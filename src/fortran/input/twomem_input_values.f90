@@ -12,7 +12,7 @@ module twomem_input_values
    implicit none
    private
 
-   public :: scan_integer, scan_real, scan_logical, unquote
+   public :: scan_integer, scan_real, scan_logical, unquote, scan_quoted
    public :: format_real, quote
 
 contains
@@ -168,43 +168,67 @@ contains
       logical, intent(out) :: quoted
       character(len=:), allocatable, intent(out) :: what
 
-      character :: delim
-      integer :: q, k
+      integer :: close
 
       quoted = .false.
       value = text
       if (len(text) == 0) return
-      delim = text(1:1)
-      if (delim /= "'" .and. delim /= '"') return
+      if (text(1:1) /= "'" .and. text(1:1) /= '"') return
       quoted = .true.
-      ! filled in place: growing a string a character at a time costs quadratic time
-      value = repeat(' ', len(text))
-      k = 0
-      q = 2
-      do
-         if (q > len(text)) then
-            value = value(1:k)
-            what = 'unterminated string'
-            return
-         end if
+      call scan_quoted(text, 1, value, close)
+      if (close == 0) then
+         what = 'unterminated string'
+      else if (close /= len(text)) then
+         what = 'unexpected text after the closing quote'
+      end if
+   end subroutine unquote
+
+   !> The string literal that opens with the quote at text(start:start): its text, with each
+   !> doubled delimiter inside read as one, and the position of its closing quote (`close`; 0
+   !> when `text` ends first, and `value` is then the text up to there). The one reading of
+   !> quoted text, for the case-file tokenizer and the overrides alike.
+   pure subroutine scan_quoted(text, start, value, close)
+      character(len=*), intent(in) :: text
+      integer, intent(in) :: start
+      character(len=:), allocatable, intent(out) :: value
+      integer, intent(out) :: close
+
+      character :: delim
+      !> one past the literal's text: its closing quote, or the end of `text`
+      integer :: last
+      integer :: q, k
+
+      delim = text(start:start)
+      ! first the closing quote, so that the text is allocated once and filled in place: growing
+      ! a string a character at a time costs quadratic time, minutes on a long line
+      close = 0
+      q = start + 1
+      do while (q <= len(text))
          if (text(q:q) == delim) then
-            if (q < len(text)) then
-               if (text(q + 1:q + 1) == delim) then
-                  k = k + 1
-                  value(k:k) = delim
-                  q = q + 2
-                  cycle
-               end if
+            if (q == len(text)) then
+               close = q
+               exit
+            else if (text(q + 1:q + 1) /= delim) then
+               close = q
+               exit
             end if
-            exit
+            q = q + 1
          end if
+         q = q + 1
+      end do
+      last = merge(close, len(text) + 1, close > 0)
+      allocate (character(len=last - start - 1) :: value)
+      k = 0
+      q = start + 1
+      do while (q < last)
          k = k + 1
          value(k:k) = text(q:q)
+         ! a doubled delimiter stands for one
+         if (text(q:q) == delim) q = q + 1
          q = q + 1
       end do
       value = value(1:k)
-      if (q /= len(text)) what = 'unexpected text after the closing quote'
-   end subroutine unquote
+   end subroutine scan_quoted
 
    !> Shortest decimal text that reads back to exactly `x` (at most 17 significant digits),
    !> positional for moderate magnitudes and with an exponent otherwise: '0.25', '1.0e-10'.

@@ -7,14 +7,23 @@ module twomem_io_result
    use twomem_base_errors, only: error_t
    use twomem_base_system, only: rename_file, remove_file, process_id, base_name, register_temporary, &
       unregister_temporary
-   use twomem_newton_history, only: history_t
-   use twomem_io_hdf5, only: h5_file_t
+   use twomem_hdf5_file, only: h5_file_t
    use twomem_io_xdmf, only: write_xdmf
    use twomem_base_phases, only: phase_clock_t, phase_output, n_phases, phase_names
    implicit none
    private
 
-   public :: result_record_t, output_choice_t, write_result, xdmf_path_for
+   public :: result_record_t, history_columns_t, output_choice_t, write_result, xdmf_path_for
+
+   !> `/history` column by column, one entry per recorded point (docs/output.md). The program
+   !> copies the solver's rows in: the file's layout is fixed here, the solver's types stay above.
+   type :: history_columns_t
+      integer(ip), allocatable :: newton_it(:), gmres_it(:), active(:), active_changed(:)
+      !> 1 for a point recorded inside GMRES, 0 for a Newton step
+      integer(ip), allocatable :: inner(:)
+      real(dp), allocatable :: eta_disc(:), eta_lin(:), eta_alg(:), eta_total(:), energy_error(:)
+      real(dp), allocatable :: lin_residual(:), alg_residual(:), step(:), wall_time(:)
+   end type history_columns_t
 
    !> What the run produced, independent of how it is stored.
    type :: result_record_t
@@ -27,7 +36,7 @@ module twomem_io_result
       real(dp), allocatable :: u1(:), u2(:), lambda(:)
       !> per-element energy error, allocated only when the exact solution is known
       real(dp), allocatable :: energy_error(:)
-      type(history_t) :: history
+      type(history_columns_t) :: history
       integer :: newton_iterations = 0, gmres_iterations = 0, levels = 0
       !> work on the coarser levels of nested iteration (0 without it)
       integer :: newton_iterations_coarse = 0, gmres_iterations_coarse = 0
@@ -185,29 +194,23 @@ contains
 
    subroutine write_history(h5, history, err)
       type(h5_file_t), intent(inout) :: h5
-      type(history_t), intent(in) :: history
+      type(history_columns_t), intent(in) :: history
       type(error_t), allocatable, intent(out) :: err
 
-      integer :: n
-
-      ! a column of the rows is strided: parentheses make it a contiguous value for the C side
-      n = history%n
-      associate (r => history%rows(1:n))
-         call h5%write_int('/history/newton_it', int(r%newton_it, ip), err)
-         if (.not. allocated(err)) call h5%write_int('/history/gmres_it', int(r%gmres_it, ip), err)
-         if (.not. allocated(err)) call h5%write_real('/history/eta_disc', (r%eta_disc), err)
-         if (.not. allocated(err)) call h5%write_real('/history/eta_lin', (r%eta_lin), err)
-         if (.not. allocated(err)) call h5%write_real('/history/eta_alg', (r%eta_alg), err)
-         if (.not. allocated(err)) call h5%write_real('/history/eta_total', (r%eta_total), err)
-         if (.not. allocated(err)) call h5%write_real('/history/energy_error', (r%energy_error), err)
-         if (.not. allocated(err)) call h5%write_real('/history/lin_residual', (r%lin_residual), err)
-         if (.not. allocated(err)) call h5%write_real('/history/alg_residual', (r%alg_residual), err)
-         if (.not. allocated(err)) call h5%write_int('/history/active', int(r%active, ip), err)
-         if (.not. allocated(err)) call h5%write_int('/history/active_changed', int(r%active_changed, ip), err)
-         if (.not. allocated(err)) call h5%write_real('/history/step', (r%step), err)
-         if (.not. allocated(err)) call h5%write_int('/history/inner', int(merge(1, 0, r%inner), ip), err)
-         if (.not. allocated(err)) call h5%write_real('/history/wall_time', (r%wall_time), err)
-      end associate
+      call h5%write_int('/history/newton_it', history%newton_it, err)
+      if (.not. allocated(err)) call h5%write_int('/history/gmres_it', history%gmres_it, err)
+      if (.not. allocated(err)) call h5%write_real('/history/eta_disc', history%eta_disc, err)
+      if (.not. allocated(err)) call h5%write_real('/history/eta_lin', history%eta_lin, err)
+      if (.not. allocated(err)) call h5%write_real('/history/eta_alg', history%eta_alg, err)
+      if (.not. allocated(err)) call h5%write_real('/history/eta_total', history%eta_total, err)
+      if (.not. allocated(err)) call h5%write_real('/history/energy_error', history%energy_error, err)
+      if (.not. allocated(err)) call h5%write_real('/history/lin_residual', history%lin_residual, err)
+      if (.not. allocated(err)) call h5%write_real('/history/alg_residual', history%alg_residual, err)
+      if (.not. allocated(err)) call h5%write_int('/history/active', history%active, err)
+      if (.not. allocated(err)) call h5%write_int('/history/active_changed', history%active_changed, err)
+      if (.not. allocated(err)) call h5%write_real('/history/step', history%step, err)
+      if (.not. allocated(err)) call h5%write_int('/history/inner', history%inner, err)
+      if (.not. allocated(err)) call h5%write_real('/history/wall_time', history%wall_time, err)
    end subroutine write_history
 
    subroutine write_summary(h5, rec, err)

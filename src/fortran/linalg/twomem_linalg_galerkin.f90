@@ -282,18 +282,17 @@ contains
 
    !> The coarse rows of Rt A Pt that a change can reach: the fine rows of A whose values changed
    !> (`changed`; A is symmetric, so their columns changed too) and the fine unknowns whose fixed
-   !> flag flipped (`flipped`: the truncated R and P change around them and, through
-   !> `injection`, the coarse unknown that sits there). Dilating the fine marks through A, P and
-   !> R costs a few passes over their patterns, far less than the products it saves; when the
-   !> marks are few (a Newton step near convergence), they are spread from the marked entries
-   !> instead, at a cost that shrinks with the change.
-   subroutine touched_rows(r, a, p, injection, flipped, changed, touched)
+   !> flag flipped (`flipped`: the truncated R and P change around them), and the coarse
+   !> unknowns whose fixed flag flipped (`coarse_flipped`: their truncated rows of R change).
+   !> Dilating the fine marks through A, P and R costs a few passes over their patterns, far less
+   !> than the products it saves; when the marks are few (a Newton step near convergence), they
+   !> are spread from the marked entries instead, at a cost that shrinks with the change.
+   subroutine touched_rows(r, a, p, coarse_flipped, flipped, changed, touched)
       type(csr_t), intent(in) :: r, a, p
-      integer(ip), intent(in) :: injection(:)
-      logical, intent(in) :: flipped(:), changed(:)
+      logical, intent(in) :: coarse_flipped(:), flipped(:), changed(:)
       logical, intent(out) :: touched(:)
 
-      logical, allocatable :: coarse_flipped(:), moved(:), reach(:)
+      logical, allocatable :: moved(:), reach(:)
       integer(ip) :: i, k, n_flipped, n_changed
 
       n_flipped = count(flipped)
@@ -305,7 +304,6 @@ contains
          touched = .true.
          return
       end if
-      coarse_flipped = flipped(injection)
       ! scattering costs a few dozen operations per mark, gathering ten per entry of A
       if (4*(n_flipped + n_changed) < a%n) then
          call spread_marks(r, a, p, flipped, changed, coarse_flipped, touched)
@@ -407,7 +405,7 @@ contains
 
       !$omp parallel default(none) shared(nc, rows, r_ptr, r_col, rv, a_ptr, a_col, a_val, p_ptr, p_col, pv) &
       !$omp shared(c_ptr, c_col, c_val, start, from_start, diagonal, owned, fixed) &
-      !$omp private(position, i, k, m, q, kk, j, jr, rik, rikakj) if(size(rows) > 1024)
+      !$omp private(position, i, k, m, q, kk, j, jr, rik, rikakj) if(size(rows) > threaded_from)
       allocate (position(nc))
       !$omp do schedule(static)
       do jr = 1, size(rows, kind=ip)

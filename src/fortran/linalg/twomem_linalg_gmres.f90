@@ -6,17 +6,24 @@
 !> decided on the true residual ‖b − A x‖, recomputed at every restart. An optional observer
 !> sees the current iterate every ν iterations and may stop the solve: this is how the
 !> adaptive Newton method stops GMRES on a posteriori estimators. Non-convergence is a reason
-!> in the monitor, not an error; errors are only for misuse.
+!> in the monitor (`twomem_linalg_gmres_monitor`), not an error; errors are only for misuse.
 module twomem_linalg_gmres
    use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_bad_input
    use twomem_linalg_operators, only: linear_operator_t, preconditioner_t, inner_product_t
    use twomem_linalg_vectors, only: copy_into, threaded_from
+   use twomem_linalg_gmres_monitor, only: gmres_monitor_t, gmres_reason_text, gmres_converged, &
+      gmres_iteration_limit, gmres_breakdown, gmres_stagnation, gmres_stopped_by_observer, &
+      gmres_non_finite_correction, gmres_invalid_arguments, gmres_not_solved
    implicit none
    private
 
-   public :: gmres_solve, gmres_options_t, gmres_monitor_t, gmres_observer_t, gmres_workspace_t
+   public :: gmres_solve, gmres_options_t, gmres_observer_t, gmres_workspace_t
+   ! how a solve ended (twomem_linalg_gmres_monitor), with the solver that tells it
+   public :: gmres_monitor_t, gmres_reason_text
+   public :: gmres_not_solved, gmres_converged, gmres_iteration_limit, gmres_breakdown, gmres_stagnation, &
+             gmres_stopped_by_observer, gmres_non_finite_correction, gmres_invalid_arguments
 
    type :: gmres_options_t
       !> m: Krylov vectors per cycle
@@ -38,27 +45,6 @@ module twomem_linalg_gmres
       !> `orthogonalize`); 0 never reorthogonalizes, a value above 1 always does
       real(dp) :: reorth_factor = 0.70710678118654752_dp
    end type gmres_options_t
-
-   type :: gmres_monitor_t
-      integer :: iterations = 0
-      integer :: restarts = 0
-      !> true residual norms of the initial guess and of the returned x
-      real(dp) :: initial_residual = 0.0_dp
-      real(dp) :: final_residual = 0.0_dp
-      !> the residual estimate at every iteration, initial residual first (iterations + 1)
-      real(dp), allocatable :: residual_history(:)
-      !> .true. exactly when reason is 'converged'
-      logical :: converged = .false.
-      !> 'converged', 'iteration limit', 'breakdown', 'stagnation', 'stopped by observer',
-      !> 'non-finite correction' (x is then the last finite iterate)
-      character(len=:), allocatable :: reason
-      !> cycles whose Arnoldi estimate met the tolerance while the true residual did not
-      integer :: false_convergences = 0
-      !> Arnoldi steps that needed the second Gram–Schmidt pass
-      integer :: reorthogonalizations = 0
-      !> the last cycle ended on an invariant Krylov space
-      logical :: happy_breakdown = .false.
-   end type gmres_monitor_t
 
    !> Receives the current iterate; set `stop` to end GMRES with x = this iterate. An observer
    !> whose work on an iterate needs the memory of GMRES's Krylov basis may put that work off:
@@ -187,7 +173,7 @@ contains
    end subroutine reach
 
    !> Solve A x = b; `x` holds the initial guess on entry. `err` is set only for misuse
-   !> (sizes, options; the monitor's reason is then 'invalid arguments'); how the solve ended
+   !> (sizes, options; the monitor's reason is then gmres_invalid_arguments); how the solve ended
    !> is `monitor%reason`. A zero b returns x = 0 at once: converged, 0 iterations, zero
    !> residuals. `workspace`, if given, is (re)allocated only when n or m changed.
    subroutine gmres_solve(op, prec, dot, b, x, options, monitor, err, observer, workspace)
@@ -204,7 +190,7 @@ contains
 
       type(gmres_workspace_t) :: local
 
-      monitor%reason = 'invalid arguments'
+      monitor%reason = gmres_invalid_arguments
       call check_arguments(size(b), size(x), options, err)
       if (allocated(err)) return
       if (present(workspace)) then
@@ -266,13 +252,13 @@ contains
          mon%residual_history = [b_norm]
          mon%initial_residual = b_norm
          mon%final_residual = b_norm
-         call finish(mon, 'breakdown')
+         call finish(mon, gmres_breakdown)
          return
       else if (b_norm == 0) then
          ! x = 0 is exact whatever the guess; no operator application is needed
          x = 0.0_dp
          mon%residual_history = [0.0_dp]
-         call finish(mon, 'converged')
+         call finish(mon, gmres_converged)
          return
       end if
       if (ws%n /= size(b) .or. ws%m /= opt%restart) call ws%init(size(b, kind=ip), opt%restart)
@@ -299,24 +285,24 @@ contains
             outcome = merge(cycle_stopped, cycle_full, stop)
          end if
          if (.not. ieee_is_finite(beta)) then
-            call finish(mon, 'breakdown')
+            call finish(mon, gmres_breakdown)
             exit
          else if (beta <= target) then
-            call finish(mon, 'converged')
+            call finish(mon, gmres_converged)
             exit
          else if (outcome == cycle_stopped) then
-            call finish(mon, 'stopped by observer')
+            call finish(mon, gmres_stopped_by_observer)
             exit
          else if (outcome == cycle_nonfinite) then
-            call finish(mon, 'non-finite correction')
+            call finish(mon, gmres_non_finite_correction)
             exit
          else if (outcome == cycle_breakdown) then
             ! the Krylov space was invariant, yet x does not meet the tolerance: rounding in
             ! the small solve or a singular operator; another cycle would rebuild the same space
-            call finish(mon, 'breakdown')
+            call finish(mon, gmres_breakdown)
             exit
          else if (it >= opt%max_it) then
-            call finish(mon, 'iteration limit')
+            call finish(mon, gmres_iteration_limit)
             exit
          end if
          if (cycles > 0) then
@@ -327,7 +313,7 @@ contains
                stalled = stalled + 1
             end if
             if (opt%stagnation_window > 0 .and. stalled >= opt%stagnation_window) then
-               call finish(mon, 'stagnation')
+               call finish(mon, gmres_stagnation)
                exit
             end if
             if (present(observer) .and. .not. observed) then
@@ -335,7 +321,7 @@ contains
                ! x is the iterate already
                if (.not. stop .and. observer%pending()) call finish_put_off(stop)
                if (stop) then
-                  call finish(mon, 'stopped by observer')
+                  call finish(mon, gmres_stopped_by_observer)
                   exit
                end if
             end if
@@ -375,10 +361,10 @@ contains
 
    subroutine finish(mon, reason)
       type(gmres_monitor_t), intent(inout) :: mon
-      character(len=*), intent(in) :: reason
+      integer, intent(in) :: reason
 
       mon%reason = reason
-      mon%converged = reason == 'converged'
+      mon%converged = reason == gmres_converged
    end subroutine finish
 
    !> One cycle of at most m Arnoldi steps from the residual in ws%v(1) (norm beta); on return

@@ -53,8 +53,12 @@ module twomem_linalg_multigrid
    !> (rows of level l), r(l) = p(l)ᵀ, and injection(l)%i(j), the unknown of level l that coarse
    !> unknown j of level l−1 is (nested hierarchies keep every coarse vertex); the interface of
    !> every level's unknowns, and a global key of every unknown of level 0 for its gathered solve.
+   !> The lowest `algebraic` levels' prolongations come from aggregation
+   !> (twomem_linalg_aggregation): no coarse unknown sits at a fine one, so they have no
+   !> injection, and level `algebraic` is the coarsest mesh.
    type :: multigrid_transfer_t
       integer :: levels = 0
+      integer :: algebraic = 0
       type(csr_t), allocatable :: p(:), r(:)
       type(index_list_t), allocatable :: injection(:)
       type(halo_t), allocatable :: halos(:)
@@ -152,30 +156,36 @@ contains
       end do
    end subroutine restore_restrictions
 
-   !> From prolongations(l), l = 1..L, level l−1 to level l. `halos` (levels 0..L) and
-   !> `coarse_keys` describe a distributed hierarchy; without them the levels are whole (one
-   !> rank, unknowns numbered 1..n). A hierarchy of one level needs `n_coarsest`.
-   subroutine transfer_init(self, prolongations, err, halos, coarse_keys, n_coarsest)
+   !> From prolongations(l), l = 1..L, level l−1 to level l, the first `algebraic` of them (0 by
+   !> default) from aggregation, the others nested. `halos` (levels 0..L) and `coarse_keys`
+   !> describe a distributed hierarchy; without them the levels are whole (one rank, unknowns
+   !> numbered 1..n). A hierarchy of one level needs `n_coarsest`.
+   subroutine transfer_init(self, prolongations, err, halos, coarse_keys, n_coarsest, algebraic)
       class(multigrid_transfer_t), intent(inout) :: self
       type(csr_t), intent(in) :: prolongations(:)
       type(error_t), allocatable, intent(out) :: err
       type(halo_t), intent(in), optional :: halos(0:)
       integer(ip), intent(in), optional :: coarse_keys(:)
       integer(ip), intent(in), optional :: n_coarsest
+      integer, intent(in), optional :: algebraic
 
       type(comm_t) :: one_rank
       integer :: l
       integer(ip) :: i, n0
 
       self%levels = size(prolongations)
+      self%algebraic = 0
+      if (present(algebraic)) self%algebraic = algebraic
       self%p = prolongations
       if (allocated(self%r)) deallocate (self%r, self%injection)
       if (allocated(self%halos)) deallocate (self%halos)
       allocate (self%r(self%levels), self%injection(self%levels))
       do l = 1, self%levels
          self%r(l) = self%p(l)%transposed()
-         call find_injection(self%p(l), self%injection(l)%i, err)
-         if (allocated(err)) return
+         if (l > self%algebraic) then
+            call find_injection(self%p(l), self%injection(l)%i, err)
+            if (allocated(err)) return
+         end if
          if (l > 1) then
             if (self%p(l)%ncol /= self%p(l - 1)%n) then
                call make_error(err, exit_io, 'multigrid', 'consecutive prolongations do not match')
@@ -393,7 +403,7 @@ contains
 
       integer :: l
       logical :: truncated, partial, refactor
-      logical, allocatable :: flipped(:)
+      logical, allocatable :: flipped(:), coarse_flipped(:)
 
       if (self%frozen) then
          call make_error(err, exit_io, 'multigrid', 'a frozen hierarchy was refreshed')
@@ -424,11 +434,11 @@ contains
       truncated = any(fixed)
       do l = self%top, 1, -1
          if (l == self%top) then
-            call coarsen(self, l, truncated, flipped, self%finest, shift)
+            call coarsen(self, l, truncated, flipped, coarse_flipped, self%finest, shift)
          else
-            call coarsen(self, l, truncated, flipped, self%levels(l)%a)
+            call coarsen(self, l, truncated, flipped, coarse_flipped, self%levels(l)%a)
          end if
-         flipped = flipped(self%transfer%injection(l)%i)
+         call move_alloc(coarse_flipped, flipped)
       end do
       ! the coarsest factorization is the one step whose cost does not shrink with the change
       refactor = self%transfer%halos(0)%comm%any_true(any(self%levels(0)%updated))
@@ -501,29 +511,49 @@ contains
    !> Level l−1 from level l (operator a) on the rows the changes reach: its fixed unknowns, the
    !> truncated transfer values (when a fixed flag flipped), the Galerkin product, and the
    !> smoother of level l (on level l's updated rows). `flipped` marks level l's unknowns whose
-   !> fixed flag flipped.
-   subroutine coarsen(self, l, truncated, flipped, a, shift)
+   !> fixed flag flipped, `coarse_flipped` returns level l−1's.
+   !> Below a nested level a coarse unknown is fixed where the fine unknown it is injected into
+   !> is. An aggregation level has no such unknown: there the coarse unknowns whose truncated
+   !> basis function vanished (identity rows, `cut_rows`) count as fixed for the next coarsening,
+   !> so that the identity rows, which stand for no fine function, add nothing to the coarser
+   !> Galerkin products.
+   subroutine coarsen(self, l, truncated, flipped, coarse_flipped, a, shift)
       type(multigrid_t), intent(inout) :: self
       integer, intent(in) :: l
       logical, intent(in) :: truncated
       logical, intent(in) :: flipped(:)
+      logical, allocatable, intent(out) :: coarse_flipped(:)
       type(csr_t), intent(in) :: a
       real(dp), intent(in), optional :: shift(:)
 
-      logical :: fresh
+      logical, allocatable :: was_cut(:)
+      logical :: fresh, nested
 
+      nested = l > self%transfer%algebraic
       associate (fine => self%levels(l), coarse => self%levels(l - 1), p => self%transfer%p(l), &
                  r => self%transfer%r(l))
-         coarse%fixed = fine%fixed(self%transfer%injection(l)%i)
+         if (nested) then
+            coarse%fixed = fine%fixed(self%transfer%injection(l)%i)
+            coarse_flipped = flipped(self%transfer%injection(l)%i)
+         else
+            call move_alloc(coarse%fixed, was_cut)
+            allocate (coarse%fixed(size(was_cut)), coarse_flipped(size(was_cut)))
+            call fill(coarse%fixed, .false.)
+            call fill(coarse_flipped, .false.)
+         end if
          if (truncated) then
             fresh = .not. allocated(fine%pt)
             if (fresh) allocate (fine%pt(p%nnz()), fine%rt(r%nnz()))
             if (fresh .or. any(flipped)) call truncate_transfer(p, r, fine%fixed, coarse%fixed, fine%pt, fine%rt)
-            call coarse_rows(self, l, a, fine%rt, fine%pt, flipped, shift)
+            call coarse_rows(self, l, a, fine%rt, fine%pt, flipped, coarse_flipped, shift)
          else
             ! no fixed unknown (any more): the transfer's own values
             if (allocated(fine%pt)) deallocate (fine%pt, fine%rt)
-            call coarse_rows(self, l, a, r%val, p%val, flipped, shift)
+            call coarse_rows(self, l, a, r%val, p%val, flipped, coarse_flipped, shift)
+         end if
+         if (.not. nested) then
+            coarse%fixed = coarse%cut
+            coarse_flipped = coarse%cut .neqv. was_cut
          end if
          if (l == self%top .and. associated(self%base)) then
             call fine%smoother%setup(a, self%transfer%halos(l), self%options%degree, self%options%ratio, &
@@ -538,12 +568,12 @@ contains
    !> The rows of level l−1's operator that the flipped fixed flags and level l's updated rows
    !> reach, recomputed with the transfer values rv, pv; below a split finest operator as
    !> Pᵀ base P (only where a flag flipped) plus Pᵀ diag(shift) P.
-   subroutine coarse_rows(self, l, a, rv, pv, flipped, shift)
+   subroutine coarse_rows(self, l, a, rv, pv, flipped, coarse_flipped, shift)
       type(multigrid_t), intent(inout) :: self
       integer, intent(in) :: l
       type(csr_t), intent(in) :: a
       real(dp), intent(in) :: rv(:), pv(:)
-      logical, intent(in) :: flipped(:)
+      logical, intent(in) :: flipped(:), coarse_flipped(:)
       real(dp), intent(in), optional :: shift(:)
 
       integer(ip), allocatable :: rows(:), regain(:)
@@ -552,15 +582,15 @@ contains
 
       split = l == self%top .and. associated(self%base)
       associate (fine => self%levels(l), coarse => self%levels(l - 1), p => self%transfer%p(l), &
-                 r => self%transfer%r(l), injection => self%transfer%injection(l)%i)
+                 r => self%transfer%r(l))
          if (split) then
             allocate (no_change(size(flipped)))
             no_change = .false.
-            call touched_rows(r, self%base, p, injection, flipped, no_change, coarse%updated)
+            call touched_rows(r, self%base, p, coarse_flipped, flipped, no_change, coarse%updated)
             rows = row_list(coarse%updated)
             call galerkin_rows(r, rv, self%base, p, pv, rows, coarse%a%row_ptr, coarse%a%col, coarse%base_part)
          end if
-         call touched_rows(r, a, p, injection, flipped, fine%updated, coarse%updated)
+         call touched_rows(r, a, p, coarse_flipped, flipped, fine%updated, coarse%updated)
          rows = row_list(coarse%updated)
          call product(rows)
          call cut_rows(rows, coarse%fixed, self%transfer%halos(l - 1), coarse%part_diag, coarse%cut, coarse%a, &

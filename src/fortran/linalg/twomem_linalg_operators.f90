@@ -9,6 +9,7 @@ module twomem_linalg_operators
    use twomem_base_errors, only: error_t
    use twomem_linalg_csr, only: csr_t
    use twomem_base_comm, only: comm_t
+   use twomem_linalg_vectors, only: threaded_from
    implicit none
    private
 
@@ -162,6 +163,8 @@ contains
       real(dp), intent(in) :: x(:), y(:)
       logical, intent(in), optional :: owned(:)
 
+      !> fixes the order of the additions, so it is a constant of its own: whether threads
+      !> share the blocks (threaded_from) changes no bit
       integer(ip), parameter :: block = 4096
       real(dp), allocatable :: partial(:)
       real(dp) :: acc
@@ -174,9 +177,9 @@ contains
       allocate (partial(nb))
       ! each block's sum in a private accumulator, stored once: accumulating in the shared array
       ! made the threads write neighbouring entries of one cache line at every element (false
-      ! sharing: with 2 threads the products of the Newton solve spent 15% of their time here)
+      ! sharing, a visible share of the Newton solve's products: docs/performance.md)
       !$omp parallel do default(none) shared(x, y, owned, masked, partial, n, nb) private(b, i, acc) &
-      !$omp schedule(static) if(nb > 1)
+      !$omp schedule(static) if(n > threaded_from)
       do b = 1, nb
          acc = 0.0_dp
          if (masked) then

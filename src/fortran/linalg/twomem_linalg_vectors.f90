@@ -1,6 +1,6 @@
 !> Threaded copies and fills of long arrays. A freshly allocated array's pages are zeroed by the
 !> kernel when they are first written, and on a virtual machine that first touch costs several
-!> times the copy itself (at 4.5·10^6 vertices a fifth of the run's CPU time goes to it). Written
+!> times the copy itself (docs/performance.md, "Measuring"). Written
 !> by one thread, the whole cost lands on one core while the others wait; written here, in the
 !> same static row blocks as the threaded loops that later read the array, it is shared.
 module twomem_linalg_vectors

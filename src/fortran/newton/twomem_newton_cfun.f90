@@ -10,15 +10,12 @@
 !>   ρ is computed with `hypot`, so no overflow or underflow for extreme a, b.
 module twomem_newton_cfun
    use twomem_base_kinds, only: dp, ip
+   use twomem_base_options, only: c_function_fb
    use twomem_linalg_vectors, only: threaded_from
    implicit none
    private
 
-   public :: cfun_min, cfun_fb, cfun_eval, cfun_kind, cfun_name
-   !> which C-function: Newton-min or Fischer–Burmeister
-   public :: c_function_min, c_function_fb
-
-   integer, parameter :: c_function_min = 1, c_function_fb = 2
+   public :: cfun_min, cfun_fb, cfun_eval
 
 contains
 
@@ -86,27 +83,4 @@ contains
          !$omp end parallel do
       end if
    end subroutine cfun_eval
-
-   !> The C-function named by a `newton.cfun` word ('min' or 'fb'); 0 for any other word.
-   pure integer function cfun_kind(name) result(which)
-      character(len=*), intent(in) :: name
-
-      select case (name)
-      case ('min')
-         which = c_function_min
-      case ('fb')
-         which = c_function_fb
-      case default
-         which = 0
-      end select
-   end function cfun_kind
-
-   pure function cfun_name(which) result(name)
-      integer, intent(in) :: which
-      character(len=:), allocatable :: name
-
-      name = merge('fb ', 'min', which == c_function_fb)
-      name = trim(name)
-   end function cfun_name
-
 end module twomem_newton_cfun

@@ -29,9 +29,11 @@ module twomem_newton_inner
    use twomem_base_system, only: return_freed_memory
    use twomem_linalg_gmres, only: gmres_observer_t
    use twomem_linalg_operators, only: preconditioner_t
-   use twomem_newton_cfun, only: c_function_min, cfun_eval
+   use twomem_base_options, only: c_function_min, method_adaptive, forcing_fixed, forcing_finish
+   use twomem_newton_cfun, only: cfun_eval
    use twomem_newton_residual, only: nonlinear_residual_t
    use twomem_newton_history, only: history_t, history_row_t, not_computed
+   use twomem_newton_options, only: newton_options_t
    implicit none
    private
 
@@ -91,40 +93,43 @@ module twomem_newton_inner
    !> after η_lin (stages 2 and 3 of `check_schedule_t`), or the whole evaluation.
    integer, parameter :: put_off_none = 0, put_off_decision = 1, put_off_whole = 2
 
-   !> GMRES's observer inside Newton step `newton_it`.
+   !> GMRES's observer inside the Newton steps of one solve: configured once by `init`, told of
+   !> each GMRES solve by `start_solve`.
    type, extends(gmres_observer_t) :: inner_observer_t
-      type(nonlinear_residual_t), pointer :: residual => null()
-      type(history_t), pointer :: history => null()
-      class(newton_observer_t), pointer :: user => null()
-      logical :: paper_forcing = .true., adaptive = .false., local_criteria = .false.
-      !> finish the linear solve once the iterate takes the step's branches (gmres.forcing 'finish')
-      logical :: finish = .false.
-      real(dp) :: gamma_alg = 0.3_dp, newton_tol = 0.0_dp
-      !> the C-function of the Newton step's Jacobian (min also in FB's active-set steps)
-      integer :: linearized = c_function_min
-      integer :: newton_it = 0, gmres_before = 0
-      real(dp) :: b_norm = 1.0_dp, t0 = 0.0_dp
-      !> the adaptive method's choice of the checks that evaluate the estimators
+      !> the adaptive method's choice of the checks that evaluate the estimators (the driver's
+      !> Newton-level checks share it)
       type(check_schedule_t) :: schedule
       !> the running solve's preconditioner: an evaluation expected to end the run takes its
       !> memory (`release`; applied again, it rebuilds)
       class(preconditioner_t), pointer :: prec => null()
-      !> a check put off until GMRES has freed its basis (put_off_*), the row of its check so far
-      !> (the residuals, and η_lin, η_disc when known) and the η_lin that asked for η_disc
-      integer :: put_off = put_off_none
-      type(history_row_t) :: pending_row
-      real(dp) :: pending_eta_lin = 0
-      !> work: C and its Jacobian at the GMRES iterate (the Newton driver's arrays for them,
-      !> which it does not read while GMRES runs)
-      real(dp), pointer, contiguous :: c(:) => null(), da(:) => null(), db(:) => null()
       !> the relative residual of the last iterate observed, while c, da, db still hold the run's
       !> C-function there (NaN otherwise): when GMRES stops at that iterate, the driver takes
       !> them instead of evaluating the same residual again
       real(dp) :: last_relative = 0.0_dp
+      type(nonlinear_residual_t), pointer, private :: residual => null()
+      type(history_t), pointer, private :: history => null()
+      class(newton_observer_t), pointer, private :: user => null()
+      logical, private :: paper_forcing = .true., adaptive = .false., local_criteria = .false.
+      !> finish the linear solve once the iterate takes the step's branches (gmres.forcing 'finish')
+      logical, private :: finish = .false.
+      real(dp), private :: gamma_alg = 0.3_dp, newton_tol = 0.0_dp
+      !> the C-function of the Newton step's Jacobian (min also in FB's active-set steps)
+      integer, private :: linearized = c_function_min
+      integer, private :: newton_it = 0, gmres_before = 0
+      real(dp), private :: b_norm = 1.0_dp, t0 = 0.0_dp
+      !> a check put off until GMRES has freed its basis (put_off_*), the row of its check so far
+      !> (the residuals, and η_lin, η_disc when known) and the η_lin that asked for η_disc
+      integer, private :: put_off = put_off_none
+      type(history_row_t), private :: pending_row
+      real(dp), private :: pending_eta_lin = 0
+      !> work: C and its Jacobian at the GMRES iterate (the Newton driver's arrays for them,
+      !> which it does not read while GMRES runs)
+      real(dp), pointer, contiguous, private :: c(:) => null(), da(:) => null(), db(:) => null()
    contains
+      procedure :: init => inner_init
+      procedure :: start_solve
       procedure :: observe => observe_gmres
       procedure :: pending => check_pending
-      procedure :: forget_pending
    end type inner_observer_t
 
 contains
@@ -316,14 +321,56 @@ contains
       pending = self%put_off /= put_off_none
    end function check_pending
 
-   !> Forget a check put off by a GMRES solve that did not come back to it (it failed), and the
-   !> residual of the last step's iterates: a new solve starts.
-   subroutine forget_pending(self)
-      class(inner_observer_t), intent(inout) :: self
+   !> The observer of the GMRES solves of a Newton solve with `options`: it evaluates the GMRES
+   !> iterates' residuals with `residual` into c, da, db (the driver's arrays for C and its
+   !> Jacobian, which the driver does not read while GMRES runs), appends their rows to
+   !> `history` with times from t0, asks the run's observer `user`, if any, and may release
+   !> `prec`, the solves' preconditioner, before an evaluation expected to end the run. All of
+   !> them must outlive the observer.
+   subroutine inner_init(self, options, residual, c, da, db, history, t0, user, prec)
+      class(inner_observer_t), intent(out) :: self
+      type(newton_options_t), intent(in) :: options
+      type(nonlinear_residual_t), target, intent(inout) :: residual
+      real(dp), target, contiguous, intent(inout) :: c(:), da(:), db(:)
+      type(history_t), target, intent(inout) :: history
+      real(dp), intent(in) :: t0
+      class(newton_observer_t), target, intent(inout), optional :: user
+      class(preconditioner_t), target, intent(inout), optional :: prec
 
+      self%residual => residual
+      self%c => c
+      self%da => da
+      self%db => db
+      self%history => history
+      if (present(user)) self%user => user
+      self%adaptive = options%linear == method_adaptive
+      self%paper_forcing = options%forcing /= forcing_fixed .and. .not. self%adaptive
+      self%finish = options%forcing == forcing_finish
+      self%local_criteria = options%local_criteria
+      self%gamma_alg = options%gamma_alg
+      self%schedule%predict = options%predicted_checks
+      self%schedule%gamma_lin = options%gamma_lin
+      self%newton_tol = options%tol
+      self%t0 = t0
+      if (present(prec)) self%prec => prec
+   end subroutine inner_init
+
+   !> A GMRES solve begins in Newton step `newton_it`, which linearized C-function `linearized`,
+   !> after `gmres_before` GMRES iterations of the Newton solve, for a right-hand side of norm
+   !> `b_norm`. A check put off by a solve that did not come back to it (it failed) is forgotten,
+   !> and so is the residual of the last step's iterates.
+   subroutine start_solve(self, newton_it, linearized, gmres_before, b_norm)
+      class(inner_observer_t), intent(inout) :: self
+      integer, intent(in) :: newton_it, linearized, gmres_before
+      real(dp), intent(in) :: b_norm
+
+      self%newton_it = newton_it
       self%put_off = put_off_none
       self%last_relative = ieee_value(1.0_dp, ieee_quiet_nan)
-   end subroutine forget_pending
+      self%linearized = linearized
+      self%gmres_before = gmres_before
+      self%b_norm = b_norm
+   end subroutine start_solve
 
    !> Whether an iterate whose η_lin is `eta_lin` is worth an evaluation: the Newton test can
    !> hold with the last η_disc (always, without one or without a prediction).

@@ -8,6 +8,7 @@
 module twomem_newton_linear
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_bad_input
+   use twomem_base_options, only: precond_mg, precond_ilu0, precond_jacobi, precond_none
    use twomem_linalg_csr, only: csr_t
    use twomem_linalg_operators, only: preconditioner_t, csr_operator_t, identity_preconditioner_t
    use twomem_linalg_ilu0, only: ilu0_preconditioner_t
@@ -15,18 +16,17 @@ module twomem_newton_linear
    use twomem_linalg_gathered_solve, only: gathered_solver_t
    use twomem_linalg_multigrid, only: multigrid_options_t, multigrid_transfer_t
    use twomem_linalg_gmres, only: gmres_solve, gmres_options_t, gmres_monitor_t, gmres_observer_t, &
-      gmres_workspace_t
+      gmres_workspace_t, gmres_stopped_by_observer, gmres_reason_text, gmres_not_solved
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_newton_system, only: newton_system_t, newton_operator_t
    use twomem_newton_elimination, only: elimination_preconditioner_t
    implicit none
    private
 
-   public :: linear_step_t, precond_kind, needs_matrix
-   public :: solver_direct, solver_gmres, precond_mg, precond_ilu0, precond_jacobi, precond_none
+   public :: linear_step_t, needs_matrix
+   public :: solver_direct, solver_gmres
 
    integer, parameter :: solver_direct = 1, solver_gmres = 2
-   integer, parameter :: precond_mg = 1, precond_ilu0 = 2, precond_jacobi = 3, precond_none = 4
 
    type :: linear_step_t
       !> solver_direct or solver_gmres
@@ -43,7 +43,7 @@ module twomem_newton_linear
       logical :: residual_known = .false.
       !> GMRES solves that ended neither converged nor stopped by the observer, and the last reason
       integer :: failures = 0
-      character(len=:), allocatable :: failure_reason
+      integer :: failure_reason = gmres_not_solved
    contains
       procedure :: init => linear_init
       procedure :: solve => linear_solve
@@ -51,24 +51,6 @@ module twomem_newton_linear
    end type linear_step_t
 
 contains
-
-   !> The preconditioner named by a `gmres.precond` word; 0 for any other word.
-   pure integer function precond_kind(name) result(which)
-      character(len=*), intent(in) :: name
-
-      select case (name)
-      case ('mg')
-         which = precond_mg
-      case ('ilu0')
-         which = precond_ilu0
-      case ('jacobi')
-         which = precond_jacobi
-      case ('none')
-         which = precond_none
-      case default
-         which = 0
-      end select
-   end function precond_kind
 
    !> Whether a solve with this solver and preconditioner needs the assembled Newton matrix.
    pure logical function needs_matrix(kind, precond)
@@ -183,7 +165,7 @@ contains
          call gmres_solve(matrix, prec, sys%dot, b, x, options, self%monitor, err, observer, self%workspace)
       end select
       if (allocated(err)) return
-      if (.not. self%monitor%converged .and. self%monitor%reason /= 'stopped by observer') then
+      if (.not. self%monitor%converged .and. self%monitor%reason /= gmres_stopped_by_observer) then
          self%failures = self%failures + 1
          self%failure_reason = self%monitor%reason
       end if
@@ -199,6 +181,6 @@ contains
       note = ''
       if (self%failures == 0) return
       write (count_text, '(i0)') self%failures
-      note = ' ('//trim(count_text)//' GMRES solves ended by '''//self%failure_reason//''')'
+      note = ' ('//trim(count_text)//' GMRES solves ended by '''//gmres_reason_text(self%failure_reason)//''')'
    end function failure_note
 end module twomem_newton_linear

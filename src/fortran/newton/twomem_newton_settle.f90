@@ -16,7 +16,7 @@
 module twomem_newton_settle
    use twomem_base_kinds, only: dp, ip
    use twomem_fem_discrete, only: discrete_problem_t
-   use twomem_linalg_vectors, only: fill
+   use twomem_linalg_vectors, only: fill, threaded_from
    use twomem_linalg_halo, only: halo_t
    implicit none
    private
@@ -57,14 +57,15 @@ contains
       if (present(settled)) settled = size(list, kind=ip)
       allocate (rows(3, size(list)))
       do sweep = 1, sweeps
-         !$omp parallel do default(none) shared(p, x, list, rows) private(k) schedule(static) if(size(list) > 1024)
+         !$omp parallel do default(none) shared(p, x, list, rows) private(k) schedule(static) &
+         !$omp if(size(list) > threaded_from)
          do k = 1, size(list, kind=ip)
             call row_parts(p, list(k), x, rows(:, k))
          end do
          !$omp end parallel do
          call sum_shared(p, list, rows)
          !$omp parallel do default(none) shared(p, x, list, rows, n) private(k, i) schedule(static) &
-         !$omp if(size(list) > 1024)
+         !$omp if(size(list) > threaded_from)
          do k = 1, size(list, kind=ip)
             i = list(k)
             call local_solution(p, i, rows(:, k), x(i), x(n + i), x(2*n + i))

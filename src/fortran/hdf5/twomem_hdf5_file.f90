@@ -4,8 +4,9 @@
 !> src/c/twomem_hdf5.c: every failure comes back as an `exit_io` error whose message names the
 !> file and object and carries HDF5's own explanation. Arrays keep Fortran's memory order and
 !> are declared with their shape reversed, so `a(2, nv)` reads in h5py (and XDMF) as `(nv, 2)`
-!> without a transposing copy.
-module twomem_io_hdf5
+!> without a transposing copy. It knows no file layout and sits on the lowest level above base,
+!> so that a reader of input data can use it as well as the result writer (`twomem_io_result`).
+module twomem_hdf5_file
    use, intrinsic :: iso_c_binding, only: c_char, c_int, c_double, c_int64_t, c_size_t, c_null_char
    use twomem_base_kinds, only: dp, ip, i8
    use twomem_base_system, only: c_text
@@ -590,4 +591,4 @@ contains
       where = obj_path//' attribute '//name
    end function attr_where
 
-end module twomem_io_hdf5
+end module twomem_hdf5_file

@@ -1,0 +1,173 @@
+!> Nested iteration below a mesh that has no coarser mesh (a user's fine mesh given as it is, or
+!> a large coarse mesh under a refinement hierarchy): the mesh is coarsened by vertex removal
+!> (twomem_mesh_coarsening) to a sequence of coarser meshes, the problem is solved on the
+!> coarsest from the paper's initial guess and on each finer one from the interpolated
+!> solution, its contact set settled as nested iteration on a refined hierarchy does
+!> (twomem_newton_settle), and the given mesh starts Newton from the last of them. A coarser
+!> mesh's solution places the free boundary within a layer or two of the fine one's, so the
+!> given mesh needs a few Newton steps instead of a step per layer of vertices between the cold
+!> start and the free boundary. The coarse meshes are the discrete problem's own on a coarser
+!> triangulation (loads, tensions and boundary values as given), so each level is a sound
+!> approximation, unlike a Galerkin coarse space of aggregation, whose solution misses a fixed
+!> share of the deflection at every mesh size. Only Newton's path changes: the solution is the
+!> given mesh's. One rank: a distributed mesh starts from the paper's guess.
+module twomem_app_coarse_meshes
+   use, intrinsic :: iso_fortran_env, only: output_unit
+   use twomem_base_kinds, only: dp, ip
+   use twomem_base_errors, only: error_t
+   use twomem_base_comm, only: comm_t
+   use twomem_base_options, only: method_direct, precond_mg
+   use twomem_base_timer, only: wall_time
+   use twomem_base_text, only: fixed
+   use twomem_mesh_triangulation, only: mesh_t
+   use twomem_mesh_coarsening, only: coarsen, vertex_interpolation_t
+   use twomem_fem_problem, only: problem_data_t
+   use twomem_fem_discrete, only: discrete_problem_t
+   use twomem_linalg_multigrid, only: multigrid_transfer_t
+   use twomem_newton_solver, only: newton_options_t, newton_result_t, newton_solve
+   use twomem_newton_settle, only: settle_contact
+   use twomem_app_transfers, only: mesh_transfer
+   implicit none
+   private
+
+   public :: coarse_work_t, coarsened_start, cold_start
+
+   !> Work spent on the coarser levels of nested iteration.
+   type :: coarse_work_t
+      integer :: newton_iterations = 0, gmres_iterations = 0
+   end type coarse_work_t
+
+   !> a mesh with more vertices than this is coarsened for its start; the coarsest mesh made
+   !> has about this many
+   integer(ip), parameter :: coarsest_vertices = 1500
+   !> each coarser mesh keeps about this fraction of the vertices (as red refinement's inverse)
+   real(dp), parameter :: fraction = 0.25_dp
+
+   type :: coarse_level_t
+      type(mesh_t) :: mesh
+      !> how the next finer mesh's vertices read this mesh's P1 functions
+      type(vertex_interpolation_t) :: to_finer
+   end type coarse_level_t
+
+contains
+
+   !> The paper's initial guess (g, 0, 0) for problem p.
+   function cold_start(p) result(x0)
+      type(discrete_problem_t), intent(in) :: p
+      real(dp), allocatable :: x0(:)
+
+      x0 = [spread(p%g, 1, p%n), spread(0.0_dp, 1, 2*p%n)]
+   end function cold_start
+
+   !> Newton's start x0 for problem p on `mesh`: by nested iteration over coarsened meshes when
+   !> the mesh is large enough and whole (one rank), else the paper's guess. `quiet` are the
+   !> options of the coarser levels' Newton. Collective.
+   subroutine coarsened_start(mesh, data, p, quiet, comm, x0, work, err)
+      type(mesh_t), intent(in) :: mesh
+      class(problem_data_t), intent(in) :: data
+      type(discrete_problem_t), intent(in) :: p
+      type(newton_options_t), intent(in) :: quiet
+      type(comm_t), intent(in) :: comm
+      real(dp), allocatable, intent(out) :: x0(:)
+      type(coarse_work_t), intent(inout) :: work
+      type(error_t), allocatable, intent(out) :: err
+
+      type(coarse_level_t), allocatable :: levels(:)
+      real(dp), allocatable :: nodal(:, :)
+      integer :: j, m
+
+      x0 = cold_start(p)
+      if (comm%size > 1 .or. mesh%nv <= 2*coarsest_vertices) return
+      call coarse_meshes(mesh, levels)
+      m = size(levels)
+      if (m == 0) return
+      do j = m, 1, -1
+         call solve_level(levels, j, data, quiet, nodal, work, err)
+         if (allocated(err)) return
+      end do
+      ! the given mesh's start from the finest coarse level's solution
+      x0 = [nodal(p%interior, 1), nodal(p%interior, 2), nodal(p%interior, 3)]
+      call settle_contact(p, x0)
+   end subroutine coarsened_start
+
+   !> levels(1..m): each a coarsening of the one before (levels(1) of `mesh`), down to about
+   !> coarsest_vertices; none if the mesh does not coarsen (a coarsening that fails, which its
+   !> checks prevent, only ends the sequence: the start is then the paper's from there).
+   subroutine coarse_meshes(mesh, levels)
+      type(mesh_t), intent(in) :: mesh
+      type(coarse_level_t), allocatable, intent(out) :: levels(:)
+
+      type(coarse_level_t), allocatable :: made(:)
+      type(error_t), allocatable :: err
+      integer :: m
+
+      allocate (made(20))
+      m = 0
+      do while (m < size(made))
+         if (m == 0) then
+            call coarsen(mesh, fraction, made(1)%mesh, made(1)%to_finer, err)
+         else
+            if (made(m)%mesh%nv <= coarsest_vertices) exit
+            call coarsen(made(m)%mesh, fraction, made(m + 1)%mesh, made(m + 1)%to_finer, err)
+         end if
+         if (allocated(err)) exit
+         m = m + 1
+         ! a mesh that hardly shrank is as coarse as its boundary allows
+         if (m > 1) then
+            if (made(m)%mesh%nv > (3*made(m - 1)%mesh%nv)/4) exit
+         else
+            if (made(m)%mesh%nv > (3*mesh%nv)/4) exit
+         end if
+      end do
+      allocate (levels(m))
+      levels(1:m) = made(1:m)
+   end subroutine coarse_meshes
+
+   !> Newton on coarse level j from the interpolated solution of level j+1 (from the paper's
+   !> guess on the coarsest), then its nodal fields u1, u2, λ interpolated to the next finer
+   !> mesh, replacing `nodal`.
+   subroutine solve_level(levels, j, data, quiet, nodal, work, err)
+      type(coarse_level_t), intent(in) :: levels(:)
+      integer, intent(in) :: j
+      class(problem_data_t), intent(in) :: data
+      type(newton_options_t), intent(in) :: quiet
+      real(dp), allocatable, intent(inout) :: nodal(:, :)
+      type(coarse_work_t), intent(inout) :: work
+      type(error_t), allocatable, intent(out) :: err
+
+      type(discrete_problem_t), target :: p
+      type(multigrid_transfer_t), target :: transfer
+      type(newton_result_t) :: step
+      real(dp), allocatable :: x0(:), u(:, :)
+      real(dp) :: t0
+      integer :: k
+
+      t0 = wall_time()
+      call p%init(levels(j)%mesh, data, err)
+      if (allocated(err)) return
+      if (j == size(levels)) then
+         x0 = cold_start(p)
+      else
+         x0 = [nodal(p%interior, 1), nodal(p%interior, 2), nodal(p%interior, 3)]
+         call settle_contact(p, x0)
+      end if
+      call mesh_transfer(p, quiet%precond == precond_mg .and. quiet%linear /= method_direct, transfer, err)
+      if (allocated(err)) return
+      call newton_solve(p, quiet, x0, step, err, transfer=transfer, level=transfer%levels)
+      if (allocated(err)) return
+      work%newton_iterations = work%newton_iterations + step%iterations
+      work%gmres_iterations = work%gmres_iterations + step%linear_iterations
+      write (output_unit, '("nested: coarsened mesh ",i2," (",i0," vertices): ",i4," Newton steps, ",i6,&
+         &" GMRES iterations (",a,"), ",a," s")') j, levels(j)%mesh%nv, step%iterations, step%linear_iterations, &
+         step%status, fixed(wall_time() - t0, 2)
+      allocate (u(levels(j)%mesh%nv, 3))
+      u(:, 1) = p%to_nodal(step%x(1:p%n), data%g)
+      u(:, 2) = p%to_nodal(step%x(p%n + 1:2*p%n), 0.0_dp)
+      u(:, 3) = p%to_nodal(step%x(2*p%n + 1:), 0.0_dp)
+      if (allocated(nodal)) deallocate (nodal)
+      allocate (nodal(size(levels(j)%to_finer%vertex, 2), 3))
+      do k = 1, 3
+         call levels(j)%to_finer%apply(u(:, k), nodal(:, k))
+      end do
+   end subroutine solve_level
+end module twomem_app_coarse_meshes

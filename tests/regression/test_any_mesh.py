@@ -1,0 +1,100 @@
+"""Meshes given without coarser meshes: multigrid on algebraic coarse levels and nested
+iteration on coarsened meshes.
+
+A 9267-vertex built-in disk solved as it is (mesh.levels=0) is larger than the direct solve
+of a coarsest level allows (2000 unknowns), so multigrid runs on smoothed-aggregation levels
+below it, and nested iteration starts on meshes coarsened from it. Both change the path, not
+the discrete problem: multigrid GMRES must reach exact Newton-min's solution (UMFPACK on the
+whole mesh) to 1e-8 with both C-functions, on one rank and on two (where the algebraic levels
+are aggregated rank by rank), with at most 20 GMRES iterations per Newton step; the coarsened
+start must leave the finest mesh at most 8 Newton steps, where the paper's cold start takes
+one step per layer of vertices between its first contact front and the free boundary. A
+refinement hierarchy whose coarse mesh has more than 10^4 triangles gets the same algebraic
+levels below its coarsest mesh.
+"""
+from __future__ import annotations
+
+import os
+import subprocess
+
+import numpy as np
+import pytest
+
+from twomem_testlib import EXE, SOURCE, out_file, result, run
+
+MEMBRANES = ("problem.exact=none", "problem.mu1=2", "problem.mu2=0.5", "problem.f1=-2", "problem.f2=1")
+FINE = ("mesh.coarse_h=0.02", "mesh.boundary_h=0.02", "mesh.levels=0", *MEMBRANES)
+LARGE_COARSE = ("mesh.coarse_h=0.02", "mesh.boundary_h=0.02", "mesh.levels=1", *MEMBRANES)
+TIGHT = ("newton.tol=1e-12", "gmres.rtol=1e-13", "estimate.enabled=.false.")
+MPIEXEC = os.environ.get("TWOMEM_MPIEXEC")
+
+
+def solve(name: str, *args: str) -> dict:
+    path = out_file(f"any_mesh/{name}.h5")
+    proc = run(*args, *TIGHT, f"output.file={path}")
+    got = result(path)
+    got["stdout"] = proc.stdout
+    return got
+
+
+def assert_same_solution(got: dict, ref: dict, where: str) -> None:
+    assert ref["status"] == got["status"] == "converged", where
+    for field in ("u1", "u2", "lambda"):
+        diff = np.max(np.abs(got[field] - ref[field]))
+        print(f"{where} {field}: max diff {diff:.2e}")
+        assert diff <= 1e-8, f"{where}: {field} differs by {diff:.3e}"
+
+
+@pytest.fixture(scope="module")
+def direct_fine() -> dict:
+    return solve("fine_direct", *FINE, "newton.linear=direct")
+
+
+@pytest.mark.parametrize("cfun", ["min", "fb"])
+def test_multigrid_on_algebraic_levels_reaches_the_direct_solution(direct_fine, cfun):
+    got = solve(f"fine_{cfun}", *FINE, f"newton.cfun={cfun}", "newton.linear=gmres", "gmres.precond=mg")
+    assert_same_solution(got, direct_fine, f"fine mesh, {cfun}")
+    s = got["summary"]
+    per_step = s["gmres_iterations"]/max(1, s["newton_iterations"])
+    print(f"{cfun}: {s['newton_iterations']} finest Newton steps, {per_step:.1f} GMRES iterations per step")
+    assert per_step <= 20
+    assert s["newton_iterations"] <= 8
+
+
+def test_coarsened_start_replaces_the_cold_start(direct_fine):
+    """The same finest problem from the paper's initial guess crawls; from the coarsened
+    meshes it does not."""
+    assert "nested: coarsened mesh" in direct_fine["stdout"]
+    assert direct_fine["summary"]["newton_iterations"] <= 8
+    cold = solve("fine_direct_cold", *FINE, "newton.linear=direct", "newton.initial=paper")
+    assert_same_solution(cold, direct_fine, "fine mesh, cold start")
+    print(f"Newton steps: cold {cold['summary']['newton_iterations']}, "
+          f"coarsened start {direct_fine['summary']['newton_iterations']}")
+    assert cold["summary"]["newton_iterations"] >= 3*direct_fine["summary"]["newton_iterations"]
+
+
+def test_hierarchy_with_a_large_coarse_mesh():
+    ref = solve("large_coarse_direct", *LARGE_COARSE, "newton.linear=direct")
+    got = solve("large_coarse_gmres", *LARGE_COARSE, "newton.linear=gmres", "gmres.precond=mg")
+    assert_same_solution(got, ref, "coarse mesh of 18218 triangles")
+    s = got["summary"]
+    assert s["gmres_iterations"]/max(1, s["newton_iterations"]) <= 20
+
+
+@pytest.mark.skipif(not MPIEXEC, reason="no MPI launcher")
+@pytest.mark.parametrize("cfun", ["min", "fb"])
+def test_two_ranks_reach_the_direct_solution(direct_fine, cfun):
+    path = out_file(f"any_mesh/fine_{cfun}_2ranks.h5")
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    if hasattr(os, "geteuid") and os.geteuid() == 0:
+        env.update(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
+    command = [MPIEXEC, "--oversubscribe", "-n", "2", EXE, "run", str(SOURCE / "input" / "default.nml"), *FINE,
+               *TIGHT, f"newton.cfun={cfun}", "newton.linear=gmres", "gmres.precond=mg", f"output.file={path}"]
+    proc = subprocess.run(command, capture_output=True, text=True, cwd=SOURCE, env=env, timeout=600,
+                          stdin=subprocess.DEVNULL)
+    assert proc.returncode == 0, f"{' '.join(command)} exited {proc.returncode}\n{proc.stdout[-3000:]}\n{proc.stderr}"
+    got = result(path)
+    assert got["summary"]["mpi_ranks"] == 2
+    assert_same_solution(got, direct_fine, f"fine mesh, {cfun}, 2 ranks")
+    s = got["summary"]
+    assert s["gmres_iterations"]/max(1, s["newton_iterations"]) <= 20
