@@ -7,6 +7,7 @@
 !> quadrature points from the Raviart–Thomas basis.
 module test_single_mesh
    use twomem_base_kinds, only: dp, ip
+   use twomem_base_options, only: domain_disk, domain_square
    use twomem_mesh_hierarchy, only: mesh_hierarchy_t
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_linalg_csr, only: csr_t
@@ -195,7 +196,7 @@ contains
          end if
          n = p%n
          mu = [p%mu1, p%mu2]
-         poincare = poincare_constant(merge('disk  ', 'square', c == 1), 2.0_dp)
+         poincare = poincare_constant(merge(domain_disk, domain_square, c == 1), 2.0_dp)
          ! random values: a residual of every frequency
          x = random_vector(3*n, 60)
          if (allocated(residual)) deallocate (residual, krho, rest, k_rho)
