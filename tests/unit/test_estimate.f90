@@ -23,11 +23,16 @@ module test_estimate
    use twomem_estimate_coloring, only: coloring_t
    use twomem_estimate_alg_flux, only: algebraic_flux_t, level_flux_t
    use twomem_estimate_patch_classes, only: patch_table_t, patch_order, stored_order, no_code
+   use twomem_estimate_generic_patch, only: generic_scratch_t
+   use twomem_estimate_ghosts, only: ghost_cells_t
+   use twomem_linalg_halo, only: halo_t
+   use twomem_base_comm, only: comm_t
+   use omp_lib, only: omp_get_max_threads
    use twomem_testing, only: unittest_t, new_unittest, check, check_close, error_t
    implicit none
    private
 
-   public :: collect_estimate, solved_disk, random_vector, mesh_problem, poly_data_t
+   public :: collect_estimate, solved_disk, random_vector, mesh_problem, poly_data_t, lifting_by_local_solves
 
    !> λ enters the first membrane's equilibrium with +, the second's with −
    real(dp), parameter :: lambda_sign(2) = [1.0_dp, -1.0_dp]
@@ -203,6 +208,10 @@ contains
    !> triangle.
    subroutine test_disc_flux(err)
       type(error_t), allocatable, intent(out) :: err
+      !> the generic path's per-thread scratch, the one-rank halo and ghost layer
+      type(generic_scratch_t), allocatable :: scratch(:)
+      type(halo_t) :: halo
+      type(ghost_cells_t) :: ghosts
       character(len=6), parameter :: domains(2) = ['disk  ', 'square']
       type(mesh_hierarchy_t) :: h
       type(poly_data_t) :: data
@@ -231,6 +240,7 @@ contains
       do domain = 1, 2
          call mesh_problem(trim(domains(domain)), merge(0.4_dp, 0.3_dp, domain == 1), 0, data, h, p, err)
          if (allocated(err)) return
+         call path_fixtures(h, p, scratch, halo, ghosts)
          call iterate_fields(p, h%meshes(0), random_vector(3*p%n, 20 + domain), lambda, grad_u, residual, r, iterate)
          mu = [p%mu1, p%mu2]
          associate (mesh => h%meshes(0))
@@ -259,17 +269,20 @@ contains
                flat = constant_data_t(mu1=data%mu1, mu2=data%mu2, f1=data%a(1), f2=data%a(2))
                call flat_loads%init(space, mesh, flat)
                call check(err, flat_loads%constant .and. .not. allocated(flat_loads%moments), 'constant loads stored')
-               call discretization_flux(space, shapes, no_signatures, mesh, 0, colors, mu, flat_loads, iterate, flat_sigma, ok)
+               call discretization_flux(space, shapes, no_signatures, mesh, 0, colors, mu, flat_loads, iterate, scratch, &
+                                        flat_sigma, ok)
                flat_poly = data
                flat_poly%b = 0.0_dp
                flat_poly%c = 0.0_dp
                call loads%init(space, mesh, flat_poly)
-               call discretization_flux(space, shapes, no_signatures, mesh, 0, colors, mu, loads, iterate, levels(1)%sigma, ok)
+               call discretization_flux(space, shapes, no_signatures, mesh, 0, colors, mu, loads, iterate, scratch, &
+                                        levels(1)%sigma, ok)
                call check(err, maxval(abs(flat_sigma - levels(1)%sigma)) <= 1.0e-13_dp*maxval(abs(flat_sigma)), &
                           'constant loads by class integrals')
                call loads%init(space, mesh, data)
                call check(err, .not. loads%constant, 'polynomial loads integrated')
-               call discretization_flux(space, shapes, no_signatures, mesh, 0, colors, mu, loads, iterate, levels(1)%sigma, ok)
+               call discretization_flux(space, shapes, no_signatures, mesh, 0, colors, mu, loads, iterate, scratch, &
+                                        levels(1)%sigma, ok)
                call check(err, ok, 'patch systems regular')
                dev = 0.0_dp
                do t = 1, mesh%nt
@@ -321,6 +334,10 @@ contains
    !> mean; σ·n is continuous across the finest interior edges.
    subroutine test_alg_flux(err)
       type(error_t), allocatable, intent(out) :: err
+      !> the generic path's per-thread scratch, the one-rank halo and ghost layer
+      type(generic_scratch_t), allocatable :: scratch(:)
+      type(halo_t) :: halo
+      type(ghost_cells_t) :: ghosts
       type(mesh_hierarchy_t) :: h
       type(poly_data_t) :: data
       type(discrete_problem_t) :: p
@@ -338,18 +355,19 @@ contains
 
       call mesh_problem('square', 0.5_dp, 2, data, h, p, err)
       if (allocated(err)) return
+      call path_fixtures(h, p, scratch, halo, ghosts)
       call iterate_fields(p, h%meshes(2), random_vector(3*p%n, 30), lambda, grad_u, residual, r, iterate)
       associate (mesh => h%meshes(2))
          do order = 0, 1
             call space%init(order)
             do n_meshes = 1, 3
                write (what, '("RT",i0,", ",i0," meshes")') order, n_meshes
-               call alg%init(space, h, data, n_meshes, err)
+               call alg%init(space, h, data, n_meshes, .true., huge(1_ip), 1.0_dp, err)
                if (allocated(err)) return
                call shapes%init(space, h, err)
                if (allocated(err)) return
-               call alg%take_residual(h, residual)
-               call alg%compute(shapes, h, iterate, no_signatures, no_signatures, err)
+               call alg%take_residual(h, residual, p%interior)
+               call alg%compute(shapes, h, iterate, no_signatures, no_signatures, scratch, p, halo, ghosts, err)
                if (allocated(err)) return
                call check(err, size(alg%levels) == max(1, n_meshes - 1), 'one flux part per level with patches')
                dev = 0.0_dp
@@ -381,6 +399,10 @@ contains
    !> vertex has a single-triangle patch), refined twice.
    subroutine test_signatures(err)
       type(error_t), allocatable, intent(out) :: err
+      !> the generic path's per-thread scratch, the one-rank halo and ghost layer
+      type(generic_scratch_t), allocatable :: scratch(:)
+      type(halo_t) :: halo
+      type(ghost_cells_t) :: ghosts
 
       character(len=6), parameter :: domains(2) = ['disk  ', 'square']
       type(mesh_hierarchy_t) :: h
@@ -404,6 +426,7 @@ contains
       do domain = 1, 2
          call mesh_problem(trim(domains(domain)), merge(0.4_dp, 0.7_dp, domain == 1), 2, data, h, p, err)
          if (allocated(err)) return
+         call path_fixtures(h, p, scratch, halo, ghosts)
          call iterate_fields(p, h%meshes(2), random_vector(3*p%n, 30 + domain), lambda, grad_u, residual, r, iterate)
          mu = [p%mu1, p%mu2]
          call colors%init(h%meshes(2))
@@ -413,16 +436,16 @@ contains
             call shapes%init(space, h, err)
             if (allocated(err)) return
             call loads%init(space, h%meshes(2), data)
-            call alg%init(space, h, data, 3, err)
+            call alg%init(space, h, data, 3, .true., huge(1_ip), 1.0_dp, err)
             if (allocated(err)) return
-            call alg%take_residual(h, residual)
-            call alg%compute(shapes, h, iterate, no_signatures, no_signatures, err)
+            call alg%take_residual(h, residual, p%interior)
+            call alg%compute(shapes, h, iterate, no_signatures, no_signatures, scratch, p, halo, ghosts, err)
             if (allocated(err)) return
             general = alg%levels
             if (allocated(sigma)) deallocate (sigma, sigma_general)
             allocate (sigma(space%n_flux, h%meshes(2)%nt, 2), sigma_general(space%n_flux, h%meshes(2)%nt, 2))
             call discretization_flux(space, shapes, no_signatures, h%meshes(2), 2, colors, mu, loads, iterate, &
-                                     sigma_general, ok)
+                                     scratch, sigma_general, ok)
             call check(err, ok, 'patch systems regular, '//trim(what))
             if (allocated(err)) return
             ! the tables as the estimators build them, counting the boundary patches they factor
@@ -442,12 +465,12 @@ contains
             if (allocated(err)) return
             call check(err, n_boundary > 0, 'boundary patches with signatures, '//trim(what))
             if (allocated(err)) return
-            call discretization_flux(space, shapes, single, h%meshes(2), 2, colors, mu, loads, iterate, sigma, ok)
+            call discretization_flux(space, shapes, single, h%meshes(2), 2, colors, mu, loads, iterate, scratch, sigma, ok)
             call check(err, maxval(abs(sigma - sigma_general)) <= 1.0e-12_dp*maxval(abs(sigma_general)), &
                        'sigma_disc: signatures = general path, '//trim(what))
             if (allocated(err)) return
-            call alg%take_residual(h, residual)
-            call alg%compute(shapes, h, iterate, single, refined, err)
+            call alg%take_residual(h, residual, p%interior)
+            call alg%compute(shapes, h, iterate, single, refined, scratch, p, halo, ghosts, err)
             if (allocated(err)) return
             do j = 1, size(general)
                call check(err, maxval(abs(alg%levels(j)%sigma - general(j)%sigma)) <= &
@@ -584,6 +607,22 @@ contains
          end associate
       end do
    end subroutine test_block_colouring
+
+   !> What the patch paths take besides the fluxes' data: the generic path's scratch for each
+   !> thread, and a one-rank run's halo and ghost layer.
+   subroutine path_fixtures(h, p, scratch, halo, ghosts)
+      type(mesh_hierarchy_t), intent(in) :: h
+      type(discrete_problem_t), intent(in) :: p
+      type(generic_scratch_t), allocatable, intent(out) :: scratch(:)
+      type(halo_t), intent(out) :: halo
+      type(ghost_cells_t), intent(out) :: ghosts
+
+      type(comm_t) :: one_rank
+
+      allocate (scratch(0:omp_get_max_threads() - 1))
+      halo = p%halo
+      call ghosts%init(one_rank, h%meshes(0))
+   end subroutine path_fixtures
 
    subroutine mesh_problem(domain, coarse_h, levels, data, h, p, err)
       character(len=*), intent(in) :: domain

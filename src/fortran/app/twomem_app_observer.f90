@@ -1,7 +1,11 @@
 !> What a run computes about each recorded iterate besides residuals: the a posteriori
 !> estimators (for the adaptive method's stopping tests and for the history) and, when the exact
 !> solution is known, the energy error. It counts and times the estimator evaluations, so that
-!> their cost can be reported next to the solver's.
+!> their cost can be reported next to the solver's. When the estimators' algebraic flux is the
+!> one-level construction, it owns the preconditioner of that flux's Riesz problem: one V-cycle
+!> for the finest stiffness on multigrid transfers of its own (the levels that nested iteration
+!> and the Newton preconditioner use), built at an evaluation that needs it and freed with the
+!> evaluation's workspaces (`free_workspaces`, `drop_partial`) and when evaluations end.
 module twomem_app_observer
    use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
    use twomem_base_kinds, only: dp, ip
@@ -15,6 +19,12 @@ module twomem_app_observer
    use twomem_newton_history, only: history_row_t
    use twomem_newton_inner, only: newton_observer_t
    use twomem_estimate_estimators, only: estimator_t, estimates_t
+   use twomem_base_kinds, only: ip
+   use twomem_fem_transfer, only: interior_prolongations, interior_numbering, interior_vertices, interior_halo
+   use twomem_linalg_csr, only: csr_t
+   use twomem_linalg_halo, only: halo_t
+   use twomem_linalg_multigrid, only: multigrid_transfer_t, multigrid_options_t
+   use twomem_linalg_mg_preconditioner, only: mg_preconditioner_t
    implicit none
    private
 
@@ -43,6 +53,9 @@ module twomem_app_observer
       !> the first failure of an evaluation (its estimators stay NaN, which no stopping test
       !> accepts); the run reports it after Newton
       type(error_t), allocatable :: err
+      !> the one-level algebraic flux's preconditioner and its transfers (see the module header)
+      type(multigrid_transfer_t), allocatable :: transfer
+      type(mg_preconditioner_t), allocatable :: riesz
    contains
       procedure :: init
       procedure :: observe
@@ -52,7 +65,9 @@ module twomem_app_observer
       procedure :: estimate
       procedure :: free_workspaces
       procedure :: drop_partial
+      procedure :: free_riesz
       procedure, private :: refresh
+      procedure, private :: riesz_preconditioner
    end type run_observer_t
 
 contains
@@ -152,6 +167,7 @@ contains
       real(dp), intent(in) :: x(:)
 
       call self%refresh(x, fields=.true.)
+      call self%free_riesz()
       if (allocated(self%err)) return
       call self%estimator%end_evaluations()
       call return_freed_memory()
@@ -181,6 +197,8 @@ contains
       class(run_observer_t), intent(inout) :: self
 
       if (associated(self%estimator)) call self%estimator%free_workspaces()
+      ! the Riesz problem's V-cycle too: the Newton steps until the next evaluation need the room
+      call self%free_riesz()
       self%held = .false.
    end subroutine free_workspaces
 
@@ -216,14 +234,75 @@ contains
       same = .not. self%p%halo%comm%any_true(.not. (self%held .and. self%estimator%holds(self%p, x)))
       if (same .and. (self%last%complete .or. .not. with_alg)) return
       t0 = wall_time()
+      if (with_alg .and. self%estimator%alg%one_level) then
+         call self%riesz_preconditioner(self%err)
+         if (allocated(self%err)) then
+            self%held = .false.
+            return
+         end if
+      end if
       if (same) then
-         call self%estimator%complete(self%hierarchy, self%data, self%last, self%err, with_fields)
+         if (allocated(self%riesz)) then
+            call self%estimator%complete(self%hierarchy, self%data, self%last, self%err, with_fields, self%p, self%riesz)
+         else
+            call self%estimator%complete(self%hierarchy, self%data, self%last, self%err, with_fields, self%p)
+         end if
       else
-         call self%estimator%evaluate(self%hierarchy, self%data, self%p, x, self%last, self%err, fields=with_fields, &
-                                      algebraic=with_alg)
+         if (allocated(self%riesz) .and. with_alg) then
+            call self%estimator%evaluate(self%hierarchy, self%data, self%p, x, self%last, self%err, fields=with_fields, &
+                                         algebraic=with_alg, precond=self%riesz)
+         else
+            call self%estimator%evaluate(self%hierarchy, self%data, self%p, x, self%last, self%err, fields=with_fields, &
+                                         algebraic=with_alg)
+         end if
          self%evaluations = self%evaluations + 1
       end if
       self%estimator_time = self%estimator_time + (wall_time() - t0)
       self%held = .not. allocated(self%err)
    end subroutine refresh
+
+   !> The one-level algebraic flux's preconditioner, built if not yet: one V-cycle for the finest
+   !> stiffness on the transfers of the hierarchy's levels that have unknowns (one level: a direct
+   !> solve). Collective.
+   subroutine riesz_preconditioner(self, err)
+      class(run_observer_t), intent(inout) :: self
+      type(error_t), allocatable, intent(out) :: err
+
+      type(halo_t), allocatable :: halos(:)
+      type(csr_t), allocatable :: prolongations(:)
+      integer(ip), allocatable :: unknown(:), interior(:), keys(:)
+      type(multigrid_options_t) :: options
+      integer :: l, bottom, top
+
+      if (allocated(self%riesz)) return
+      associate (comm => self%p%halo%comm, hierarchy => self%hierarchy)
+         bottom = hierarchy%first_with_unknowns(comm)
+         top = hierarchy%levels
+         allocate (halos(0:top - bottom))
+         do l = bottom, top
+            unknown = interior_numbering(hierarchy%meshes(l))
+            interior = interior_vertices(unknown)
+            call interior_halo(hierarchy%meshes(l), interior, comm, halos(l - bottom))
+            if (l == bottom) keys = hierarchy%meshes(l)%global_vertex_of(interior)
+         end do
+         prolongations = interior_prolongations(hierarchy, top)
+         allocate (self%transfer)
+         call self%transfer%init(prolongations(bottom + 1:top), err, halos=halos, coarse_keys=keys)
+         if (allocated(err)) return
+         allocate (self%riesz)
+         call self%riesz%init(self%p%stiffness, self%transfer, top - bottom, options, err)
+      end associate
+      if (allocated(err)) call self%free_riesz()
+   end subroutine riesz_preconditioner
+
+   !> The one-level algebraic flux's preconditioner and transfers go (after the last evaluation).
+   subroutine free_riesz(self)
+      class(run_observer_t), intent(inout) :: self
+
+      if (allocated(self%riesz)) then
+         call self%riesz%release()
+         deallocate (self%riesz)
+      end if
+      if (allocated(self%transfer)) deallocate (self%transfer)
+   end subroutine free_riesz
 end module twomem_app_observer

@@ -253,12 +253,14 @@ contains
       rec%eta_disc = nan
       rec%eta_lin = nan
       rec%eta_alg = nan
+      rec%eta_alg_remainder = nan
       rec%effectivity = nan
       if (need_estimates) then
          rec%eta_total = final%total
          rec%eta_disc = final%disc
          rec%eta_lin = final%lin
          rec%eta_alg = final%alg
+         rec%eta_alg_remainder = final%alg_remainder
          if (data%has_exact()) rec%effectivity = final%total/rec%energy_error_total
          if (cfg%output%estimators) call estimator_fields(final, plan, rec)
       end if

@@ -11,14 +11,11 @@
 !> patch problems use the operators of the shape classes (twomem_estimate_shapes), and so do
 !> these projections and the patch data: every integral involved is one of scaled monomials
 !> and barycentric coordinates, its class's times the area ratio, so no quadrature runs here.
-!> On a refined patch ψ_a is 1, 1/2 or 0 at the children's corners and the children sit at
-!> fixed places in their parent's frame, so the divergence data of child c of a coarse
-!> triangle t, a its local vertex k, are the class tables of t for (k, c) applied to the child's
-!> P2 field (or r on T_J) and, above the first refined level, to Π_coarse(r ψ_a) in t's basis,
-!> times the child's area ratio: no coordinates are read per child, only ∇ψ_a per coarse
-!> triangle on the first level (whose smooth part ∇ρ·∇ψ_a is constant there).
-!> A refined patch's multipliers are numbered so that those inside each coarse triangle form a
-!> block (twomem_estimate_patch). The level parts and the P2 fields are kept between evaluations.
+!> The refined levels' patches are twomem_estimate_alg_refined's, the finest mesh's (b = J)
+!> twomem_estimate_alg_single's. When the coarse problem would be too large to factorize, the
+!> one-level construction replaces it on the finest mesh: ρ̃_α by conjugate gradients, the
+!> remainder bounded by η_rem (twomem_estimate_riesz; docs/method.md §3). The level parts and
+!> the P2 fields are kept between evaluations.
 !> On a rank's piece of a distributed hierarchy: the restriction of R_α starts from the finest
 !> vertices the rank owns (each vertex counted once over the ranks), the parts are summed at
 !> the shared coarse unknowns, and the coarse problem is solved whole on rank 0
@@ -38,12 +35,17 @@ module twomem_estimate_alg_flux
    use twomem_linalg_gathered_solve, only: gathered_solver_t
    use twomem_linalg_umfpack, only: ordering_minimum_degree
    use twomem_estimate_raviart_thomas, only: rt_space_t
-   use twomem_estimate_shapes, only: shape_classes_t, triangle_class, n_p2
+   use twomem_estimate_shapes, only: shape_classes_t, n_p2
    use twomem_estimate_coloring, only: coloring_t
-   use twomem_estimate_patch, only: solve_patch, link_edge, on_opposite_edge
-   use twomem_estimate_patch_factor, only: solve_condensed_factored
-   use twomem_estimate_patch_classes, only: patch_table_t, stored_order, edge_signs
-   use twomem_estimate_evaluated_iterate, only: evaluated_iterate_t, lifting_on
+   use twomem_estimate_patch_classes, only: patch_table_t
+   use twomem_estimate_evaluated_iterate, only: evaluated_iterate_t
+   use twomem_estimate_alg_refined, only: p2_field_t, project_p2, level_patches
+   use twomem_estimate_generic_patch, only: generic_scratch_t
+   use twomem_estimate_alg_single, only: single_mesh_patches
+   use twomem_estimate_riesz, only: riesz_representer_t
+   use twomem_estimate_ghosts, only: ghost_cells_t
+   use twomem_linalg_halo, only: halo_t
+   use twomem_linalg_operators, only: preconditioner_t
    implicit none
    private
 
@@ -54,11 +56,6 @@ module twomem_estimate_alg_flux
       integer :: level = 0
       real(dp), allocatable :: sigma(:, :, :)
    end type level_flux_t
-
-   !> A broken P2 field for both membranes: coefficients (n_p2, nt, 2) in each triangle's monomials.
-   type :: p2_field_t
-      real(dp), allocatable :: c(:, :, :)
-   end type p2_field_t
 
    type :: vector_t
       real(dp), allocatable :: v(:)
@@ -91,6 +88,11 @@ module twomem_estimate_alg_flux
       !> coarse right-hand side and solution, ρ_α at the vertices of T_b
       type(vector_t), allocatable :: restricted(:)
       real(dp), allocatable :: coarse_rhs(:), rho(:), nodal(:)
+      !> the one-level construction (b = J without a coarse solve: twomem_estimate_riesz), and
+      !> what it needs: h_Ω C_PF, the tensions, the flux order
+      logical :: one_level = .false.
+      type(riesz_representer_t) :: riesz
+      real(dp) :: poincare = 1.0_dp, mu(2) = 1.0_dp
    contains
       procedure :: init
       procedure :: take_residual
@@ -104,13 +106,20 @@ contains
 
    !> Use the last `n_meshes` meshes of the hierarchy (all when fewer); factorize the coarse
    !> Laplacian, colour the patch meshes (the level parts are allocated by the first `compute`).
-   !> With `comm`, the hierarchy is this rank's piece of a distributed one (collective).
-   subroutine init(self, space, hierarchy, data, n_meshes, err, comm)
+   !> Without `classes` (the hierarchy stores no shape classes, which the refined levels' patches
+   !> read) a single mesh. When the coarse problem would have more than `exact_max` unknowns over
+   !> all ranks and more than a sixteenth of the finest mesh's, the one-level construction
+   !> replaces it on the finest mesh (twomem_estimate_riesz, with poincare = h_Ω C_PF). With `comm`, the hierarchy is this rank's piece of a distributed
+   !> one (collective).
+   subroutine init(self, space, hierarchy, data, n_meshes, classes, exact_max, poincare, err, comm)
       class(algebraic_flux_t), intent(out) :: self
       type(rt_space_t), intent(in) :: space
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       class(problem_data_t), intent(in) :: data
       integer, intent(in) :: n_meshes
+      logical, intent(in) :: classes
+      integer(ip), intent(in) :: exact_max
+      real(dp), intent(in) :: poincare
       type(error_t), allocatable, intent(out) :: err
       type(comm_t), intent(in), optional :: comm
 
@@ -121,9 +130,19 @@ contains
 
       if (present(comm)) self%comm = comm
       self%space = space
+      self%poincare = poincare
+      self%mu = [data%mu1, data%mu2]
       self%finest = hierarchy%levels
       ! a mesh without interior vertices has no coarse problem (its ρ_α would be zero)
       self%base = max(0, self%finest - n_meshes + 1, hierarchy%first_with_unknowns(self%comm))
+      if (.not. classes) self%base = self%finest
+      ! the coarse problem of the default three meshes is a sixteenth of the finest one: it
+      ! stays exact whatever its size, a whole-mesh one only up to exact_max unknowns
+      if (unknowns(hierarchy%meshes(self%base), self%comm) > &
+          max(exact_max, unknowns(hierarchy%meshes(self%finest), self%comm)/16)) then
+         self%one_level = .true.
+         self%base = self%finest
+      end if
       first = self%first()
       allocate (self%colors(first:self%finest), self%levels(self%finest - first + 1), self%p2(first:self%finest))
       do j = first, self%finest
@@ -131,6 +150,8 @@ contains
          call self%colors(j)%init(hierarchy%meshes(merge(j, j - 1, j == self%base)))
          self%levels(j - first + 1)%level = j
       end do
+      ! the one-level construction solves on the finest problem the caller passes to `compute`
+      if (self%one_level) return
       allocate (self%grad_rho(2, hierarchy%meshes(self%base)%nt, 2))
       associate (base_mesh => hierarchy%meshes(self%base), fine_mesh => hierarchy%meshes(self%finest))
          call self%coarse%init(base_mesh, data, err, self%comm)
@@ -167,25 +188,60 @@ contains
       call self%coarse_solver%factor(self%coarse%stiffness, err)
    end subroutine init
 
+   !> The unknowns (interior vertices) of `mesh` over all ranks, each counted by its owner.
+   integer(ip) function unknowns(mesh, comm) result(n)
+      type(mesh_t), intent(in) :: mesh
+      type(comm_t), intent(in) :: comm
+
+      integer(ip) :: a
+
+      n = 0
+      do a = 1, mesh%nv
+         if (.not. mesh%boundary_vertex(a) .and. mesh%vertex_owner_of(a) == comm%rank) n = n + 1
+      end do
+      n = nint(comm%sum(real(n, dp)), ip)
+   end function unknowns
+
    !> self%levels returns σ_alg level by level (levels b+1..J, or J alone with a single mesh)
    !> for the evaluated iterate: from its nodal algebraic residuals, zero at boundary vertices,
    !> and their lifting r on T_J. The patches use the factors of their signatures
    !> (twomem_estimate_patch_classes) in `single` (the finest mesh) and `refined` (the coarse
-   !> meshes of the refined levels); with tables that hold no signatures every patch is
-   !> assembled and factorized on its own.
-   subroutine compute(self, shapes, hierarchy, iterate, single, refined, err)
+   !> meshes of the refined levels); on the finest mesh, patches without a signature take the
+   !> generic path with the threads' `scratch`, on the refined levels they are assembled and
+   !> factorized on their own. The one-level construction solves on p (the finest problem, with
+   !> `halo` a copy of its halo and `ghosts` the ghost layer) with the preconditioner `precond`
+   !> of p's stiffness, or none.
+   subroutine compute(self, shapes, hierarchy, iterate, single, refined, scratch, p, halo, ghosts, err, precond)
       class(algebraic_flux_t), intent(inout) :: self
       type(shape_classes_t), intent(in) :: shapes
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       type(evaluated_iterate_t), intent(in) :: iterate
       type(patch_table_t), intent(in) :: single, refined
+      type(generic_scratch_t), intent(inout) :: scratch(0:)
+      type(discrete_problem_t), intent(in) :: p
+      type(halo_t), intent(inout) :: halo
+      type(ghost_cells_t), intent(in) :: ghosts
       type(error_t), allocatable, intent(out) :: err
+      class(preconditioner_t), intent(inout), optional :: precond
 
       integer :: j, first
       logical :: ok
+      real(dp) :: none(0, 0, 0)
 
       if (.not. self%has_residual) then
          call make_error(err, exit_io, 'algebraic flux', 'internal: compute before take_residual')
+         return
+      end if
+      if (self%one_level) then
+         associate (mesh => hierarchy%meshes(self%finest), lev => self%levels(1))
+            call self%riesz%solve(mesh, self%finest, p, halo, ghosts, self%top, self%poincare, self%mu, &
+                                  self%space%order, err, precond)
+            if (allocated(err)) return
+            if (.not. allocated(lev%sigma)) allocate (lev%sigma(self%space%n_flux, mesh%nt, 2))
+            call single_mesh_patches(self%space, shapes, single, mesh, self%finest, self%colors(self%finest), scratch, &
+                                     self%riesz%rho, .true., none, lev%sigma, ok)
+         end associate
+         if (.not. ok) call make_error(err, exit_io, 'algebraic flux', 'a patch system is singular (degenerate triangles?)')
          return
       end if
       call coarse_representer(self, hierarchy, err)
@@ -205,16 +261,14 @@ contains
          associate (lev => self%levels(j - first + 1))
             if (j == self%base) then
                ! a single mesh: patches and triangles of T_J
-               call level_patches(self%space, shapes, single, hierarchy%meshes(j), hierarchy%meshes(j), j, self%colors(j), &
-                                  .true., self%grad_rho, self%p2(j), self%p2(j), iterate, lev%sigma, ok, .false.)
+               call single_mesh_patches(self%space, shapes, single, hierarchy%meshes(j), j, self%colors(j), scratch, iterate, &
+                                        .false., self%grad_rho, lev%sigma, ok)
             else if (j == first) then
                call level_patches(self%space, shapes, refined, hierarchy%meshes(j - 1), hierarchy%meshes(j), j, &
-                                  self%colors(j), .true., self%grad_rho, self%p2(j), self%p2(j), iterate, lev%sigma, ok, &
-                                  .true.)
+                                  self%colors(j), .true., self%grad_rho, self%p2(j), self%p2(j), iterate, lev%sigma, ok)
             else
                call level_patches(self%space, shapes, refined, hierarchy%meshes(j - 1), hierarchy%meshes(j), j, &
-                                  self%colors(j), .false., self%grad_rho, self%p2(j - 1), self%p2(j), iterate, lev%sigma, ok, &
-                                  .true.)
+                                  self%colors(j), .false., self%grad_rho, self%p2(j - 1), self%p2(j), iterate, lev%sigma, ok)
             end if
          end associate
          if (.not. ok) then
@@ -242,6 +296,7 @@ contains
             if (allocated(self%p2(j)%c)) deallocate (self%p2(j)%c)
          end do
       end if
+      call self%riesz%free()
    end subroutine free_levels
 
    !> After the last `compute`: what only a computation reads goes (the coarse factorization, the
@@ -263,6 +318,7 @@ contains
       self%has_residual = .false.
       if (allocated(self%colors)) deallocate (self%colors)
       if (allocated(self%grad_rho)) deallocate (self%grad_rho)
+      call self%riesz%free()
    end subroutine drop_solvers
 
    !> The first level with patch problems: b + 1, or J for a single mesh.
@@ -277,18 +333,26 @@ contains
    !> restriction to T_{J−1} (the transpose of prolongation; each finest vertex counted on the
    !> rank that owns it, so the coarser sums are parts over the ranks), or their values at the
    !> unknowns of T_J for a single mesh. A later `compute` is for this iterate.
-   subroutine take_residual(self, hierarchy, residual)
+   subroutine take_residual(self, hierarchy, residual, interior)
       class(algebraic_flux_t), intent(inout) :: self
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       real(dp), intent(in) :: residual(:, :)
+      !> the finest problem's unknowns (their vertices)
+      integer(ip), intent(in) :: interior(:)
 
       integer :: alpha
       integer(ip) :: v, i
 
+      if (self%one_level .and. .not. allocated(self%top)) allocate (self%top(size(interior), 2))
       ! one membrane per thread: each sums into its own column, in the same order as alone
-      !$omp parallel do default(none) shared(self, hierarchy, residual) private(alpha, v, i) schedule(static, 1)
+      !$omp parallel do default(none) shared(self, hierarchy, residual, interior) private(alpha, v, i) schedule(static, 1)
       do alpha = 1, 2
-         if (self%base == self%finest) then
+         if (self%one_level) then
+            do i = 1, size(interior, kind=ip)
+               self%top(i, alpha) = residual(interior(i), alpha)
+            end do
+            cycle
+         else if (self%base == self%finest) then
             do i = 1, self%coarse%n
                self%top(i, alpha) = residual(self%coarse%interior(i), alpha)
             end do
@@ -372,259 +436,4 @@ contains
       !$omp end parallel do
    end subroutine representer_gradients
 
-   !> r_α's L² projection onto P2 of every triangle of T_first..T_{J−1}, coarsest last: that of
-   !> a coarse triangle is the sum of the projections of its four children's fields (P1 r on
-   !> T_J, their P2 projections above), the class operators p2_from_p1 and p2_from_p2.
-   subroutine project_p2(shapes, hierarchy, first, iterate, p2)
-      type(shape_classes_t), intent(in) :: shapes
-      type(mesh_hierarchy_t), intent(in) :: hierarchy
-      integer, intent(in) :: first
-      type(evaluated_iterate_t), intent(in) :: iterate
-      type(p2_field_t), intent(inout) :: p2(first:)
-
-      integer :: l, c, cls, alpha, j
-      integer(ip) :: t, child
-      real(dp) :: ratio, r(3, 2)
-
-      do l = ubound(p2, 1) - 1, first, -1
-         !$omp parallel do default(none) shared(shapes, hierarchy, p2, iterate, l) &
-         !$omp private(t, c, cls, ratio, child, alpha, j, r) schedule(static)
-         do t = 1, hierarchy%meshes(l)%nt
-            call triangle_class(l, t, cls, ratio)
-            p2(l)%c(:, t, :) = 0.0_dp
-            do c = 1, 4
-               child = 4*(t - 1) + c
-               if (l + 1 == ubound(p2, 1)) call lifting_on(iterate, hierarchy%meshes(l + 1), child, r)
-               do alpha = 1, 2
-                  if (l + 1 == ubound(p2, 1)) then
-                     do j = 1, 3
-                        p2(l)%c(:, t, alpha) = p2(l)%c(:, t, alpha) + r(j, alpha)*shapes%p2_from_p1(:, j, c, cls)
-                     end do
-                  else
-                     do j = 1, n_p2
-                        p2(l)%c(:, t, alpha) = p2(l)%c(:, t, alpha) + p2(l + 1)%c(j, child, alpha)*shapes%p2_from_p2(:, j, c, cls)
-                     end do
-                  end if
-               end do
-            end do
-         end do
-         !$omp end parallel do
-      end do
-   end subroutine project_p2
-
-   !> The patch problems of one level: patches of the vertices of `coarse` (coloured by
-   !> `colors`), triangles of `fine`, level `level` of the hierarchy (its red refinement if
-   !> `refined`, else the same mesh). `first`: the data are r ψ_a − ∇ρ·∇ψ_a (grad_rho on the
-   !> coarse triangles), otherwise (I − Π_coarse)(r ψ_a).
-   subroutine level_patches(space, shapes, table, coarse, fine, level, colors, first, grad_rho, p2_coarse, p2_fine, &
-                            iterate, sigma, ok, refined)
-      type(rt_space_t), intent(in) :: space
-      type(shape_classes_t), intent(in) :: shapes
-      type(patch_table_t), intent(in) :: table
-      type(mesh_t), intent(in) :: coarse, fine
-      integer, intent(in) :: level
-      type(coloring_t), intent(in) :: colors
-      logical, intent(in) :: first
-      real(dp), intent(in) :: grad_rho(:, :, :)
-      type(p2_field_t), intent(in) :: p2_coarse, p2_fine
-      !> its residual lifting on T_J: r where p2_fine is not stored (the finest level)
-      type(evaluated_iterate_t), intent(in) :: iterate
-      real(dp), intent(inout) :: sigma(:, :, :)
-      logical, intent(out) :: ok
-      logical, intent(in) :: refined
-
-      integer(ip) :: a, ib, m
-      integer :: c
-      logical :: patch_ok
-
-      ok = .true.
-      !$omp parallel default(none) &
-      !$omp shared(space, shapes, table, coarse, fine, level, colors, first, grad_rho, p2_coarse, p2_fine, iterate, sigma) &
-      !$omp shared(refined) &
-      !$omp private(a, ib, m, c, patch_ok) reduction(.and.:ok)
-      !$omp workshare
-      sigma = 0.0_dp
-      !$omp end workshare
-      do c = 1, colors%n_colors
-         !$omp do schedule(dynamic, 1)
-         do ib = colors%ptr(c), colors%ptr(c + 1) - 1
-            do m = colors%block_ptr(ib), colors%block_ptr(ib + 1) - 1
-               a = colors%vertices(m)
-               if (refined) then
-                  call coarse_patch(space, shapes, table, coarse, fine, level, a, 4, first, grad_rho, p2_coarse, p2_fine, &
-                                    iterate, sigma, patch_ok)
-               else
-                  call coarse_patch(space, shapes, table, coarse, fine, level, a, 1, first, grad_rho, p2_coarse, p2_fine, &
-                                    iterate, sigma, patch_ok)
-               end if
-               ok = ok .and. patch_ok
-            end do
-         end do
-         !$omp end do
-      end do
-      !$omp end parallel
-   end subroutine level_patches
-
-   !> One patch of level_patches: with its signature in `table` (triangles in the signature's
-   !> order, its edges and factor), or the general way for a patch without one.
-   subroutine coarse_patch(space, shapes, table, coarse, fine, level, a, n_children, first, grad_rho, p2_coarse, p2_fine, &
-                           iterate, sigma, ok)
-      type(rt_space_t), intent(in) :: space
-      type(shape_classes_t), intent(in) :: shapes
-      type(patch_table_t), intent(in) :: table
-      type(mesh_t), intent(in) :: coarse, fine
-      integer, intent(in) :: level
-      integer(ip), intent(in) :: a
-      integer, intent(in) :: n_children
-      logical, intent(in) :: first
-      real(dp), intent(in) :: grad_rho(:, :, :)
-      type(p2_field_t), intent(in) :: p2_coarse, p2_fine
-      !> its residual lifting on T_J: r where p2_fine is not stored (the finest level)
-      type(evaluated_iterate_t), intent(in) :: iterate
-      real(dp), intent(inout) :: sigma(:, :, :)
-      logical, intent(out) :: ok
-
-      integer, parameter :: max_inner_per_triangle = 9
-      integer :: n_coarse, ne, k, kc, c, m, i, alpha, local_a, n_inner, n_blocks
-      integer(ip) :: t, child, e, v(3), children(n_children*(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a)))
-      integer(ip) :: inner(max_inner_per_triangle*(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a)))
-      integer :: links(3, size(children)), classes(size(children))
-      real(dp) :: ratios(size(children)), signs(3*space%n_trace, size(children))
-      real(dp) :: rhs_flux(space%n_flux, size(children), 2), rhs_div(space%n_div, size(children), 2)
-      real(dp) :: patch_sigma(space%n_flux, size(children), 2)
-      real(dp) :: coarse_part(space%n_div, 2), smooth(2), hat_gradients(2, 3), area_factor, ratio, ratio_level, r(3, 2)
-      integer :: cls, id, coarse_level
-      integer(ip) :: order(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a))
-
-      n_coarse = coarse%patch_ptr(a + 1) - coarse%patch_ptr(a)
-      ne = 0
-      n_inner = 0
-      n_blocks = 0
-      coarse_level = merge(level - 1, level, n_children == 4)
-      ratio_level = 2.0_dp**level
-      id = 0
-      if (allocated(table%levels)) id = table%levels(coarse_level)%id(a)
-      if (id > 0) then
-         call stored_order(coarse, coarse_level, a, table%levels(coarse_level)%order(a), order)
-      else
-         order = coarse%patch_triangles(coarse%patch_ptr(a):coarse%patch_ptr(a + 1) - 1)
-      end if
-      if (n_children == 4 .and. id == 0) then
-         ! the inner edges of each coarse triangle (its middle child's edges) first, one block each
-         n_blocks = n_coarse
-         do kc = 1, n_coarse
-            t = order(kc)
-            do m = 1, 3
-               n_inner = n_inner + 1
-               inner(n_inner) = fine%triangle_edges(m, 4*t)
-            end do
-         end do
-      end if
-      do kc = 1, n_coarse
-         t = order(kc)
-         local_a = findloc(coarse%triangles(:, t), a, dim=1)
-         call triangle_class(coarse_level, t, cls, ratio)
-         if (first) then
-            ! ∇ρ·∇ψ_a, constant on t
-            hat_gradients = p1_gradients(coarse, t)
-            smooth = [dot_product(hat_gradients(:, local_a), grad_rho(:, t, 1)), &
-                      dot_product(hat_gradients(:, local_a), grad_rho(:, t, 2))]
-         else
-            ! Π_coarse(r ψ_a) on t, in the divergence basis of t: r is P2 there, and the projection
-            ! of each monomial times ψ_a is its class's
-            coarse_part = 0.0_dp
-            do alpha = 1, 2
-               do i = 1, n_p2
-                  coarse_part(:, alpha) = coarse_part(:, alpha) + p2_coarse%c(i, t, alpha)*shapes%div_proj(:, i, local_a, cls)
-               end do
-            end do
-         end if
-         do c = 1, n_children
-            ne = ne + 1
-            child = merge(4*(t - 1) + c, t, n_children == 4)
-            children(ne) = child
-            if (id > 0) then
-               ! the signature holds the classes and the relative trace signs
-               classes(ne) = table%sig(id)%classes(ne)
-               ratios(ne) = ratio_level
-            else
-               v = fine%triangles(:, child)
-               call triangle_class(level, child, classes(ne), ratios(ne))
-               call edge_signs(space%n_trace, v, signs(:, ne))
-            end if
-            do m = 1, 3
-               if (id > 0) exit
-               e = fine%triangle_edges(m, child)
-               call link_edge(fine%boundary_edge(e), on_opposite_edge(n_children == 4, local_a, c, m), &
-                              coarse%boundary_vertex(a), e, inner, n_inner, links(m, ne))
-            end do
-            ! the moments of r ψ_a on the child (r linear on T_J, P2 in the child's monomials
-            ! above) and of the smooth part (∇ρ·∇ψ_a constant, or Π_coarse(r ψ_a) in t's q_l): the
-            ! tables of t's class for local vertex a and child c, or of the child's own class
-            ! when it is t itself, scaled by the child's area, are exact; no geometry is needed
-            area_factor = 1/ratios(ne)**2
-            rhs_div(:, ne, :) = 0.0_dp
-            if (n_children == 1) then
-               if (allocated(p2_fine%c)) then
-                  call add_moments(space%n_div, n_p2, shapes%mono_psi_q(:, :, local_a, cls), area_factor, &
-                                   p2_fine%c(:, child, :), rhs_div(:, ne, :))
-               else
-                  call lifting_on(iterate, fine, child, r)
-                  call add_moments(space%n_div, 3, shapes%bary_psi_q(:, :, local_a, cls), area_factor, r, rhs_div(:, ne, :))
-               end if
-            else if (allocated(p2_fine%c)) then
-               call add_moments(space%n_div, n_p2, shapes%child_mono_psi_q(:, :, local_a, c, cls), area_factor, &
-                                p2_fine%c(:, child, :), rhs_div(:, ne, :))
-            else
-               call lifting_on(iterate, fine, child, r)
-               call add_moments(space%n_div, 3, shapes%child_bary_psi_q(:, :, local_a, c, cls), area_factor, r, &
-                                rhs_div(:, ne, :))
-            end if
-            if (first) then
-               do alpha = 1, 2
-                  rhs_div(:, ne, alpha) = rhs_div(:, ne, alpha) - area_factor*smooth(alpha)*shapes%q_int(:, classes(ne))
-               end do
-            else
-               call add_moments(space%n_div, space%n_div, shapes%child_q_coarse(:, :, c, cls), -area_factor, coarse_part, &
-                                rhs_div(:, ne, :))
-            end if
-         end do
-      end do
-      if (id > 0) then
-         ! σ_alg has no flux datum: the factored solve leaves those columns out (rhs_flux unread)
-         associate (sig => table%sig(id))
-            call solve_condensed_factored(space, shapes, sig%classes, ratio_level, sig%neumann, rhs_flux(1:2, :, :), &
-                                          rhs_div, .false., sig%factor, children, sigma)
-         end associate
-         ok = .true.
-      else
-         rhs_flux = 0.0_dp
-         call solve_patch(space, shapes, classes, ratios, signs, links, rhs_flux, rhs_div, .false., n_blocks, &
-                          patch_sigma, ok)
-         do k = 1, ne
-            sigma(:, children(k), :) = sigma(:, children(k), :) + patch_sigma(:, k, :)
-         end do
-      end if
-   end subroutine coarse_patch
-
-   !> rhs(:, α) += factor Σ_j coef(j, α) moments(:, j) for both membranes (one pass over the
-   !> moments): the moments of the fields with coefficients coef in a basis whose moments, at
-   !> the class size, are `moments`, scaled by `factor`.
-   pure subroutine add_moments(nd, nb, moments, factor, coef, rhs)
-      integer, intent(in) :: nd, nb
-      real(dp), intent(in) :: moments(nd, nb), factor, coef(:, :)
-      real(dp), intent(inout) :: rhs(:, :)
-
-      integer :: j, q
-      real(dp) :: c1, c2
-
-      do j = 1, nb
-         c1 = factor*coef(j, 1)
-         c2 = factor*coef(j, 2)
-         do q = 1, nd
-            rhs(q, 1) = rhs(q, 1) + c1*moments(q, j)
-            rhs(q, 2) = rhs(q, 2) + c2*moments(q, j)
-         end do
-      end do
-   end subroutine add_moments
 end module twomem_estimate_alg_flux

@@ -14,7 +14,8 @@
 !> its own triangles are listed: their patches are whole there (the ghost layer), the others'
 !> are not and belong to other ranks.
 module twomem_estimate_coloring
-   use twomem_base_kinds, only: ip
+   use twomem_base_kinds, only: dp, ip
+   use twomem_base_sort, only: sorting_permutation
    use twomem_mesh_triangulation, only: mesh_t
    implicit none
    private
@@ -25,6 +26,13 @@ module twomem_estimate_coloring
    !> dynamic schedule's balance), and at most this many triangles per block (the block's data
    !> well inside a core's cache: about 0.4 MB for RT1 and both membranes).
    integer(ip), parameter :: min_blocks = 256, max_block_triangles = 1024
+   !> Blocks of a planar mesh numbered along its refinement tree need a handful of colours (4–8).
+   !> More means a numbering without locality (a Gmsh mesh as the mesher numbered it: a block's
+   !> first triangles are then scattered over the domain, conflicting with most other blocks, so
+   !> that a colour holds one or two blocks and the loop runs on one thread, its patches' data
+   !> never in cache): the blocks are then made anew from the vertices in the order of a
+   !> Z-order curve through their positions (spatial_blocks).
+   integer, parameter :: max_colors = 16
 
    type :: coloring_t
       !> the blocks of colour c are ptr(c):ptr(c+1)-1; block b lists the vertices
@@ -46,6 +54,10 @@ contains
 
       call make_blocks(mesh, block_of, first, members)
       call color_blocks(mesh, block_of, first, color)
+      if (maxval(color) > max_colors) then
+         call spatial_blocks(mesh, size(first) - 1, block_of, first, members)
+         call color_blocks(mesh, block_of, first, color)
+      end if
       call group_by_color(self, first, members, color)
    end subroutine init
 
@@ -88,6 +100,54 @@ contains
          end do
       end do
    end subroutine make_blocks
+
+   !> The blocks of make_blocks, n_blocks of them, made of the vertices in the order of the
+   !> Z-order (Morton) curve through their positions instead: consecutive runs of that order
+   !> are compact pieces of the domain, whatever the numbering. The key interleaves the bits of
+   !> the coordinates scaled to 15 bits each (a 2^15 × 2^15 grid over the mesh's bounding box:
+   !> far finer than the blocks); the sort is deterministic, so are the blocks.
+   subroutine spatial_blocks(mesh, n_blocks, block_of, first, members)
+      type(mesh_t), intent(in) :: mesh
+      integer(ip), intent(in) :: n_blocks
+      integer(ip), allocatable, intent(out) :: block_of(:), first(:), members(:)
+
+      logical, allocatable :: inside(:)
+      integer(ip), allocatable :: keys(:), order(:), listed(:)
+      real(dp) :: low(2), width
+      integer(ip) :: a, k, n, per_block, b
+      integer :: cells(2), bit
+
+      inside = mesh%in_subdomain()
+      low = minval(mesh%vertices, dim=2)
+      width = max(maxval(mesh%vertices(1, :)) - low(1), maxval(mesh%vertices(2, :)) - low(2), tiny(1.0_dp))
+      n = count(inside, kind=ip)
+      allocate (keys(n), listed(n))
+      k = 0
+      do a = 1, mesh%nv
+         if (.not. inside(a)) cycle
+         k = k + 1
+         listed(k) = a
+         cells = int(min(32767.0_dp, (mesh%vertices(:, a) - low)/width*32768))
+         keys(k) = 0
+         do bit = 0, 14
+            if (btest(cells(1), bit)) keys(k) = ibset(keys(k), 2*bit)
+            if (btest(cells(2), bit)) keys(k) = ibset(keys(k), 2*bit + 1)
+         end do
+      end do
+      order = sorting_permutation(keys)
+      per_block = max(1_ip, (n + n_blocks - 1)/n_blocks)
+      allocate (block_of(mesh%nv), first(n_blocks + 1), members(n))
+      block_of = 0
+      first(1) = 1
+      do b = 1, n_blocks
+         first(b + 1) = min(n, b*per_block) + 1
+      end do
+      do k = 1, n
+         a = listed(order(k))
+         members(k) = a
+         block_of(a) = (k - 1)/per_block + 1
+      end do
+   end subroutine spatial_blocks
 
    !> Greedy colours of the non-empty blocks in block order (0 for an empty one): two blocks
    !> conflict when vertices of theirs are corners of one triangle, i.e. their patches share it.

@@ -2,21 +2,23 @@
 !> every vertex a, the RT_p flux closest to −μ_α ψ_a ∇u_α whose divergence has the moments of
 !> g^a_α = (f_α ∓ λ_h(a) − r_α) ψ_a − μ_α ∇u_α·∇ψ_a, with zero normal flux on the patch boundary
 !> (except on ∂Ω at boundary vertices). Both membranes share the patch geometry, so each patch
-!> is solved once with two right-hand sides, with the operators of the triangles' shape classes
-!> (twomem_estimate_shapes). Patches are independent: one OpenMP loop per vertex colour
+!> is solved once with two right-hand sides: with its signature's factor and the operators of
+!> its triangles' shape classes (twomem_estimate_shapes) where the hierarchy stores them, or on
+!> the generic path, from the triangles' own geometry. Patches are independent: one OpenMP loop per vertex colour
 !> (twomem_estimate_coloring), each patch adding its contribution to its own triangles, which no
 !> other patch of the colour touches.
 module twomem_estimate_disc_flux
    use twomem_base_kinds, only: dp, ip
+   use omp_lib, only: omp_get_thread_num
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_fem_problem, only: problem_data_t
    use twomem_fem_assembly, only: p1_gradients
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, frame_of
-   use twomem_estimate_shapes, only: shape_classes_t, triangle_class, trace_signs
+   use twomem_estimate_shapes, only: shape_classes_t
    use twomem_estimate_coloring, only: coloring_t
-   use twomem_estimate_patch, only: solve_patch, link_edge
    use twomem_estimate_patch_factor, only: solve_condensed_factored
    use twomem_estimate_patch_classes, only: patch_table_t, patch_signature_t, stored_order, max_patch
+   use twomem_estimate_generic_patch, only: generic_scratch_t, solve_generic, patch_links
    use twomem_estimate_evaluated_iterate, only: evaluated_iterate_t, gradients_on, lifting_on
    implicit none
    private
@@ -100,12 +102,13 @@ contains
    end function moment
 
    !> sigma(:, t, α): coefficients of σ_α,disc on triangle t of `mesh`, level `level` of the
-   !> hierarchy of `shapes`, whose vertex colouring is `colors`, for the evaluated iterate
-   !> (its ∇u_α, λ_h and residual lifting); loads: the load moments. `table` holds the patch
-   !> signatures of `mesh`'s vertices (twomem_estimate_patch_classes), whose patches use the
-   !> signatures' factors; a table that holds none makes every patch assembled and factorized
-   !> on its own. ok is .false. if some patch system is singular.
-   subroutine discretization_flux(space, shapes, table, mesh, level, colors, mu, loads, iterate, sigma, ok)
+   !> hierarchy, whose vertex colouring is `colors`, for the evaluated iterate (its ∇u_α, λ_h and
+   !> residual lifting); loads: the load moments. `table` holds the patch signatures of `mesh`'s
+   !> vertices (twomem_estimate_patch_classes), whose patches use the signatures' factors and the
+   !> operators of `shapes`; every other patch (all of them when the table holds none) takes the
+   !> generic path (twomem_estimate_generic_patch) with the scratch of its thread (scratch(0:),
+   !> one per thread). ok is .false. if some patch system is singular.
+   subroutine discretization_flux(space, shapes, table, mesh, level, colors, mu, loads, iterate, scratch, sigma, ok)
       type(rt_space_t), intent(in) :: space
       type(shape_classes_t), intent(in) :: shapes
       type(patch_table_t), intent(in) :: table
@@ -115,24 +118,37 @@ contains
       real(dp), intent(in) :: mu(2)
       type(load_moments_t), intent(in) :: loads
       type(evaluated_iterate_t), intent(in) :: iterate
+      type(generic_scratch_t), intent(inout) :: scratch(0:)
       real(dp), intent(inout) :: sigma(:, :, :)
       logical, intent(out) :: ok
 
       integer(ip) :: ib, m, a
-      integer :: c, id
+      integer :: c, id, me, g
       logical :: patch_ok, signatures
+      integer(ip), allocatable :: generic(:)
 
       ok = .true.
       signatures = allocated(table%levels)
       !$omp parallel default(none) &
-      !$omp shared(space, shapes, table, mesh, level, colors, mu, loads, iterate, sigma) &
-      !$omp shared(signatures) private(c, ib, m, a, id, patch_ok) reduction(.and.:ok)
+      !$omp shared(space, shapes, table, mesh, level, colors, mu, loads, iterate, sigma, scratch) &
+      !$omp shared(signatures) private(c, ib, m, a, id, patch_ok, me, g, generic) reduction(.and.:ok)
+      me = omp_get_thread_num()
       !$omp workshare
       sigma = 0.0_dp
       !$omp end workshare
       do c = 1, colors%n_colors
          !$omp do schedule(dynamic, 1)
          do ib = colors%ptr(c), colors%ptr(c + 1) - 1
+            ! the block's patches without a signature: their triangles' operators, each once
+            call generic_vertices(table, signatures, level, colors%vertices(colors%block_ptr(ib):colors%block_ptr(ib + 1) - 1), &
+                                  generic)
+            if (size(generic) > 0) then
+               call scratch(me)%gather(space, mesh, generic, patch_ok)
+               ok = ok .and. patch_ok
+               if (.not. patch_ok) cycle
+               call scratch(me)%fill(mesh, iterate)
+            end if
+            g = 0
             do m = colors%block_ptr(ib), colors%block_ptr(ib + 1) - 1
                a = colors%vertices(m)
                id = 0
@@ -141,80 +157,91 @@ contains
                   call factored_patch(space, shapes, table%sig(id), table%levels(level)%order(a), mesh, level, a, mu, &
                                       loads, iterate, sigma)
                else
-                  call vertex_patch(space, shapes, mesh, level, a, mu, loads, iterate, sigma, patch_ok)
+                  g = g + 1
+                  call generic_patch(space, scratch(me), g, mesh, a, mu, loads, iterate, patch_ok)
                   ok = ok .and. patch_ok
                end if
             end do
+            if (size(generic) > 0) call scratch(me)%flush(sigma)
          end do
          !$omp end do
       end do
       !$omp end parallel
    end subroutine discretization_flux
 
-   subroutine vertex_patch(space, shapes, mesh, level, a, mu, loads, iterate, sigma, ok)
-      type(rt_space_t), intent(in) :: space
-      type(shape_classes_t), intent(in) :: shapes
-      type(mesh_t), intent(in) :: mesh
+   !> The vertices of a block whose patches have no signature in `table`, in the block's order.
+   pure subroutine generic_vertices(table, signatures, level, block, generic)
+      type(patch_table_t), intent(in) :: table
+      logical, intent(in) :: signatures
       integer, intent(in) :: level
+      integer(ip), intent(in) :: block(:)
+      integer(ip), allocatable, intent(inout) :: generic(:)
+
+      integer :: m, n
+
+      if (.not. signatures) then
+         generic = block
+         return
+      end if
+      n = count(table%levels(level)%id(block) == 0)
+      if (allocated(generic)) deallocate (generic)
+      allocate (generic(n))
+      n = 0
+      do m = 1, size(block)
+         if (table%levels(level)%id(block(m)) /= 0) cycle
+         n = n + 1
+         generic(n) = block(m)
+      end do
+   end subroutine generic_vertices
+
+   !> The patch of vertex a on the generic path: p is its position in the list the scratch was
+   !> gathered for (generic_vertices), whose slots hold its triangles' operators and the
+   !> iterate's ∇u_α and lifting there. The data as in factored_patch, with the integrals of
+   !> the triangle's own operators; σ goes to the slots' sums.
+   pure subroutine generic_patch(space, scratch, p, mesh, a, mu, loads, iterate, ok)
+      type(rt_space_t), intent(in) :: space
+      type(generic_scratch_t), intent(inout) :: scratch
+      integer, intent(in) :: p
+      type(mesh_t), intent(in) :: mesh
       integer(ip), intent(in) :: a
       real(dp), intent(in) :: mu(2)
       type(load_moments_t), intent(in) :: loads
       type(evaluated_iterate_t), intent(in) :: iterate
-      real(dp), intent(inout) :: sigma(:, :, :)
       logical, intent(out) :: ok
 
-      integer :: ne, k, m, i, n_inner, alpha, c
-      integer(ip) :: t, e, inner(2*(mesh%patch_ptr(a + 1) - mesh%patch_ptr(a))), elements(size(inner)/2)
-      integer(ip) :: v(3)
-      integer :: links(3, size(elements)), classes(size(elements))
-      real(dp) :: ratios(size(elements)), signs(3*space%n_trace, size(elements)), area_factor
-      real(dp) :: rhs_flux(space%n_flux, size(elements), 2), rhs_div(space%n_div, size(elements), 2)
-      real(dp) :: patch_sigma(space%n_flux, size(elements), 2), fgrad(2, size(elements), 2)
-      real(dp) :: grad_psi(2), hat_gradients(2, 3), grad_u(2, 2), r(3, 2), lambda_a
+      integer :: ne, k, i, alpha, s
+      integer :: links(3, mesh%patch_ptr(a + 1) - mesh%patch_ptr(a)), corner(size(links, 2))
+      real(dp) :: rhs_div(space%n_div, size(links, 2), 2), fgrad(2, size(links, 2), 2), lambda_a, d
       real(dp), parameter :: lambda_sign(2) = [1.0_dp, -1.0_dp]
 
-      ne = size(elements)
+      ne = size(links, 2)
       lambda_a = iterate%lambda(a)
-      n_inner = 0
-      do k = 1, ne
-         t = mesh%patch_triangles(mesh%patch_ptr(a) + k - 1)
-         elements(k) = t
-         v = mesh%triangles(:, t)
-         call triangle_class(level, t, classes(k), ratios(k))
-         signs(:, k) = trace_signs(space, v)
-         c = classes(k)
-         hat_gradients = p1_gradients(mesh, t)
-         i = findloc(v, a, dim=1)
-         do m = 1, 3
-            e = mesh%triangle_edges(m, t)
-            call link_edge(mesh%boundary_edge(e), m == i, mesh%boundary_vertex(a), e, inner, n_inner, links(m, k))
+      call patch_links(scratch, p, a, mesh%boundary_vertex(a), corner, links)
+      associate (slots => scratch%slots(scratch%first(p):scratch%first(p + 1) - 1), ops => scratch%ops)
+         do k = 1, ne
+            s = slots(k)
+            i = corner(k)
+            do alpha = 1, 2
+               associate (grad_u => scratch%grad(:, alpha, s), r => scratch%lift(:, alpha, s))
+                  fgrad(:, k, alpha) = -mu(alpha)*grad_u
+                  if (loads%constant) then
+                     rhs_div(:, k, alpha) = loads%f(alpha)*ops%psi_q(:, i, s)
+                  else
+                     rhs_div(:, k, alpha) = loads%moments(:, i, scratch%triangles(s), alpha)
+                  end if
+                  d = mu(alpha)*(grad_u(1)*scratch%hat(1, i, s) + grad_u(2)*scratch%hat(2, i, s))
+                  rhs_div(:, k, alpha) = rhs_div(:, k, alpha) + lambda_sign(alpha)*lambda_a*ops%psi_q(:, i, s) &
+                                         - ops%bary_psi_q(:, 1, i, s)*r(1) - ops%bary_psi_q(:, 2, i, s)*r(2) &
+                                         - ops%bary_psi_q(:, 3, i, s)*r(3) - d*ops%q_int(:, s)
+               end associate
+            end do
          end do
-
-         ! right-hand sides: (−μ ψ_a ∇u, φ_j) and the moments of g^a; the class integrals scale
-         ! with the area, ρ⁻²
-         area_factor = 1/ratios(k)**2
-         grad_psi = hat_gradients(:, i)
-         call gradients_on(iterate, mesh, t, hat_gradients, grad_u)
-         call lifting_on(iterate, mesh, t, r)
-         do alpha = 1, 2
-            fgrad(:, k, alpha) = -mu(alpha)*grad_u(:, alpha)
-            rhs_flux(:, k, alpha) = area_factor*matmul(fgrad(:, k, alpha), shapes%psi_phi(:, :, i, c))
-            rhs_div(:, k, alpha) = moment(loads, shapes, i, t, c, area_factor, alpha) + area_factor*( &
-                                   lambda_sign(alpha)*lambda_a*shapes%psi_q(:, i, c) &
-                                   - matmul(shapes%bary_psi_q(:, :, i, c), r(:, alpha)) &
-                                   - mu(alpha)*dot_product(grad_u(:, alpha), grad_psi)*shapes%q_int(:, c))
-         end do
-      end do
-
-      ! a patch without a signature (factored_patch takes the others)
-      call solve_patch(space, shapes, classes, ratios, signs, links, rhs_flux, rhs_div, .true., 0, patch_sigma, ok)
-      do k = 1, ne
-         sigma(:, elements(k), :) = sigma(:, elements(k), :) + patch_sigma(:, k, :)
-      end do
-   end subroutine vertex_patch
+         call solve_generic(space, scratch, slots, corner, links, fgrad, rhs_div, .true., ok)
+      end associate
+   end subroutine generic_patch
 
    !> The patch of vertex a with its signature's factor (twomem_estimate_patch_classes): the data
-   !> of vertex_patch in the signature's order of the triangles.
+   !> of generic_patch in the signature's order of the triangles, with its classes' integrals.
    subroutine factored_patch(space, shapes, sig, order_code, mesh, level, a, mu, loads, iterate, sigma)
       type(rt_space_t), intent(in) :: space
       type(shape_classes_t), intent(in) :: shapes

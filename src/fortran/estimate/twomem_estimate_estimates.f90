@@ -21,6 +21,9 @@ module twomem_estimate_estimates
       real(dp) :: disc = 0, lin = 0, alg = 0, total = 0
       !> the parts: η_1, ‖η_F‖, ‖η_osc‖, Σ η_C, η_nonc,1..3
       real(dp) :: eta_1 = 0, flux = 0, osc = 0, contact = 0, nonc1 = 0, nonc2 = 0, nonc3 = 0
+      !> η_rem, the one-level algebraic flux's remainder (docs/method.md §3): part of alg and of
+      !> the bound's flux part (η_1 + η_rem in (41)); zero otherwise. Global: it has no elements.
+      real(dp) :: alg_remainder = 0
       !> per triangle, for each membrane: η_disc,K,α (without oscillation), η_alg,K,α, η_F,K,α, η_osc,K,α
       real(dp), allocatable :: disc_k(:, :), alg_k(:, :), flux_k(:, :), osc_k(:, :)
       !> per triangle: η_C,K, η_nonc,β,K and η_lin,K of the local criteria (65a)

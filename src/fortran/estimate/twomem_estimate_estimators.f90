@@ -32,7 +32,6 @@ module twomem_estimate_estimators
    use twomem_fem_problem, only: problem_data_t
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_fem_assembly, only: p1_gradients
-   use twomem_linalg_dense, only: lu_factor, lu_solve
    use twomem_linalg_halo, only: halo_t
    use twomem_estimate_raviart_thomas, only: rt_space_t, rt_frame_t, frame_of
    use twomem_estimate_lifting, only: algebraic_residuals
@@ -45,6 +44,12 @@ module twomem_estimate_estimators
    use twomem_estimate_patch_classes, only: patch_table_t
    use twomem_estimate_iterate_parts, only: iterate_parts, iterate_sums, nonconformity
    use twomem_estimate_estimates, only: estimates_t
+   use twomem_estimate_generic_patch, only: generic_scratch_t
+   use twomem_estimate_triangle_ops, only: rt_mass_matrix
+   use twomem_estimate_storage, only: storage_tier, tier_none, tier_single, tier_all
+   use twomem_estimate_element_terms, only: data_oscillation, quadratic_forms, add_in_child_basis
+   use twomem_linalg_operators, only: preconditioner_t
+   use omp_lib, only: omp_get_max_threads
    implicit none
    private
 
@@ -53,12 +58,20 @@ module twomem_estimate_estimators
    real(dp), parameter :: pi = acos(-1.0_dp)
    !> the sums of the element pass: see element_estimators
    integer, parameter :: n_sums = 9
+   !> the algebraic flux's coarse problem is solved exactly (factorized once) up to this many
+   !> unknowns, or up to a sixteenth of the finest mesh's (the default three meshes' coarse
+   !> problem); above both, the one-level construction replaces it (docs/input.md,
+   !> estimate.alg_levels). A factor of 2^14 unknowns takes a few MB and tens of milliseconds.
+   integer(ip), parameter, public :: exact_coarse_max = 16384_ip
 
    type :: estimator_t
       type(rt_space_t) :: space
       type(algebraic_flux_t) :: alg
-      !> the triangle operators of every level, per shape class
+      !> the triangle operators of every level, per shape class, when the hierarchy stores them
+      !> (`classes`); otherwise every patch takes the generic path, with the threads' scratch
       type(shape_classes_t) :: shapes
+      logical :: classes = .false.
+      type(generic_scratch_t), allocatable :: scratch(:)
       !> the signatures of the vertices' patches: on the finest mesh's own triangles
       !> (discretization flux, single-mesh algebraic flux) and on refined coarse triangles
       type(patch_table_t) :: single, refined
@@ -116,8 +129,10 @@ contains
 
    !> flux_order 0 or 1; alg_meshes: how many of the finest meshes the algebraic flux uses;
    !> poincare: h_Ω C_PF. With `comm`, the hierarchy is this rank's piece of a distributed one
-   !> (collective; every rank returns the same error).
-   subroutine init(self, hierarchy, data, flux_order, alg_meshes, poincare, err, comm)
+   !> (collective; every rank returns the same error). `tier` and `exact_max` override the
+   !> choices of what is stored for the patch problems (storage_tier) and of the algebraic
+   !> flux's exact coarse solve (exact_coarse_max), for tests that compare the paths.
+   subroutine init(self, hierarchy, data, flux_order, alg_meshes, poincare, err, comm, tier, exact_max)
       class(estimator_t), intent(out) :: self
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       class(problem_data_t), intent(in) :: data
@@ -125,6 +140,11 @@ contains
       real(dp), intent(in) :: poincare
       type(error_t), allocatable, intent(out) :: err
       type(comm_t), intent(in), optional :: comm
+      integer, intent(in), optional :: tier
+      integer(ip), intent(in), optional :: exact_max
+
+      integer(ip) :: coarse_max
+      integer :: stored
 
       if (present(comm)) self%comm = comm
       call self%ghosts%init(self%comm, hierarchy%meshes(0))
@@ -132,21 +152,37 @@ contains
          call self%space%init(flux_order)
          self%mu = [data%mu1, data%mu2]
          self%c_omega = poincare*sqrt(1/data%mu1 + 1/data%mu2)
-         call self%shapes%init(self%space, hierarchy, err)
-         call self%comm%agree(err)
-         if (allocated(err)) return
+         if (present(tier)) then
+            stored = tier
+         else
+            stored = storage_tier(hierarchy, flux_order, alg_meshes, self%comm)
+         end if
+         self%classes = stored /= tier_none
+         if (self%classes) then
+            call self%shapes%init(self%space, hierarchy, err, multilevel=stored == tier_all)
+            call self%comm%agree(err)
+            if (allocated(err)) return
+         end if
+         allocate (self%scratch(0:omp_get_max_threads() - 1))
          call self%colors%init(mesh)
          call self%loads%init(self%space, mesh, data)
          ! (constant loads are their own projection: no oscillation to store)
          if (flux_order == 1 .and. .not. self%loads%constant) &
             call data_oscillation(self%space, mesh, data, self%mu, self%osc_data)
-         call self%alg%init(self%space, hierarchy, data, alg_meshes, err, self%comm)
+         coarse_max = exact_coarse_max
+         if (present(exact_max)) coarse_max = exact_max
+         call self%alg%init(self%space, hierarchy, data, alg_meshes, stored == tier_all, coarse_max, poincare, err, &
+                            self%comm)
          call self%comm%agree(err)
          if (allocated(err)) return
-         call patch_tables(self, hierarchy, err)
+         if (self%classes) call patch_tables(self, hierarchy, err)
          call self%comm%agree(err)
+         if (allocated(err)) return
+         ! without refined levels every patch without a signature takes the generic path
+         if (stored == tier_single) call self%shapes%keep_factored_only()
       end associate
    end subroutine init
+
 
    !> The patch signatures of every patch mesh: the finest mesh for the discretization flux (and
    !> the single-mesh algebraic flux), the coarse meshes of the refined algebraic-flux levels.
@@ -171,53 +207,6 @@ contains
       call self%refined%finish(self%space, self%shapes, err)
    end subroutine patch_tables
 
-   !> (h_K/π) μ_α^{−1/2} ‖f_α − Π_1 f_α‖_K with the load's degree-5 rule.
-   subroutine data_oscillation(space, mesh, data, mu, osc)
-      type(rt_space_t), intent(in) :: space
-      type(mesh_t), intent(in) :: mesh
-      class(problem_data_t), intent(in) :: data
-      real(dp), intent(in) :: mu(2)
-      real(dp), allocatable, intent(out) :: osc(:, :)
-
-      type(rt_frame_t) :: frame
-      real(dp) :: x(2), w, q(3), gram(3, 3), b(3, 2), projection(3, 2), f(2), ff(2)
-      integer :: k, i, alpha, piv(3)
-      logical :: ok
-      integer(ip) :: t
-
-      allocate (osc(2, mesh%nt))
-      !$omp parallel do default(none) shared(space, mesh, data, mu, osc) &
-      !$omp private(t, frame, x, w, q, gram, b, projection, f, ff, k, i, alpha, piv, ok) schedule(static)
-      do t = 1, mesh%nt
-         frame = frame_of(mesh%vertices, mesh%triangles(:, t))
-         gram = 0.0_dp
-         b = 0.0_dp
-         ff = 0.0_dp
-         do k = 1, space%rule%n
-            x = matmul(frame%vertices, space%rule%bary(:, k))
-            w = space%rule%weights(k)*frame%area
-            q = space%div_test_values(frame, x)
-            f = [data%load(1, x), data%load(2, x)]
-            do i = 1, 3
-               gram(:, i) = gram(:, i) + w*q*q(i)
-            end do
-            do alpha = 1, 2
-               b(:, alpha) = b(:, alpha) + w*f(alpha)*q
-            end do
-            ff = ff + w*f**2
-         end do
-         ! ‖f − Π f‖² = ‖f‖² − (Π f, f) = ‖f‖² − bᵀ G⁻¹ b
-         projection = b
-         call lu_factor(gram, piv, ok)
-         call lu_solve(gram, piv, projection)
-         do alpha = 1, 2
-            ! (the frame's scale is the triangle's diameter, mesh_t%diameter_of)
-            osc(alpha, t) = frame%scale/pi/sqrt(mu(alpha))* &
-                            sqrt(max(0.0_dp, ff(alpha) - dot_product(b(:, alpha), projection(:, alpha))))
-         end do
-      end do
-      !$omp end parallel do
-   end subroutine data_oscillation
 
    !> Every estimator for the iterate x = [X1; X2; X3] of the discrete problem p on the finest
    !> mesh. Collective (every rank returns the same error). With `fields` (the default) also the
@@ -228,7 +217,7 @@ contains
    !> the algebraic flux, about half of an evaluation, is left out: est then holds η_disc and
    !> η_lin (with their parts) but no η_alg nor bound, and no fields; `complete` adds the rest
    !> for this same iterate.
-   subroutine evaluate(self, hierarchy, data, p, x, est, err, fields, algebraic)
+   subroutine evaluate(self, hierarchy, data, p, x, est, err, fields, algebraic, precond)
       class(estimator_t), intent(inout) :: self
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       class(problem_data_t), intent(in) :: data
@@ -238,6 +227,8 @@ contains
       type(estimates_t), intent(inout) :: est
       type(error_t), allocatable, intent(out) :: err
       logical, intent(in), optional :: fields, algebraic
+      !> a preconditioner of p's stiffness for the one-level algebraic flux (see `complete`)
+      class(preconditioner_t), intent(inout), optional :: precond
 
       integer(ip) :: n
       logical :: ok, with_fields, with_alg
@@ -259,7 +250,7 @@ contains
          ! the scratch on their way; the algebraic flux keeps what it needs of them before
          ! set_shares turns them into their shares in place
          call algebraic_residuals(p, x, it%shares, it%u(:, 1), self%halo)
-         call self%alg%take_residual(hierarchy, it%shares)
+         call self%alg%take_residual(hierarchy, it%shares, p%interior)
          call it%set_shares(mesh)
          call scatter(p, x(1:n), p%g, it%u(:, 1))
          call scatter(p, x(n + 1:2*n), 0.0_dp, it%u(:, 2))
@@ -268,32 +259,38 @@ contains
          call it%share_ghosts(self%ghosts, mesh, hierarchy%levels)
 
          call discretization_flux(self%space, self%shapes, self%single, mesh, hierarchy%levels, self%colors, self%mu, &
-                                  self%loads, it, self%sigma, ok)
+                                  self%loads, it, self%scratch, self%sigma, ok)
          if (self%comm%any_true(.not. ok)) then
             call make_error(err, exit_io, 'discretization flux', 'a patch system is singular (degenerate triangles?)')
             return
          end if
       end associate
       if (with_alg) then
-         call self%complete(hierarchy, data, est, err, with_fields)
+         call self%complete(hierarchy, data, est, err, with_fields, p, precond)
       else
          call element_pass(self, hierarchy, data, est, .false., .false.)
       end if
    end subroutine evaluate
 
    !> The algebraic flux and every estimator for the iterate of the last evaluation, which left
-   !> it out (or to be recomputed from its residual): see `evaluate`. Collective.
-   subroutine complete(self, hierarchy, data, est, err, fields)
+   !> it out (or to be recomputed from its residual): see `evaluate`. p: the discrete problem of
+   !> that evaluation, on which the one-level algebraic flux solves its Riesz problem
+   !> (twomem_estimate_riesz) with `precond`, a preconditioner of p's stiffness (without one,
+   !> plain conjugate gradients). Collective.
+   subroutine complete(self, hierarchy, data, est, err, fields, p, precond)
       class(estimator_t), intent(inout) :: self
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       class(problem_data_t), intent(in) :: data
       type(estimates_t), intent(inout) :: est
       type(error_t), allocatable, intent(out) :: err
       logical, intent(in) :: fields
+      type(discrete_problem_t), intent(in) :: p
+      class(preconditioner_t), intent(inout), optional :: precond
 
       call refuse_after_end(self, err)
       if (allocated(err)) return
-      call self%alg%compute(self%shapes, hierarchy, self%iterate, self%single, self%refined, err)
+      call self%alg%compute(self%shapes, hierarchy, self%iterate, self%single, self%refined, self%scratch, p, self%halo, &
+                            self%ghosts, err, precond)
       call self%comm%agree(err)
       if (allocated(err)) return
       call element_pass(self, hierarchy, data, est, fields, .true.)
@@ -330,6 +327,7 @@ contains
       class(estimator_t), intent(inout) :: self
 
       self%ended = .true.
+      if (allocated(self%scratch)) deallocate (self%scratch)
       call self%single%free()
       call self%refined%free()
       call self%alg%drop_solvers()
@@ -427,19 +425,24 @@ contains
       call self%comm%sum_in_place(sums)
       positive_norm = sqrt(sums(9))
       est%eta_1 = sqrt(sums(1))
+      ! the one-level algebraic flux's remainder (twomem_estimate_riesz) adds to the flux part
+      ! of the bound and to the algebraic component: η_1 + η_rem, η_alg + η_rem
+      est%alg_remainder = 0.0_dp
+      if (algebraic .and. self%alg%one_level) est%alg_remainder = self%alg%riesz%eta
       est%flux = sqrt(sums(2))
       est%osc = sqrt(sums(3))
       est%contact = sums(4)
       call nonconformity(sums(5), sums(6), sums(9), self%c_omega, est%nonc1, est%nonc2, est%nonc3, est%lin)
-      est%total = sqrt(max(0.0_dp, (est%eta_1 + est%nonc1 + est%nonc2)**2 + est%nonc3 + est%contact))
+      est%total = sqrt(max(0.0_dp, (est%eta_1 + est%alg_remainder + est%nonc1 + est%nonc2)**2 + est%nonc3 + est%contact))
       est%disc = sqrt(sums(7)) + sqrt(abs(est%contact))
-      est%alg = sqrt(sums(8))
+      est%alg = sqrt(sums(8)) + est%alg_remainder
       est%complete = algebraic
       if (.not. algebraic) then
          nan = ieee_value(1.0_dp, ieee_quiet_nan)
          est%alg = nan
          est%total = nan
          est%eta_1 = nan
+         est%alg_remainder = nan
          est%flux = nan
       end if
       if (.not. fields) return
@@ -493,6 +496,8 @@ contains
       !> K's barycentre in each ancestor's scaled coordinates and the ratio of their scales
       real(dp) :: shift(2, size(levels)), kappa(size(levels))
       real(dp) :: pos_ll, inv_ratio_sq, uv(3, 2), lam(3), grad_k(2, 2), hat(2, 3)
+      !> K's RT mass matrix where no shape class holds it
+      real(dp) :: mass(self%space%n_flux, self%space%n_flux)
       !> f ∓ λ_h at the 7 points of the degree-5 rule (RT0 only)
       real(dp) :: osc_values(2, 7)
       !> one triangle's parts: η_disc,K,α, η_alg,K,α, η_F,K,α, η_osc,K,α; η_C,K, η_nonc,1,K, η_nonc,2,K
@@ -532,14 +537,18 @@ contains
       !$omp private(b, t, anc, k, j, alpha, v, frame, level_frames, x, w, sq, f, lam_x, osc_mean, osc_sq, ratio, class) &
       !$omp private(c_disc, c_alg, shift, kappa, ancestors, osc_w, pos_ll, osc_values) &
       !$omp private(inv_ratio_sq, disc_k, alg_k, flux_k, osc_k, contact_k, nonc1_k, nonc2_k, uv, lam, grad_k, hat) &
-      !$omp firstprivate(frame_anc) schedule(static)
+      !$omp private(mass) firstprivate(frame_anc) schedule(static)
       do b = 1, n_blocks
          partial(:, b) = 0.0_dp
          do t = (b - 1)*block + 1, min(b*block, nt_own)
             v = hierarchy%meshes(finest)%triangles(:, t)
             frame = frame_of(hierarchy%meshes(finest)%vertices, v)
-            call triangle_class(finest, t, class, ratio)
-            inv_ratio_sq = 1.0_dp/ratio**2
+            if (self%classes) then
+               call triangle_class(finest, t, class, ratio)
+               inv_ratio_sq = 1.0_dp/ratio**2
+            else
+               call rt_mass_matrix(self%space, frame%vertices, mass)
+            end if
             hat = p1_gradients(hierarchy%meshes(finest), t)
             call gradients_on(self%iterate, hierarchy%meshes(finest), t, hat, grad_k)
             do j = 1, size(levels)
@@ -572,8 +581,12 @@ contains
                   end if
                end do
                ! the class mass matrix is that of the class size: K's is ρ⁻² times it
-               call quadratic_forms(self%space%n_flux, self%shapes%mass(:, :, class), c_disc, c_alg, sq(:, alpha))
-               sq(:, alpha) = sq(:, alpha)*inv_ratio_sq
+               if (self%classes) then
+                  call quadratic_forms(self%space%n_flux, self%shapes%mass(:, :, class), c_disc, c_alg, sq(:, alpha))
+                  sq(:, alpha) = sq(:, alpha)*inv_ratio_sq
+               else
+                  call quadratic_forms(self%space%n_flux, mass, c_disc, c_alg, sq(:, alpha))
+               end if
             end do
             do alpha = 1, 2
                disc_k(alpha) = sqrt(max(0.0_dp, sq(1, alpha))/self%mu(alpha))
@@ -638,69 +651,6 @@ contains
       end do
    end subroutine element_estimators
 
-   !> q = (aᵀ M a, bᵀ M b, (a + b)ᵀ M (a + b)) for a contiguous n×n matrix M, in one pass over M:
-   !> the third reuses the columns' products with a and b, (a + b)ᵀ(M a + M b).
-   pure subroutine quadratic_forms(n, m, a, b, q)
-      integer, intent(in) :: n
-      real(dp), intent(in) :: m(n, n), a(n), b(n)
-      real(dp), intent(out) :: q(3)
 
-      integer :: i, j
-      real(dp) :: row_a, row_b
-
-      q = 0.0_dp
-      if (n == 8) then
-         ! RT1: a loop of constant length, unrolled
-         do j = 1, 8
-            row_a = 0.0_dp
-            row_b = 0.0_dp
-            do i = 1, 8
-               row_a = row_a + m(i, j)*a(i)
-               row_b = row_b + m(i, j)*b(i)
-            end do
-            q(1) = q(1) + a(j)*row_a
-            q(2) = q(2) + b(j)*row_b
-            q(3) = q(3) + (a(j) + b(j))*(row_a + row_b)
-         end do
-         return
-      end if
-      do j = 1, n
-         row_a = 0.0_dp
-         row_b = 0.0_dp
-         do i = 1, n
-            row_a = row_a + m(i, j)*a(i)
-            row_b = row_b + m(i, j)*b(i)
-         end do
-         q(1) = q(1) + a(j)*row_a
-         q(2) = q(2) + b(j)*row_b
-         q(3) = q(3) + (a(j) + b(j))*(row_a + row_b)
-      end do
-   end subroutine quadratic_forms
-
-   !> f + the coefficients in the basis of a child triangle of the RT_p field with coefficients c
-   !> in the basis of its ancestor: with ξ_parent = d + κ ξ_child (d the child's barycentre in the
-   !> parent's scaled coordinates, κ the ratio of the scales), each monomial field expands
-   !> exactly, e.g. ξ1 ξ = d1 d + κ(2 d1 ξ1, d2 ξ1 + d1 ξ2) + κ² ξ1 ξ. Added in place, as the
-   !> caller sums the levels: no temporary, and the same sums as adding a converted copy.
-   pure subroutine add_in_child_basis(order, d, kappa, c, f)
-      integer, intent(in) :: order
-      real(dp), intent(in) :: d(2), kappa, c(:)
-      real(dp), intent(inout) :: f(:)
-
-      if (order == 0) then
-         f(1) = f(1) + (c(1) + d(1)*c(3))
-         f(2) = f(2) + (c(2) + d(2)*c(3))
-         f(3) = f(3) + kappa*c(3)
-      else
-         f(1) = f(1) + (c(1) + d(1)*c(3) + d(2)*c(4) + d(1)**2*c(7) + d(1)*d(2)*c(8))
-         f(2) = f(2) + (c(2) + d(1)*c(5) + d(2)*c(6) + d(1)*d(2)*c(7) + d(2)**2*c(8))
-         f(3) = f(3) + kappa*(c(3) + 2*d(1)*c(7) + d(2)*c(8))
-         f(4) = f(4) + kappa*(c(4) + d(1)*c(8))
-         f(5) = f(5) + kappa*(c(5) + d(2)*c(7))
-         f(6) = f(6) + kappa*(c(6) + d(1)*c(7) + 2*d(2)*c(8))
-         f(7) = f(7) + kappa**2*c(7)
-         f(8) = f(8) + kappa**2*c(8)
-      end if
-   end subroutine add_in_child_basis
 
 end module twomem_estimate_estimators

@@ -83,6 +83,7 @@ module twomem_estimate_shapes
       procedure :: init
       procedure :: free
       procedure :: keep_mass_only
+      procedure :: keep_factored_only
    end type shape_classes_t
 
 contains
@@ -126,21 +127,28 @@ contains
       end if
    end function trace_signs
 
-   subroutine init(self, space, hierarchy, err)
+   !> The classes of the hierarchy's coarse triangles. Without `multilevel` (default .true.) the
+   !> tables only the multilevel algebraic flux reads (mono_psi_q, div_proj, the P2 projections,
+   !> the children's moments: about half of a class) are neither computed nor stored.
+   subroutine init(self, space, hierarchy, err, multilevel)
       class(shape_classes_t), intent(inout) :: self
       type(rt_space_t), intent(in) :: space
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       type(error_t), allocatable, intent(out) :: err
+      logical, intent(in), optional :: multilevel
 
       integer :: nf, nd, nc, n_classes, c, l, i, piv(space%n_flux + space%n_div)
       integer(ip) :: t0
-      logical :: ok, all_ok
+      logical :: ok, all_ok, tables
       real(dp) :: v0(2, 3), centre(2), mass(space%n_flux, space%n_flux), div(space%n_div, space%n_flux)
+      real(dp) :: mono(space%n_div, n_p2, 3)
       real(dp) :: trace(space%n_trace, space%n_flux, 3), c_rows(3*space%n_trace, space%n_flux)
       real(dp) :: mixed(space%n_flux + space%n_div, space%n_flux + space%n_div), inverse(size(mixed, 1), size(mixed, 1))
       type(rt_frame_t) :: frame
 
       call self%free()
+      tables = .true.
+      if (present(multilevel)) tables = multilevel
       nf = space%n_flux
       nd = space%n_div
       nc = 3*space%n_trace
@@ -150,16 +158,18 @@ contains
                    self%czc(nc, nc, n_classes), self%cy(nc, nd, n_classes), self%mass(nf, nf, n_classes))
          allocate (self%psi_phi(2, nf, 3, n_classes), self%psi_q(nd, 3, n_classes), &
                    self%bary_psi_q(nd, 3, 3, n_classes), self%q_int(nd, n_classes))
-         allocate (self%mono_psi_q(nd, n_p2, 3, n_classes), self%div_proj(nd, n_p2, 3, n_classes), &
-                   self%p2_from_p2(n_p2, n_p2, 4, n_classes), self%p2_from_p1(n_p2, 3, 4, n_classes))
-         allocate (self%child_mono_psi_q(nd, n_p2, 3, 4, n_classes), self%child_bary_psi_q(nd, 3, 3, 4, n_classes), &
-                   self%child_q_coarse(nd, nd, 4, n_classes))
+         if (tables) then
+            allocate (self%mono_psi_q(nd, n_p2, 3, n_classes), self%div_proj(nd, n_p2, 3, n_classes), &
+                      self%p2_from_p2(n_p2, n_p2, 4, n_classes), self%p2_from_p1(n_p2, 3, 4, n_classes))
+            allocate (self%child_mono_psi_q(nd, n_p2, 3, 4, n_classes), self%child_bary_psi_q(nd, 3, 3, 4, n_classes), &
+                      self%child_q_coarse(nd, nd, 4, n_classes))
+         end if
          allocate (self%cond_a(nc - space%n_trace, nc - space%n_trace, 3, n_classes), &
                    self%cond_q(nc - space%n_trace, nd + 2, 3, n_classes), &
                    self%cond_r(nf, nd + nc - space%n_trace + 2, 3, n_classes), self%y_zc(nf, nd + nc, n_classes))
          all_ok = .true.
-         !$omp parallel do default(none) shared(self, space, hierarchy, nf, nd, nc, n_classes) &
-         !$omp private(c, t0, v0, centre, frame, mass, div, trace, c_rows, mixed, inverse, piv, ok, i, l) &
+         !$omp parallel do default(none) shared(self, space, hierarchy, nf, nd, nc, n_classes, tables) &
+         !$omp private(c, t0, v0, centre, frame, mass, div, trace, c_rows, mixed, inverse, piv, ok, i, l, mono) &
          !$omp reduction(.and.:all_ok) schedule(static)
          do c = 1, n_classes
             t0 = (c + 1)/2
@@ -197,13 +207,16 @@ contains
             self%y_zc(:, 1:nd, c) = self%y(:, :, c)
             self%y_zc(:, nd + 1:, c) = self%zc(:, :, c)
             call class_integrals(space, frame, self%psi_phi(:, :, :, c), self%psi_q(:, :, c), &
-                                 self%bary_psi_q(:, :, :, c), self%q_int(:, c), self%mono_psi_q(:, :, :, c))
-            call div_projection(space, frame, self%mono_psi_q(:, :, :, c), self%div_proj(:, :, :, c), ok)
-            all_ok = all_ok .and. ok
-            call children_projection(space, v0, self%p2_from_p2(:, :, :, c), self%p2_from_p1(:, :, :, c), ok)
-            all_ok = all_ok .and. ok
-            call children_moments(space, v0, self%child_mono_psi_q(:, :, :, :, c), self%child_bary_psi_q(:, :, :, :, c), &
-                                  self%child_q_coarse(:, :, :, c))
+                                 self%bary_psi_q(:, :, :, c), self%q_int(:, c), mono)
+            if (tables) then
+               self%mono_psi_q(:, :, :, c) = mono
+               call div_projection(space, frame, self%mono_psi_q(:, :, :, c), self%div_proj(:, :, :, c), ok)
+               all_ok = all_ok .and. ok
+               call children_projection(space, v0, self%p2_from_p2(:, :, :, c), self%p2_from_p1(:, :, :, c), ok)
+               all_ok = all_ok .and. ok
+               call children_moments(space, v0, self%child_mono_psi_q(:, :, :, :, c), &
+                                     self%child_bary_psi_q(:, :, :, :, c), self%child_q_coarse(:, :, :, c))
+            end if
             do i = 1, 3
                call condense(self, space, c, i, ok)
                all_ok = all_ok .and. ok
@@ -460,6 +473,18 @@ contains
       !$omp end parallel do
    end function similar
 
+   !> Once the patch signatures are factorized, when every patch without a signature takes the
+   !> generic path (no refined level): the operators only a factorization or a patch assembled
+   !> from its classes reads go (z, y, z Cᵀ, C z Cᵀ, the condensed multiplier blocks, the flux
+   !> datum's integrals), about 40% of a class without the multilevel tables.
+   subroutine keep_factored_only(self)
+      class(shape_classes_t), intent(inout) :: self
+
+      if (allocated(self%z)) deallocate (self%z, self%y, self%zc, self%czc)
+      if (allocated(self%cond_a)) deallocate (self%cond_a)
+      if (allocated(self%psi_phi)) deallocate (self%psi_phi)
+   end subroutine keep_factored_only
+
    !> Once no patch is solved: everything but the mass matrices (the flux norms) goes.
    subroutine keep_mass_only(self)
       class(shape_classes_t), intent(inout) :: self
@@ -474,11 +499,14 @@ contains
    subroutine free(self)
       class(shape_classes_t), intent(inout) :: self
 
-      if (allocated(self%z)) deallocate (self%z, self%y, self%zc, self%czc, self%cy)
+      if (allocated(self%z)) deallocate (self%z, self%y, self%zc, self%czc)
+      if (allocated(self%cy)) deallocate (self%cy)
       if (allocated(self%mass)) deallocate (self%mass)
-      if (allocated(self%psi_phi)) deallocate (self%psi_phi, self%psi_q, self%bary_psi_q, self%q_int)
+      if (allocated(self%psi_phi)) deallocate (self%psi_phi)
+      if (allocated(self%psi_q)) deallocate (self%psi_q, self%bary_psi_q, self%q_int)
       if (allocated(self%mono_psi_q)) deallocate (self%mono_psi_q, self%div_proj, self%p2_from_p2, self%p2_from_p1)
       if (allocated(self%child_mono_psi_q)) deallocate (self%child_mono_psi_q, self%child_bary_psi_q, self%child_q_coarse)
-      if (allocated(self%cond_a)) deallocate (self%cond_a, self%cond_q, self%cond_r, self%y_zc)
+      if (allocated(self%cond_a)) deallocate (self%cond_a)
+      if (allocated(self%cond_q)) deallocate (self%cond_q, self%cond_r, self%y_zc)
    end subroutine free
 end module twomem_estimate_shapes

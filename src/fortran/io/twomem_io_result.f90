@@ -43,6 +43,8 @@ module twomem_io_result
       real(dp) :: eta_total = 0.0_dp, energy_error_total = 0.0_dp, effectivity = 0.0_dp
       !> the components of the final estimate (Cor. 5.6 of the paper)
       real(dp) :: eta_disc = 0.0_dp, eta_lin = 0.0_dp, eta_alg = 0.0_dp
+      !> the one-level algebraic flux's remainder η_rem, part of eta_alg (0 with the multilevel one)
+      real(dp) :: eta_alg_remainder = 0.0_dp
       !> per-element estimators (nt, n_fields) named by estimator_names, with their global values;
       !> allocated only when computed and asked for
       character(len=16), allocatable :: estimator_names(:)
@@ -226,6 +228,7 @@ contains
       if (.not. allocated(err)) call h5%write_attr('/summary', 'eta_disc', rec%eta_disc, err)
       if (.not. allocated(err)) call h5%write_attr('/summary', 'eta_lin', rec%eta_lin, err)
       if (.not. allocated(err)) call h5%write_attr('/summary', 'eta_alg', rec%eta_alg, err)
+      if (.not. allocated(err)) call h5%write_attr('/summary', 'eta_alg_remainder', rec%eta_alg_remainder, err)
       if (.not. allocated(err)) call h5%write_attr('/summary', 'estimator_evaluations', rec%estimator_evaluations, err)
       if (.not. allocated(err)) call h5%write_attr('/summary', 'estimator_time', rec%estimator_time, err)
       if (.not. allocated(err)) call h5%write_attr('/summary', 'energy_error', rec%energy_error_total, err)
