@@ -205,8 +205,8 @@ contains
    !> The η_disc just computed will not be completed (the next check sees another iterate): the
    !> workspaces go, back to the kernel, until the next evaluation, so that the Newton steps in
    !> between (their Krylov bases) do not meet them. The price is the kernel's zeroing of the
-   !> pages when the next evaluation makes them again: about 0.14 s at 10⁶ vertices (0.3 KiB
-   !> per vertex at 0.46 s per GiB on the reference machine).
+   !> pages when the next evaluation makes them again, which is small against the evaluation
+   !> itself (docs/performance.md, *Memory at the peak*).
    subroutine drop_partial(self)
       class(run_observer_t), intent(inout) :: self
 

@@ -74,8 +74,8 @@ contains
    end function cells
 
    !> whole(slots) on rank 0 = every rank's values(mine), in rank order. One rank moves each
-   !> value straight to its place, threaded: at 4.5·10^6 vertices the result's copies through a
-   !> gathered buffer, made by one thread, took a few tenths of a second. Collective.
+   !> value straight to its place, threaded: copies through a gathered buffer, made by one
+   !> thread, were a visible part of writing the result at millions of vertices. Collective.
    subroutine gather_reals(self, values, mine, counts, slots, whole)
       type(gather_plan_t), intent(in) :: self
       real(dp), intent(in) :: values(:)

@@ -87,7 +87,7 @@ contains
       self%rows(self%n) = row
    end subroutine append
 
-   !> One line per Newton step on standard output (README, *Running a case*).
+   !> One line per Newton step on standard output (docs/usage.md, *Running a case*).
    subroutine print_progress(row)
       type(history_row_t), intent(in) :: row
 

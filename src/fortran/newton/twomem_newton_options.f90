@@ -65,15 +65,13 @@ contains
    !> leaves it to the program (estimate.every = 0). ILU(0) takes the paper's 10. With the
    !> multigrid preconditioner a Newton step needs one to three iterations, so each counts:
    !> Newton's inexact GMRES checks after every one (a check costs one residual, and stopping
-   !> as soon as the algebraic residual is below the linearization residual took 6 GMRES
-   !> iterations on the finest of 1.1e6 vertices instead of 13 with ν = 3, in as many Newton
-   !> steps). So does Fischer–Burmeister finished by active-set steps (`fb_active_set`): its
-   !> inexact first steps hand over to active-set steps within one or two steps, and
-   !> bench/scaling.py's cases took 6–20% less time than with ν = 3 at 1.1e6 and 4.5e6 vertices
-   !> (alternating runs). Fischer–Burmeister throughout keeps 3: its inexact steps wander
-   !> between contact sets with ν = 1 (5 finest-level Newton steps instead of 2 on the
-   !> membranes case at 7e4 vertices), and so does the adaptive method, whose checks may each
-   !> be an evaluation of the estimators.
+   !> as soon as the algebraic residual is below the linearization residual saves iterations
+   !> without costing Newton steps). So does Fischer–Burmeister finished by active-set steps
+   !> (`fb_active_set`): its inexact first steps hand over to active-set steps within one or
+   !> two steps, and the earlier stop shortens them (docs/input.md, `estimate.every`).
+   !> Fischer–Burmeister throughout keeps 3: its inexact steps wander between contact sets with
+   !> ν = 1 (more finest-level Newton steps), and so does the adaptive method, whose checks may
+   !> each be an evaluation of the estimators.
    pure integer function automatic_every(linear, cfun, precond, fb_active_set) result(every)
       integer, intent(in) :: linear, cfun, precond
       logical, intent(in) :: fb_active_set
