@@ -24,16 +24,26 @@ The model (printed with its inputs) predicts the solve time of N vertices on P r
     T(N, P) = t_v N/P                                   compute, t_v measured on one rank
             + I [m_h (α + b_h(N/P)/β)]                   halo exchanges, I = GMRES iterations
             + I [m_r 2 log2(P) α]                        allreduces (recursive doubling)
-            + I [m_c (2 α log2 P + 2·8 n_c/β + t_c)]     coarsest level: gather, solve, scatter
+            + I [m_c (2 α log2 P + 2·8 n_g/β + t_c(n_g))] coarsest level: gather, solve, scatter
+            + t_s n_c                                   nested start on the coarse mesh
 
 with m_h, m_r, m_c the messages per GMRES iteration and b_h the halo bytes per exchange,
-measured here (b_h scaled with the interface length, √(N/P)), n_c the coarse unknowns, t_c
-one triangular solve of that size (measured by bench/coarse_solve.py with SciPy's SuperLU on
+measured here (b_h scaled with the interface length, √(N/P)), n_c the coarse mesh's vertices
+and n_g the unknowns of the level gathered to rank 0, t_c one triangular solve of that size (measured by bench/coarse_solve.py with SciPy's SuperLU on
 twomem's meshes of that size; twomem uses UMFPACK, a solver of the same kind), and α, β the
 network's latency and bandwidth: given, not measured (a 2-core machine has no network); the
 defaults are typical of an HDR InfiniBand cluster (1.5 µs, 12 GB/s). The output phase, where
 rank 0 gathers and writes the whole result, is estimated beside it from the measured result
 size per vertex (gather at β, write at --write-bandwidth).
+
+A coarse mesh of more than 2000 vertices (multigrid's coarse_size) gets algebraic (smoothed
+aggregation) levels below it, built within each rank, so that what rank 0 gathers and solves
+is n_g ≤ 2000 unknowns however many ranks there are; their halo exchanges are measured by a
+second monitored run on 2 ranks whose coarse mesh is that large (--alg-coarse-h), which gives
+m_h, m_c and b_h for those rows. A coarse mesh of more than 3000 vertices is also solved whole
+on every rank as the nested start (coarsened further, docs/method.md §5): t_s, the seconds
+per coarse vertex of the solves on the coarsened meshes (what every rank repeats; the coarse
+mesh itself is then solved distributed), is measured by a one-rank run on that mesh.
 """
 from __future__ import annotations
 
@@ -56,6 +66,8 @@ CASE = ["problem.exact=none", "problem.mu1=2", "problem.mu2=0.5", "problem.f1=-2
         "newton.linear=gmres", "gmres.precond=mg", "newton.cfun=min", "estimate.enabled=.false.",
         "output.history=.false.", "output.xdmf=.false."]
 PHASES = ("mesh", "assembly", "solve", "output")
+COARSE_SIZE = 2000      # multigrid's coarse_size: larger coarse meshes get algebraic levels
+COARSENED_START = 3000  # larger coarse meshes are solved whole on every rank as the nested start
 
 
 def mpi_env(threads: int) -> dict[str, str]:
@@ -81,7 +93,9 @@ def run(exe: str, ranks: int, threads: int, overrides: list[str], out: Path, mon
     return {"nv": int(s["nv"]), "newton": int(s["newton_iterations"]), "gmres": int(s["gmres_iterations"]),
             "gmres_all": int(s["gmres_iterations"]) + int(s["gmres_iterations_coarse"]),
             **{p: float(perf[f"{p}_seconds"]) for p in PHASES},
-            "peak_mib": max(float(v) for k, v in perf.items() if k.endswith("_peak_mib")), "file_bytes": size}
+            "peak_mib": max(float(v) for k, v in perf.items() if k.endswith("_peak_mib")), "file_bytes": size,
+            "coarsened_s": sum(float(m.group(1)) for m in re.finditer(r"nested: coarsened mesh .*?([0-9.]+) s$",
+                                                                      proc.stdout, re.M))}
 
 
 def median_run(args, ranks: int, threads: int, overrides: list[str], tmp: Path) -> dict:
@@ -173,6 +187,9 @@ def main() -> int:
     ap.add_argument("--write-bandwidth", type=float, default=1e9, help="rank 0's file write bandwidth, bytes/s")
     ap.add_argument("--target", type=float, default=1e8, help="vertices of the predicted runs")
     ap.add_argument("--predict", default="64,128,256,512,1024")
+    ap.add_argument("--alg-coarse-h", type=float, default=0.029,
+                    help="coarse mesh size of the monitored run with algebraic levels (about 1.5e4 coarse vertices)")
+    ap.add_argument("--alg-levels", type=int, default=2, help="its refinements")
     ap.add_argument("--coarse-python", default="/usr/bin/python3", help="a Python with scipy, for bench/coarse_solve.py")
     ap.add_argument("-o", "--out", default=str(ROOT / "results" / "mpi_scaling"))
     args = ap.parse_args()
@@ -192,8 +209,14 @@ def main() -> int:
             prefix = tmp / f"mon{p}"
             r = run(args.exe, p, 1, mesh(0.1, args.levels), tmp / "mon.h5", monitor=prefix)
             msgs[p] = {"ranks": read_monitoring(prefix), "its": r["gmres_all"], "nv": r["nv"]}
+        prefix = tmp / "monalg"
+        r = run(args.exe, 2, 1, mesh(args.alg_coarse_h, args.alg_levels), tmp / "monalg.h5", monitor=prefix)
+        alg = {"ranks": read_monitoring(prefix), "its": r["gmres_all"], "nv": r["nv"]}
+        start = run(args.exe, 1, 1, mesh(args.alg_coarse_h, 0), tmp / "start.h5")
+        print("mpi_scaling: message counts done", file=sys.stderr, flush=True)
         predict = [int(x) for x in args.predict.split(",")]
-        points, c_fit, p_fit = coarse_solve_fit(args, sorted({max(1262, 15 * p) for p in predict}))
+        points, c_fit, p_fit = coarse_solve_fit(
+            args, sorted({min(COARSE_SIZE, max(1262, 15 * p)) for p in predict} | {1262, COARSE_SIZE}))
 
     report.append(table(strong, f"strong scaling, {strong[0]['nv']} vertices", strong[0]))
     report.append(table(weak, f"weak scaling, {weak[0]['nv']} vertices per rank at 1 rank", weak[0]))
@@ -225,6 +248,13 @@ def main() -> int:
     m_r = two["ranks"][0]["a2a_msgs"] / two["its"]               # allreduces per iteration
     m_c = two["ranks"][0]["a2o_msgs"] / two["its"]               # gathers (coarse solves) per iteration
     peers = 6                                                    # a 2-D partition's neighbours
+    top_a = {k: max(r[k] for r in alg["ranks"]) for k in alg["ranks"][0]}
+    m_h_a = top_a["p2p_msgs"] / alg["its"] / max(1, top_a["peers"])
+    b_h_a = top_a["p2p_bytes"] / max(1, top_a["p2p_msgs"])
+    n_meas_a = alg["nv"] / 2
+    m_c_a = alg["ranks"][0]["a2o_msgs"] / alg["its"]
+    n_c_a = round(alg["nv"] / 4 ** args.alg_levels)
+    t_s = start["coarsened_s"] / start["nv"]
     lines = ["**model inputs**", "",
              f"- compute: t_v = {t_v * 1e6:.3f} µs per vertex for the whole solve on one thread "
              f"({one['nv']} vertices, {its} GMRES iterations on all levels, {one['newton']} Newton steps finest)",
@@ -236,27 +266,37 @@ def main() -> int:
              f"t_c = {c_fit:.3g} n_c^{p_fit:.2f} s, fitted to "
              + ", ".join(f"{t * 1e3:.2f} ms at {n}" for n, t in points.items())
              + " (bench/coarse_solve.py: SuperLU on twomem's disk meshes)",
+             f"- algebraic levels (coarse mesh of about {n_c_a} vertices refined {args.alg_levels} times, "
+             f"{alg['nv']} vertices, 2 ranks, {alg['its']} GMRES iterations on all levels): {m_h_a:.1f} exchanges per "
+             f"GMRES iteration and neighbour, {b_h_a:.0f} bytes per message at {n_meas_a:.0f} vertices per rank, "
+             f"{m_c_a:.2f} gathers to rank 0 per iteration, of at most {COARSE_SIZE} unknowns",
+             f"- nested start on a coarse mesh above {COARSENED_START} vertices, solved on every rank: "
+             f"t_s = {t_s * 1e6:.2f} µs per coarse vertex ({start['nv']} vertices, {start['coarsened_s']:.3f} s "
+             "on its coarsened meshes, one thread)",
              f"- network: α = {args.alpha * 1e6:.1f} µs, β = {args.beta / 1e9:.0f} GB/s (assumed, not measured)"]
     report.append("\n".join(lines))
 
     lines = [f"**predicted solve time for {args.target:.0e} vertices** (a coarse mesh of 30 triangles per rank, "
              "at least 1262 vertices; the iteration counts measured here)", "",
-             "| ranks | vertices per rank | coarse vertices | compute s | halo s | reductions s | coarsest level s "
-             "| total s | parallel efficiency |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+             "| ranks | vertices per rank | coarse vertices | gathered unknowns | compute s | halo s | reductions s "
+             "| coarsest level s | coarse start s | total s | parallel efficiency |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     serial = t_v * args.target
     for p in predict:
         n = args.target / p
         n_c_p = max(1262, 15 * p)
-        b = b_h * math.sqrt(n / n_meas)
+        algebraic = n_c_p > COARSE_SIZE
+        n_g = COARSE_SIZE if algebraic else n_c_p
+        mh, bh, nm, mc = (m_h_a, b_h_a, n_meas_a, m_c_a) if algebraic else (m_h, b_h, n_meas, m_c)
+        b = bh * math.sqrt(n / nm)
         comp = t_v * n
-        halo = its * m_h * peers * (args.alpha + b / args.beta)
+        halo = its * mh * peers * (args.alpha + b / args.beta)
         red = its * m_r * 2 * math.log2(p) * args.alpha
-        coarse = its * m_c * (2 * args.alpha * math.log2(p) + 2 * 8 * n_c_p / args.beta
-                              + c_fit * n_c_p ** p_fit)
-        total = comp + halo + red + coarse
-        lines.append(f"| {p} | {n:.3g} | {n_c_p} | {comp:.2f} | {halo:.3f} | {red:.3f} | {coarse:.3f} | {total:.2f} | "
-                     f"{serial / p / total:.2f} |")
+        coarse = its * mc * (2 * args.alpha * math.log2(p) + 2 * 8 * n_g / args.beta + c_fit * n_g ** p_fit)
+        start_s = t_s * n_c_p if n_c_p > COARSENED_START else 0.0
+        total = comp + halo + red + coarse + start_s
+        lines.append(f"| {p} | {n:.3g} | {n_c_p} | {n_g} | {comp:.2f} | {halo:.3f} | {red:.3f} | {coarse:.3f} | "
+                     f"{start_s:.3f} | {total:.2f} | {serial / p / total:.2f} |")
     per_vertex = one["file_bytes"] / one["nv"]
     total_bytes = per_vertex * args.target
     lines.append("")
