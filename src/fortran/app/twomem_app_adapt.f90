@@ -1,0 +1,182 @@
+!> Adaptive refinement, SOLVE → ESTIMATE → MARK → REFINE, until the guaranteed bound η meets
+!> adapt.tol: each step solves on its mesh with the configured method (`twomem_app_solve`),
+!> marks the triangles carrying θ of Σ η_disc,K² (`twomem_mesh_marking`), bisects them with the
+!> conforming closure (`twomem_mesh_bisection`) and starts the next solve from the solution
+!> interpolated to the finer mesh, which is nested in the coarser one. Every refined mesh is
+!> solved on as a single mesh: multigrid takes algebraic coarse levels and the estimators their
+!> generic patches and one-level algebraic flux, whose costs per vertex do not depend on how
+!> the mesh was made. The first step is a plain run on the configured mesh (its nested start
+!> included), whose finest level the refinement starts from with longest edges as refinement
+!> edges. The loop stops at η ≤ tol, or at adapt.max_steps solves, or before a mesh would
+!> exceed adapt.max_vertices; the last step solved is the result.
+module twomem_app_adapt
+   use, intrinsic :: iso_fortran_env, only: output_unit
+   use, intrinsic :: ieee_arithmetic, only: ieee_is_nan
+   use twomem_base_kinds, only: dp, ip
+   use twomem_base_errors, only: error_t
+   use twomem_base_timer, only: wall_time
+   use twomem_base_text, only: fixed, int_text
+   use twomem_base_phases, only: phase_clock_t, phase_mesh, phase_assembly
+   use twomem_base_comm, only: comm_t
+   use twomem_input_config, only: config_t
+   use twomem_input_values, only: format_real
+   use twomem_mesh_triangulation, only: mesh_t
+   use twomem_mesh_hierarchy, only: mesh_hierarchy_t, refinement_map_t
+   use twomem_mesh_bisection, only: longest_edge_first, bisect_marked
+   use twomem_mesh_marking, only: dorfler_marking
+   use twomem_fem_problem, only: problem_data_t
+   use twomem_app_solve, only: solve_mesh
+   use twomem_io_result, only: result_record_t, adapt_step_t
+   implicit none
+   private
+
+   public :: adapt_mesh
+
+contains
+
+   !> Refine `hierarchy`'s finest mesh adaptively; `rec` is the last step's result with every
+   !> step in rec%adapt. `converged`: η ≤ tol was reached and the last solve converged. One
+   !> rank (the caller refuses more).
+   subroutine adapt_mesh(cfg, comm, hierarchy, data, clock, rec, converged, exit_code, err)
+      type(config_t), intent(in) :: cfg
+      type(comm_t), intent(in) :: comm
+      type(mesh_hierarchy_t), target, intent(in) :: hierarchy
+      class(problem_data_t), target, intent(in) :: data
+      type(phase_clock_t), intent(inout) :: clock
+      type(result_record_t), intent(out) :: rec
+      logical, intent(out) :: converged
+      integer, intent(out) :: exit_code
+      type(error_t), allocatable, intent(out) :: err
+
+      type(mesh_hierarchy_t), target :: single
+      type(mesh_t) :: current, fine
+      type(refinement_map_t) :: map
+      type(adapt_step_t), allocatable :: steps(:)
+      real(dp), allocatable :: indicators(:), nodal(:, :)
+      logical, allocatable :: marked(:)
+      character(len=:), allocatable :: stop_reason
+      real(dp) :: t_step
+      integer :: k
+      logical :: solved
+
+      allocate (steps(0))
+      k = 1
+      t_step = wall_time()
+      call solve_mesh(cfg, comm, hierarchy, data, clock, rec, solved, exit_code, err, indicators=indicators)
+      if (allocated(err)) return
+      call clock%switch(phase_mesh)
+      current = hierarchy%meshes(hierarchy%levels)
+      call longest_edge_first(current, err)
+      if (allocated(err)) return
+      do
+         if (rec%eta_total <= cfg%adapt%tol) then
+            stop_reason = 'eta '//fixed_e(rec%eta_total)//' <= adapt.tol '//format_real(cfg%adapt%tol)
+         else if (k >= cfg%adapt%max_steps) then
+            stop_reason = 'adapt.max_steps = '//int_text(cfg%adapt%max_steps)//' reached with eta '// &
+                          fixed_e(rec%eta_total)//' > adapt.tol '//format_real(cfg%adapt%tol)
+         end if
+         if (.not. allocated(stop_reason)) then
+            marked = dorfler_marking(indicators, cfg%adapt%theta)
+            call bisect_marked(current, marked, fine, map, err)
+            if (allocated(err)) return
+            if (fine%nv > cfg%adapt%max_vertices) stop_reason = 'adapt.max_vertices = '// &
+               int_text(cfg%adapt%max_vertices)//' reached (the next mesh would have '//int_text(int(fine%nv))// &
+               ' vertices) with eta '//fixed_e(rec%eta_total)//' > adapt.tol '//format_real(cfg%adapt%tol)
+         end if
+         call append_step(rec, indicators, wall_time() - t_step, steps)
+         call report(comm, k, rec, marked, steps(k)%wall_time, allocated(stop_reason))
+         if (allocated(stop_reason)) exit
+         nodal = prolonged(map, rec)
+         current = fine
+         call single%init(current, 0, err)
+         if (allocated(err)) return
+         call single%meshes(0)%drop_refinement_tables()
+         k = k + 1
+         t_step = wall_time()
+         call clock%switch(phase_assembly)
+         call solve_mesh(cfg, comm, single, data, clock, rec, solved, exit_code, err, nodal=nodal, &
+                         indicators=indicators)
+         if (allocated(err)) return
+         call clock%switch(phase_mesh)
+      end do
+      converged = solved .and. rec%eta_total <= cfg%adapt%tol
+      rec%status = 'adapt: '//stop_reason//' after '//int_text(k)//' steps; last solve: '//rec%status
+      call move_alloc(steps, rec%adapt)
+   end subroutine adapt_mesh
+
+   !> The step just solved (rec, its element indicators) appended to `steps`.
+   subroutine append_step(rec, indicators, seconds, steps)
+      type(result_record_t), intent(in) :: rec
+      real(dp), intent(in) :: indicators(:)
+      real(dp), intent(in) :: seconds
+      type(adapt_step_t), allocatable, intent(inout) :: steps(:)
+
+      type(adapt_step_t) :: step
+
+      step%vertices = rec%vertices
+      step%triangles = rec%triangles
+      step%u1 = rec%u1
+      step%u2 = rec%u2
+      step%lambda = rec%lambda
+      step%eta_disc_k = indicators
+      step%eta = rec%eta_total
+      step%eta_disc = rec%eta_disc
+      step%eta_lin = rec%eta_lin
+      step%eta_alg = rec%eta_alg
+      step%energy_error = rec%energy_error_total
+      step%wall_time = seconds
+      step%newton_iterations = rec%newton_iterations
+      step%gmres_iterations = rec%gmres_iterations
+      steps = [steps, step]
+   end subroutine append_step
+
+   !> The fields u1, u2, λ of rec interpolated to the bisected mesh: a new vertex is the midpoint
+   !> of a coarse edge, so P1 interpolation is exact there (nested spaces).
+   function prolonged(map, rec) result(nodal)
+      type(refinement_map_t), intent(in) :: map
+      type(result_record_t), intent(in) :: rec
+      real(dp), allocatable :: nodal(:, :)
+
+      integer(ip) :: a
+
+      allocate (nodal(size(map%vertex_parents, 2), 3))
+      do a = 1, size(map%vertex_parents, 2, kind=ip)
+         associate (p => map%vertex_parents(:, a))
+            nodal(a, 1) = 0.5_dp*(rec%u1(p(1)) + rec%u1(p(2)))
+            nodal(a, 2) = 0.5_dp*(rec%u2(p(1)) + rec%u2(p(2)))
+            nodal(a, 3) = 0.5_dp*(rec%lambda(p(1)) + rec%lambda(p(2)))
+         end associate
+      end do
+   end function prolonged
+
+   subroutine report(comm, k, rec, marked, seconds, last)
+      type(comm_t), intent(in) :: comm
+      integer, intent(in) :: k
+      type(result_record_t), intent(in) :: rec
+      logical, allocatable, intent(in) :: marked(:)
+      real(dp), intent(in) :: seconds
+      logical, intent(in) :: last
+
+      character(len=:), allocatable :: line
+
+      if (.not. comm%is_root()) return
+      line = 'adapt: step '//int_text(k)//': '//int_text(size(rec%vertices, 2))//' vertices, eta '// &
+             fixed_e(rec%eta_total)//' (disc '//fixed_e(rec%eta_disc)//', lin '//fixed_e(rec%eta_lin)// &
+             ', alg '//fixed_e(rec%eta_alg)//')'
+      if (.not. ieee_is_nan(rec%energy_error_total)) line = line//', energy error '// &
+                                                                   fixed_e(rec%energy_error_total)
+      if (.not. last .and. allocated(marked)) line = line//', '//int_text(count(marked))//' marked'
+      write (output_unit, '(a)') line//', '//fixed(seconds, 2)//' s'
+   end subroutine report
+
+   !> x in the form 1.234e-03.
+   function fixed_e(x) result(text)
+      real(dp), intent(in) :: x
+      character(len=:), allocatable :: text
+
+      character(len=16) :: buffer
+
+      write (buffer, '(es10.3)') x
+      text = trim(adjustl(buffer))
+   end function fixed_e
+end module twomem_app_adapt
