@@ -21,7 +21,7 @@ from twomem_testlib import EXE, out_file, run
 
 DEBUG = os.environ.get("TWOMEM_BUILD_TYPE", "").lower() == "debug"
 #: the debug build (-O0) stops earlier
-TOL = 6e-3 if DEBUG else 3e-3
+TOL = 4e-3 if DEBUG else 3e-3
 RADIAL = ("mesh.levels=0", "mesh.coarse_h=0.25", "mesh.boundary_h=0.01", "problem.exact=radial")
 
 
