@@ -6,6 +6,8 @@ polygon is made fine (mesh.boundary_h) and stays as it is under refinement, so t
 geometric error, which no estimator of the polygon problem sees, stays below the errors
 measured. Every step's mesh in `/adapt/step_NNN` is checked to be conforming and nested in the
 next one; the limits end the run with exit code 1 and a result; bad `&adapt` input is refused.
+On 2 and 3 MPI ranks (each step's mesh partitioned anew by METIS) the exact method's adaptive
+run reproduces the one-rank run: the same meshes at every step, η and the error to round-off.
 """
 from __future__ import annotations
 
@@ -17,7 +19,7 @@ import h5py
 import numpy as np
 import pytest
 
-from twomem_testlib import EXE, out_file, run
+from twomem_testlib import DEFAULT_CASE, EXE, out_file, run
 
 DEBUG = os.environ.get("TWOMEM_BUILD_TYPE", "").lower() == "debug"
 #: the debug build (-O0) stops earlier
@@ -135,3 +137,32 @@ def test_nodal_load_files_are_refused(tmp_path):
     lines = proc.stderr.splitlines()
     assert len(lines) == 1 and "&adapt" in lines[0] and "f1_file" in lines[0], lines
     assert not (tmp_path / "out").exists()
+
+
+MPIEXEC = os.environ.get("TWOMEM_MPIEXEC")
+
+
+@pytest.mark.skipif(not MPIEXEC, reason="no MPI launcher in this build")
+def test_ranks_reproduce_one_rank():
+    env = dict(os.environ, OMP_NUM_THREADS="1", OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
+    runs = {}
+    for ranks in (1, 2, 3):
+        path = out_file(f"adapt_mpi_{ranks}.h5")
+        cmd = [MPIEXEC, "--oversubscribe", "-n", str(ranks), EXE, "run", str(DEFAULT_CASE), "mesh.levels=0",
+               "mesh.coarse_h=0.25", "mesh.boundary_h=0.02", "newton.linear=direct", "adapt.tol=6e-3",
+               f"output.file={path}"]
+        proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300, stdin=subprocess.DEVNULL)
+        assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr
+        runs[ranks] = adapt_steps(path)
+    ref, ref_steps = runs[1][0], runs[1][1]
+    assert len(ref["eta"]) >= 3
+    for ranks in (2, 3):
+        a, steps, summary, _, _ = runs[ranks]
+        assert summary["mpi_ranks"] == ranks
+        np.testing.assert_array_equal(a["vertices"], ref["vertices"])
+        for s, r in zip(steps, ref_steps):
+            np.testing.assert_array_equal(s["triangles"], r["triangles"])
+            np.testing.assert_array_equal(s["vertices"], r["vertices"])
+            np.testing.assert_allclose(s["u1"], r["u1"], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(a["eta"], ref["eta"], rtol=1e-10)
+        np.testing.assert_allclose(a["energy_error"], ref["energy_error"], rtol=1e-10)

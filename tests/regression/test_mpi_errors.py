@@ -1,8 +1,8 @@
 """Bad input and failures under MPI: on 3 ranks every kind of bad input ends the run on every
 rank with the exit code of a serial run, the serial run's one error line printed once (by rank
 0), no result file, and nothing hangs (each run has a time limit). Also the errors only a
-distributed run can meet: a coarse mesh too small for the ranks, preconditioners that act
-on one rank's matrix, and adaptive refinement (one rank only).
+distributed run can meet: a coarse mesh too small for the ranks, and preconditioners that act
+on one rank's matrix.
 
 Skipped when the build has no MPI (`twomem --version` says so) or mpirun is missing.
 """
@@ -104,7 +104,6 @@ def test_bad_input_stops_every_rank_like_a_serial_run(name):
     (["mesh.coarse_h=2", "mesh.boundary_h=2"], "too few to give each of 4 MPI ranks a part"),
     (["gmres.precond=ilu0"], "gmres.precond"),
     (["gmres.precond=jacobi"], "gmres.precond"),
-    (["adapt.tol=1e-3"], "adapt.tol: adaptive refinement runs on one MPI rank"),
 ])
 def test_errors_of_distributed_runs(args, fragment):
     work = out_file("mpi-errors-distributed")

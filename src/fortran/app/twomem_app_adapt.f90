@@ -8,7 +8,10 @@
 !> the mesh was made. The first step is a plain run on the configured mesh (its nested start
 !> included), whose finest level the refinement starts from with longest edges as refinement
 !> edges. The loop stops at η ≤ tol, or at adapt.max_steps solves, or before a mesh would
-!> exceed adapt.max_vertices; the last step solved is the result.
+!> exceed adapt.max_vertices; the last step solved is the result. A distributed run keeps the
+!> mesh, not the matrices, replicated between solves: every rank marks and bisects the whole
+!> mesh identically (both are deterministic) from rank 0's gathered solution and indicators,
+!> and METIS partitions each new mesh as a user's mesh is partitioned at start-up.
 module twomem_app_adapt
    use, intrinsic :: iso_fortran_env, only: output_unit
    use, intrinsic :: ieee_arithmetic, only: ieee_is_nan
@@ -23,6 +26,7 @@ module twomem_app_adapt
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_mesh_hierarchy, only: mesh_hierarchy_t, refinement_map_t
    use twomem_mesh_bisection, only: longest_edge_first, bisect_marked
+   use twomem_mesh_partition, only: share_mesh, distribute_coarse
    use twomem_mesh_marking, only: dorfler_marking
    use twomem_fem_problem, only: problem_data_t
    use twomem_app_solve, only: solve_mesh
@@ -35,8 +39,10 @@ module twomem_app_adapt
 contains
 
    !> Refine `hierarchy`'s finest mesh adaptively; `rec` is the last step's result with every
-   !> step in rec%adapt. `converged`: η ≤ tol was reached and the last solve converged. One
-   !> rank (the caller refuses more).
+   !> step in rec%adapt (rank 0). `converged`: η ≤ tol was reached and the last solve converged.
+   !> Collective: every rank holds the whole current mesh, the gathered solution and indicators
+   !> (broadcast from rank 0), marks and bisects identically, and solves on its METIS piece of
+   !> the new mesh.
    subroutine adapt_mesh(cfg, comm, hierarchy, data, clock, rec, converged, exit_code, err)
       type(config_t), intent(in) :: cfg
       type(comm_t), intent(in) :: comm
@@ -49,13 +55,14 @@ contains
       type(error_t), allocatable, intent(out) :: err
 
       type(mesh_hierarchy_t), target :: single
-      type(mesh_t) :: current, fine
+      type(mesh_t) :: current, fine, piece
       type(refinement_map_t) :: map
       type(adapt_step_t), allocatable :: steps(:)
-      real(dp), allocatable :: indicators(:), nodal(:, :)
+      real(dp), allocatable :: indicators(:), fields(:, :), nodal(:, :), eta(:)
       logical, allocatable :: marked(:)
       character(len=:), allocatable :: stop_reason
       real(dp) :: t_step
+      integer(ip) :: a
       integer :: k
       logical :: solved
 
@@ -65,32 +72,52 @@ contains
       call solve_mesh(cfg, comm, hierarchy, data, clock, rec, solved, exit_code, err, indicators=indicators)
       if (allocated(err)) return
       call clock%switch(phase_mesh)
-      current = hierarchy%meshes(hierarchy%levels)
-      call longest_edge_first(current, err)
+      ! the whole first mesh on every rank, as gathered (the serial numbering)
+      if (comm%is_root()) call current%init(rec%vertices, rec%triangles, 'adaptive refinement', err, &
+                                            diameter=hierarchy%meshes(hierarchy%levels)%diameter)
+      call comm%agree(err)
+      if (allocated(err)) return
+      call share_mesh(comm, current, 'adaptive refinement', err)
+      if (.not. allocated(err)) call longest_edge_first(current, err)
+      call comm%agree(err)
       if (allocated(err)) return
       do
-         if (rec%eta_total <= cfg%adapt%tol) then
-            stop_reason = 'eta '//fixed_e(rec%eta_total)//' <= adapt.tol '//format_real(cfg%adapt%tol)
+         call share_step(comm, rec, indicators, fields, eta)
+         if (eta(1) <= cfg%adapt%tol) then
+            stop_reason = 'eta '//fixed_e(eta(1))//' <= adapt.tol '//format_real(cfg%adapt%tol)
          else if (k >= cfg%adapt%max_steps) then
             stop_reason = 'adapt.max_steps = '//int_text(cfg%adapt%max_steps)//' reached with eta '// &
-                          fixed_e(rec%eta_total)//' > adapt.tol '//format_real(cfg%adapt%tol)
+                          fixed_e(eta(1))//' > adapt.tol '//format_real(cfg%adapt%tol)
          end if
          if (.not. allocated(stop_reason)) then
             marked = dorfler_marking(indicators, cfg%adapt%theta)
             call bisect_marked(current, marked, fine, map, err)
+            call comm%agree(err)
             if (allocated(err)) return
             if (fine%nv > cfg%adapt%max_vertices) stop_reason = 'adapt.max_vertices = '// &
                int_text(cfg%adapt%max_vertices)//' reached (the next mesh would have '//int_text(int(fine%nv))// &
-               ' vertices) with eta '//fixed_e(rec%eta_total)//' > adapt.tol '//format_real(cfg%adapt%tol)
+               ' vertices) with eta '//fixed_e(eta(1))//' > adapt.tol '//format_real(cfg%adapt%tol)
          end if
-         call append_step(rec, indicators, wall_time() - t_step, steps)
-         call report(comm, k, rec, marked, steps(k)%wall_time, allocated(stop_reason))
+         if (comm%is_root()) then
+            call append_step(rec, indicators, wall_time() - t_step, steps)
+            call report(k, rec, marked, steps(k)%wall_time, allocated(stop_reason))
+         end if
          if (allocated(stop_reason)) exit
-         nodal = prolonged(map, rec)
+         nodal = prolonged(map, fields)
          current = fine
-         call single%init(current, 0, err)
+         ! this rank's piece of the new mesh, as a user's mesh is distributed at start-up
+         if (comm%size > 1) then
+            call distribute_coarse(comm, current, piece, err)
+            if (allocated(err)) return
+            nodal = nodal([(piece%global_vertex_of(a), a=1, piece%nv)], :)
+         else
+            piece = current
+         end if
+         call single%init(piece, 0, err)
+         call comm%agree(err)
          if (allocated(err)) return
          call single%meshes(0)%drop_refinement_tables()
+         call piece%free()
          k = k + 1
          t_step = wall_time()
          call clock%switch(phase_assembly)
@@ -99,10 +126,31 @@ contains
          if (allocated(err)) return
          call clock%switch(phase_mesh)
       end do
-      converged = solved .and. rec%eta_total <= cfg%adapt%tol
-      rec%status = 'adapt: '//stop_reason//' after '//int_text(k)//' steps; last solve: '//rec%status
-      call move_alloc(steps, rec%adapt)
+      converged = solved .and. eta(1) <= cfg%adapt%tol
+      if (comm%is_root()) then
+         rec%status = 'adapt: '//stop_reason//' after '//int_text(k)//' steps; last solve: '//rec%status
+         call move_alloc(steps, rec%adapt)
+      end if
    end subroutine adapt_mesh
+
+   !> What marking and interpolation need, identical on every rank: the element indicators
+   !> and the nodal u1, u2, λ (nv, 3) of the whole mesh, and η, from rank 0's gathered record.
+   !> Collective.
+   subroutine share_step(comm, rec, indicators, fields, eta)
+      type(comm_t), intent(in) :: comm
+      type(result_record_t), intent(in) :: rec
+      real(dp), allocatable, intent(inout) :: indicators(:)
+      real(dp), allocatable, intent(out) :: fields(:, :), eta(:)
+
+      if (comm%is_root()) then
+         fields = reshape([rec%u1, rec%u2, rec%lambda], [size(rec%u1), 3])
+         eta = [rec%eta_total]
+      end if
+      if (comm%size == 1) return
+      call comm%bcast(indicators)
+      call comm%bcast(fields)
+      call comm%bcast(eta)
+   end subroutine share_step
 
    !> The step just solved (rec, its element indicators) appended to `steps`.
    subroutine append_step(rec, indicators, seconds, steps)
@@ -130,27 +178,22 @@ contains
       steps = [steps, step]
    end subroutine append_step
 
-   !> The fields u1, u2, λ of rec interpolated to the bisected mesh: a new vertex is the midpoint
-   !> of a coarse edge, so P1 interpolation is exact there (nested spaces).
-   function prolonged(map, rec) result(nodal)
+   !> Nodal fields (nv, k) interpolated to the bisected mesh: a new vertex is the midpoint of a
+   !> coarse edge, so P1 interpolation is exact there (nested spaces).
+   function prolonged(map, fields) result(nodal)
       type(refinement_map_t), intent(in) :: map
-      type(result_record_t), intent(in) :: rec
+      real(dp), intent(in) :: fields(:, :)
       real(dp), allocatable :: nodal(:, :)
 
       integer(ip) :: a
 
-      allocate (nodal(size(map%vertex_parents, 2), 3))
+      allocate (nodal(size(map%vertex_parents, 2), size(fields, 2)))
       do a = 1, size(map%vertex_parents, 2, kind=ip)
-         associate (p => map%vertex_parents(:, a))
-            nodal(a, 1) = 0.5_dp*(rec%u1(p(1)) + rec%u1(p(2)))
-            nodal(a, 2) = 0.5_dp*(rec%u2(p(1)) + rec%u2(p(2)))
-            nodal(a, 3) = 0.5_dp*(rec%lambda(p(1)) + rec%lambda(p(2)))
-         end associate
+         nodal(a, :) = 0.5_dp*(fields(map%vertex_parents(1, a), :) + fields(map%vertex_parents(2, a), :))
       end do
    end function prolonged
 
-   subroutine report(comm, k, rec, marked, seconds, last)
-      type(comm_t), intent(in) :: comm
+   subroutine report(k, rec, marked, seconds, last)
       integer, intent(in) :: k
       type(result_record_t), intent(in) :: rec
       logical, allocatable, intent(in) :: marked(:)
@@ -159,7 +202,6 @@ contains
 
       character(len=:), allocatable :: line
 
-      if (.not. comm%is_root()) return
       line = 'adapt: step '//int_text(k)//': '//int_text(size(rec%vertices, 2))//' vertices, eta '// &
              fixed_e(rec%eta_total)//' (disc '//fixed_e(rec%eta_disc)//', lin '//fixed_e(rec%eta_lin)// &
              ', alg '//fixed_e(rec%eta_alg)//')'

@@ -63,8 +63,6 @@ contains
       call prepare(cfg, comm, err)
       if (allocated(err)) return
       adaptive = cfg%adapt%tol > 0.0_dp
-      if (adaptive) call check_adaptive(comm, err)
-      if (allocated(err)) return
       ! the mesh first: bad input must not leave even an output directory behind
       call build_hierarchy(cfg, comm, hierarchy, err)
       if (allocated(err)) return
@@ -99,15 +97,6 @@ contains
       exit_code = merge(exit_ok, exit_not_converged, converged)
    end subroutine run_case
 
-   !> What an adaptive run cannot do (yet): refuse it before any work.
-   subroutine check_adaptive(comm, err)
-      type(comm_t), intent(in) :: comm
-      type(error_t), allocatable, intent(out) :: err
-
-      if (comm%size == 1) return
-      call make_error(err, exit_bad_input, 'adapt.tol', 'adaptive refinement runs on one MPI rank '// &
-                      '(OpenMP threads only): start it without mpirun, or set adapt.tol = 0')
-   end subroutine check_adaptive
 
 
 
