@@ -365,3 +365,16 @@ def test_inconsistent_adapt_group_is_refused(tmp_path):
         f["adapt/eta"] = np.ones(3)
     with pytest.raises(ResultError, match="one entry per step"):
         tr.load(path)
+
+
+def test_real_adaptive_result(tmp_path):
+    """The adaptive run's figures from a real result (a few refinement steps on the disk)."""
+    result = tmp_path / "a.h5"
+    proc = subprocess.run([str(twomem_or_skip()), "run", str(REPO / "input" / "default.nml"), "mesh.levels=0",
+                           "adapt.tol=1e-2", f"output.file={result}"], capture_output=True, text=True,
+                          cwd=tmp_path, timeout=600)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr
+    written, _, _ = run_plot(result, tmp_path / "figs")
+    assert {"adapt_convergence", "adapt_mesh"} <= names(written)
+    r = tr.load(result)
+    assert len(r.adapt["eta"]) >= 2 and np.all(np.isfinite(r.adapt["energy_error"]))
