@@ -25,7 +25,7 @@ if str(POSTPROC) not in sys.path:  # works without the editable install too
 
 from twomem_post import geometry, maps, plot as tp, result as tr  # noqa: E402
 from twomem_post.__main__ import main  # noqa: E402
-from twomem_post.errors import EnvironmentFailure  # noqa: E402
+from twomem_post.errors import EnvironmentFailure, ResultError  # noqa: E402
 from twomem_post.runner import find_twomem  # noqa: E402
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -326,3 +326,55 @@ def test_real_result(tmp_path, linear):
     got = _plot_real(result, tmp_path / "figs")
     assert "error" in got
     assert (GMRES <= got) == (linear == "gmres")
+
+
+def _add_adapt(path: Path, rate: float = -0.5, steps: int = 8):
+    n = (100 * 1.5 ** np.arange(steps)).astype(np.int32)
+    with h5py.File(path, "a") as f:
+        f["adapt/vertices"] = n
+        f["adapt/eta"] = 0.1 * (n / n[0]) ** rate
+        f["adapt/eta_disc"] = 0.09 * (n / n[0]) ** rate
+        f["adapt/energy_error"] = np.full(steps, np.nan)
+        f["adapt/wall_time"] = np.ones(steps)
+    return n
+
+
+def test_adaptive_run_figures(tmp_path):
+    path = make_result(tmp_path / "a.h5", error=False)
+    n = _add_adapt(path)
+    written, _, _ = run_plot(path, tmp_path / "figs")
+    assert {"adapt_convergence", "adapt_mesh"} <= names(written)
+    check_pngs([p for p in written if Path(p).stem.startswith("adapt")])
+    r = tr.load(path)
+    assert list(r.adapt["vertices"]) == list(n)
+
+
+def test_adapt_slope_is_the_asymptotic_one():
+    from twomem_post.adapt import slope
+    n = 100 * 2.0 ** np.arange(10)
+    # a pre-asymptotic start at a worse rate, then N^-1/2
+    eta = np.where(n < 1000, n ** -0.2 * 1000 ** -0.3, n ** -0.5)
+    assert abs(slope(n, eta) + 0.5) < 1e-12
+
+
+def test_inconsistent_adapt_group_is_refused(tmp_path):
+    path = make_result(tmp_path / "a.h5", error=False)
+    _add_adapt(path)
+    with h5py.File(path, "a") as f:
+        del f["adapt/eta"]
+        f["adapt/eta"] = np.ones(3)
+    with pytest.raises(ResultError, match="one entry per step"):
+        tr.load(path)
+
+
+def test_real_adaptive_result(tmp_path):
+    """The adaptive run's figures from a real result (a few refinement steps on the disk)."""
+    result = tmp_path / "a.h5"
+    proc = subprocess.run([str(twomem_or_skip()), "run", str(REPO / "input" / "default.nml"), "mesh.levels=0",
+                           "adapt.tol=1e-2", f"output.file={result}"], capture_output=True, text=True,
+                          cwd=tmp_path, timeout=600)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr
+    written, _, _ = run_plot(result, tmp_path / "figs")
+    assert {"adapt_convergence", "adapt_mesh"} <= names(written)
+    r = tr.load(result)
+    assert len(r.adapt["eta"]) >= 2 and np.all(np.isfinite(r.adapt["energy_error"]))

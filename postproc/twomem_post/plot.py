@@ -4,7 +4,8 @@ Each figure is its own file in DIR (6 x 4.5 in at 120 dpi, 9 in wide for side-by
 small enough to commit); the paths written are printed on stdout, one a line, and a figure
 whose data the file lacks is skipped with a one-line note on stderr. The maps (u1, u2,
 membranes, lambda, contact, error) are described in :mod:`twomem_post.maps`, the convergence
-figures (history_*, estimators_*, effectivity) in :mod:`twomem_post.convergence`.
+figures (history_*, estimators_*, effectivity) in :mod:`twomem_post.convergence`, an adaptive
+run's (adapt_convergence, adapt_mesh) in :mod:`twomem_post.adapt`.
 
 An unreadable or non-twomem file raises :class:`ResultError`; the command line reports it as
 ``twomem_post: error: <file>: <why>`` and exits with status 2.
@@ -16,6 +17,7 @@ import sys
 from pathlib import Path
 
 from . import maps
+from .adapt import plot_adapt
 from .convergence import plot_convergence
 from .figure import Writer
 from .errors import ResultError
@@ -76,6 +78,7 @@ def plot(path, outdir, fmt: str = "png", out=None, err=None) -> list[Path]:
                       sys.stderr if err is None else err)
     plot_maps(r, w)
     plot_convergence(r, w)
+    plot_adapt(r, w)
     return w.written
 
 

@@ -34,6 +34,8 @@ class Result:
     error: np.ndarray | None = None
     eta: np.ndarray | None = None
     history: dict[str, np.ndarray] = field(default_factory=dict)
+    #: an adaptive run's steps: `/adapt`'s one-entry-per-step datasets by name (empty otherwise)
+    adapt: dict[str, np.ndarray] = field(default_factory=dict)
     summary: dict[str, float] = field(default_factory=dict)
 
 
@@ -108,6 +110,7 @@ def _read(f: h5py.File, path: str) -> Result:
     _read_mesh(f, r)
     _read_element_data(f, r)
     r.history = _read_history(f)
+    r.adapt = _read_adapt(f)
     if "summary" in f:
         r.summary = {k: v.item() for k, v in f["summary"].attrs.items()
                      if np.ndim(v) == 0 and np.asarray(v).dtype.kind in "fiub"}
@@ -144,6 +147,20 @@ def _read_element_data(f: h5py.File, r: Result) -> None:
                 raise ValueError(f"/{name} has {len(a)} values, the mesh has {n} "
                                  f"{'vertices' if size == 'nv' else 'triangles'}")
         setattr(r, attr, a.astype(float))
+
+
+def _read_adapt(f: h5py.File) -> dict[str, np.ndarray]:
+    """`/adapt`'s per-step datasets (not its step_NNN groups), all of one length."""
+    adapt: dict[str, np.ndarray] = {}
+    if "adapt" not in f:
+        return adapt
+    for name, obj in f["adapt"].items():
+        if isinstance(obj, h5py.Dataset):
+            adapt[name] = _dataset(f, f"adapt/{name}", 1)
+    lengths = {len(a) for a in adapt.values()}
+    if len(lengths) > 1 or "vertices" not in adapt or "eta" not in adapt:
+        raise ValueError("/adapt needs 'vertices' and 'eta' and one entry per step in every dataset")
+    return adapt
 
 
 def _read_history(f: h5py.File) -> dict[str, np.ndarray]:

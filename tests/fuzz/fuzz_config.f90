@@ -92,7 +92,7 @@ contains
             v%key_kind = [v%key_kind, kind_of(line(index(line, ' = ') + 3:))]
          end if
       end do
-      if (size(v%groups) /= 6 .or. size(v%keys) < 30) error stop 'twomem_fuzz: cannot read the echo'
+      if (size(v%groups) /= 7 .or. size(v%keys) < 34) error stop 'twomem_fuzz: cannot read the echo'
 
       long_x = repeat('x', len(long_x))
       call add_list(v%values, [character(len=40) :: '1', '0', '-1', '2', '3', '12', '13', '1000', &

@@ -216,6 +216,13 @@ OVERRIDE_ERRORS = {
     "mesh.file=a.msh": "file",
     "problem.exact=radial": "disk",  # after mesh.domain=square
     "mesh.domain=" + "a" * 300: "256",
+    "adapt.tol=-1": "tol",
+    "adapt.tol=nan": "finite",
+    "adapt.theta=0": "theta",
+    "adapt.theta=1.5": "theta",
+    "adapt.max_steps=0": "max_steps",
+    "adapt.max_vertices=2": "max_vertices",
+    "adapt.size=3": "max_vertices",
 }
 
 

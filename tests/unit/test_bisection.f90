@@ -10,6 +10,7 @@ module test_bisection
    use twomem_mesh_generators, only: make_square, make_disk
    use twomem_mesh_hierarchy, only: refinement_map_t
    use twomem_mesh_bisection, only: longest_edge_first, bisect_marked
+   use twomem_mesh_marking, only: dorfler_marking
    use twomem_testing, only: unittest_t, new_unittest, check, check_close
    implicit none
    private
@@ -23,7 +24,9 @@ contains
 
       tests = [new_unittest('bisection_is_conforming_and_nested', test_conforming), &
                new_unittest('marked_triangles_are_refined', test_marked), &
-               new_unittest('shapes_stay_regular_towards_a_corner', test_shapes)]
+               new_unittest('shapes_stay_regular_towards_a_corner', test_shapes), &
+               new_unittest('repeated_marking_keeps_the_closure', test_repeated), &
+               new_unittest('dorfler_marks_the_fewest_triangles', test_dorfler)]
    end subroutine collect_bisection
 
    subroutine start_mesh(mesh, err)
@@ -180,4 +183,91 @@ contains
       ! newest-vertex bisection makes finitely many similarity classes per initial triangle
       call check(err, worst >= 0.5_dp*start_angle, 'the smallest angle stays above half the initial one')
    end subroutine test_shapes
+
+   !> Twelve rounds of Dörfler marking on an indicator peaked at a corner and bisection of the
+   !> marked set: every round's mesh is conforming (Euler characteristic 1, every interior edge
+   !> shared by two triangles), counter-clockwise with positive areas, keeps its predecessor's
+   !> vertices under their numbers, and covers the same area.
+   subroutine test_repeated(err)
+      type(error_t), allocatable, intent(out) :: err
+      type(mesh_t) :: meshes(0:1)
+      type(refinement_map_t) :: map
+      real(dp), allocatable :: eta(:)
+      real(dp) :: c(2), area0
+      integer(ip) :: t
+      integer :: round, now
+      logical :: ok
+
+      call start_mesh(meshes(0), err)
+      if (allocated(err)) return
+      area0 = meshes(0)%total_area()
+      now = 0
+      ok = .true.
+      do round = 1, 12
+         associate (m => meshes(now))
+            allocate (eta(m%nt))
+            do t = 1, m%nt
+               c = sum(m%vertices(:, m%triangles(:, t)), dim=2)/3
+               ! a singular-looking indicator: h_K times a weight that blows up at (-1, -1)
+               eta(t) = sqrt(m%area(t))/(norm2(c - [-1.0_dp, -1.0_dp]) + 1.0e-3_dp)
+            end do
+            call bisect_marked(m, dorfler_marking(eta, 0.5_dp), meshes(1 - now), map, err)
+            if (allocated(err)) return
+            deallocate (eta)
+            associate (f => meshes(1 - now))
+               ok = ok .and. f%nv - f%ne + f%nt == 1 .and. f%n_flipped == 0 .and. all(f%area > 0.0_dp)
+               ok = ok .and. count(f%edge_triangles(2, :) == 0) == count(f%boundary_edge)
+               ok = ok .and. all(abs(f%vertices(:, 1:m%nv) - m%vertices) == 0.0_dp) .and. f%nv > m%nv
+               ok = ok .and. abs(f%total_area() - area0) < 1.0e-12_dp
+            end associate
+         end associate
+         now = 1 - now
+      end do
+      call check(err, ok, 'every round conforming, nested, oriented, area-preserving')
+      call check(err, meshes(now)%nt > 4*meshes(1 - now)%nt/3, 'the rounds keep refining')
+   end subroutine test_repeated
+
+   !> Against a direct computation: sort the squares descending, take the shortest prefix whose
+   !> sum reaches θ of the total. Distinct random values: the two sets coincide exactly.
+   subroutine test_dorfler(err)
+      type(error_t), allocatable, intent(out) :: err
+      integer, parameter :: n = 500
+      real(dp) :: eta(n), sorted(n), theta, partial
+      logical, allocatable :: marked(:)
+      integer :: i, k, j, trial
+      integer, allocatable :: seed(:)
+
+      call random_seed(size=k)
+      allocate (seed(k))
+      seed = 20240611
+      call random_seed(put=seed)
+      do trial = 1, 4
+         call random_number(eta)
+         eta = eta**3
+         theta = 0.2_dp*trial
+         marked = dorfler_marking(eta, theta)
+         ! insertion sort, descending: an independent path to the answer
+         sorted = eta**2
+         do i = 2, n
+            partial = sorted(i)
+            j = i - 1
+            do while (j >= 1)
+               if (sorted(j) >= partial) exit
+               sorted(j + 1) = sorted(j)
+               j = j - 1
+            end do
+            sorted(j + 1) = partial
+         end do
+         partial = 0
+         do k = 1, n
+            partial = partial + sorted(k)
+            if (partial >= theta*sum(eta**2)) exit
+         end do
+         call check(err, count(marked) == k, 'the fewest triangles are marked')
+         call check(err, minval(eta**2, mask=marked) >= maxval(eta**2, mask=.not. marked), &
+                    'the marked ones are the largest')
+      end do
+      call check(err, .not. any(dorfler_marking([0.0_dp, 0.0_dp], 0.5_dp)), 'zero indicators mark nothing')
+      call check(err, all(dorfler_marking([1.0_dp, 1.0_dp, 1.0_dp], 1.0_dp)), 'theta = 1 marks everything')
+   end subroutine test_dorfler
 end module test_bisection

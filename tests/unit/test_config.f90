@@ -159,6 +159,10 @@ contains
       if (a%output%estimators .neqv. b%output%estimators) name = 'output%estimators'
       if (a%output%history .neqv. b%output%history) name = 'output%history'
       if (a%output%xdmf .neqv. b%output%xdmf) name = 'output%xdmf'
+      if (.not. same_real(a%adapt%tol, b%adapt%tol)) name = 'adapt%tol'
+      if (.not. same_real(a%adapt%theta, b%adapt%theta)) name = 'adapt%theta'
+      if (a%adapt%max_steps /= b%adapt%max_steps) name = 'adapt%max_steps'
+      if (a%adapt%max_vertices /= b%adapt%max_vertices) name = 'adapt%max_vertices'
    end function config_diff
 
    !> Loads `content` as `name` and checks that it equals the defaults (output file resolved).
@@ -488,11 +492,12 @@ contains
 
       type(config_t) :: cfg, back, defaults, back2
       character(len=:), allocatable :: path, text, path2
-      character(len=12) :: keys(26) = [character(len=12) :: 'domain =', 'file =', 'coarse_h =', 'levels =', &
+      character(len=12) :: keys(30) = [character(len=12) :: 'domain =', 'file =', 'coarse_h =', 'levels =', &
                                        'mu1 =', 'mu2 =', 'f1 =', 'f2 =', 'g =', 'exact =', 'cfun =', 'linear =', &
                                        'max_it =', 'tol =', 'gamma_lin =', 'restart =', 'rtol =', 'precond =', &
                                        'gamma_alg =', 'enabled =', 'fields =', 'estimators =', 'history =', &
-                                       'xdmf =', '&estimate', '&output']
+                                       'xdmf =', '&estimate', '&output', '&adapt', 'theta =', 'max_steps =', &
+                                       'max_vertices']
       integer :: i
 
       path = write_case('config_echo_src.nml', &
@@ -503,14 +508,15 @@ contains
                         '   gamma_lin = 0.7000000000000001 /'//nl// &
                         '&gmres restart = 1 max_it = 2147483647 rtol = 0.9999999999999999 precond = ''none'' /'//nl// &
                         '&estimate gamma_alg = 1e-7 enabled = .false. /'//nl// &
-                        '&output fields = F estimators = F history = F xdmf = F /'//nl)
+                        '&output fields = F estimators = F history = F xdmf = F /'//nl// &
+                        '&adapt tol = 1.25e-3 theta = 0.30000000000000004 max_steps = 7 max_vertices = 123456 /'//nl)
       call load_config(path, words('problem.f2=1.7976931348623157e308'), cfg, err)
       if (allocated(err)) return
       text = config_echo(cfg)
       do i = 1, size(keys)
          call check(err, index(text, trim(keys(i))) > 0, "echo lacks '"//trim(keys(i))//"':"//nl//text)
       end do
-      call check(err, count_lines(text, '/') == 6, 'six groups closed')
+      call check(err, count_lines(text, '/') == 7, 'seven groups closed')
       if (allocated(err)) return
 
       ! through a file with another name: everything but the source must survive bit for bit

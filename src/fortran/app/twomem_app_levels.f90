@@ -29,7 +29,7 @@ module twomem_app_levels
    implicit none
    private
 
-   public :: solve_levels, coarse_work_t
+   public :: solve_levels, solve_from, coarse_work_t
 
 contains
 
@@ -115,6 +115,33 @@ contains
       deallocate (fine)
       call newton_solve(p, options, x0, newton, err, observer, transfer, finest + shift)
    end subroutine solve_levels
+
+   !> Newton for the finest problem p from nodal fields (nv, 3) of u1, u2, λ (an interpolated
+   !> solution of a coarser mesh of the same domain, as in nested iteration: its contact set
+   !> settled first). Collective.
+   subroutine solve_from(comm, hierarchy, p, options, nodal, newton, err, observer)
+      type(comm_t), intent(in) :: comm
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
+      type(discrete_problem_t), target, intent(in) :: p
+      type(newton_options_t), intent(in) :: options
+      real(dp), intent(in) :: nodal(:, :)
+      type(newton_result_t), intent(out) :: newton
+      type(error_t), allocatable, intent(out) :: err
+      class(newton_observer_t), intent(inout), optional :: observer
+
+      type(multigrid_transfer_t), target :: transfer
+      real(dp), allocatable :: x0(:)
+      integer :: bottom
+
+      bottom = hierarchy%first_with_unknowns(comm)
+      call hierarchy_transfer(comm, hierarchy, bottom, p, options%precond == precond_mg .and. &
+                              options%linear /= method_direct, transfer, err)
+      if (allocated(err)) return
+      x0 = interior_values(p, nodal)
+      call settle_contact(p, x0)
+      call newton_solve(p, options, x0, newton, err, observer, transfer, &
+                        hierarchy%levels + transfer%algebraic - bottom)
+   end subroutine solve_from
 
    !> The options of Newton on the coarser levels of nested iteration: quiet, and in an adaptive
    !> run the inexact GMRES (the paper's forcing, finishing the last solve), checked as often as

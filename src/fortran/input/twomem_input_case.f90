@@ -12,7 +12,7 @@ module twomem_input_case
    private
 
    public :: config_t, mesh_config_t, problem_config_t, newton_config_t, gmres_config_t
-   public :: estimate_config_t, output_config_t, config_len
+   public :: estimate_config_t, output_config_t, adapt_config_t, config_len
 
    !> length of every text component (words and file names)
    integer, parameter :: config_len = 256
@@ -102,6 +102,18 @@ module twomem_input_case
       logical :: xdmf = .true.
    end type output_config_t
 
+   !> Adaptive refinement (SOLVE → ESTIMATE → MARK → REFINE), off while tol = 0
+   type :: adapt_config_t
+      !> the target for η; 0: no adaptation (one solve on the configured mesh)
+      real(dp) :: tol = 0.0_dp
+      !> Dörfler's bulk fraction θ: the marked triangles carry θ of Σ η_disc,K²
+      real(dp) :: theta = 0.5_dp
+      !> solves at most, the first mesh's included
+      integer :: max_steps = 30
+      !> no mesh with more vertices is solved on
+      integer :: max_vertices = 1000000
+   end type adapt_config_t
+
    type :: config_t
       !> base name of the case file without directory and extension
       character(len=config_len) :: case_name = ''
@@ -113,5 +125,6 @@ module twomem_input_case
       type(gmres_config_t) :: gmres
       type(estimate_config_t) :: estimate
       type(output_config_t) :: output
+      type(adapt_config_t) :: adapt
    end type config_t
 end module twomem_input_case

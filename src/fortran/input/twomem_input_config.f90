@@ -12,20 +12,21 @@ module twomem_input_config
       quote
    use twomem_base_text, only: int_text, to_lower
    use twomem_input_case, only: config_t, mesh_config_t, problem_config_t, newton_config_t, gmres_config_t, &
-                                estimate_config_t, output_config_t, config_len
+                                estimate_config_t, output_config_t, adapt_config_t, config_len
    use twomem_input_keys, only: keys, n_keys, n_groups, group_names, find_group, find_key, group_list, key_list, &
       type_word, type_path, type_real, type_int, type_logical, type_load, &
       k_domain, k_mesh_file, k_coarse_h, k_levels, k_boundary_h, k_mu1, k_mu2, k_f1, k_f2, k_g, k_exact, &
       k_f1_file, k_f2_file, k_cfun, k_linear, k_newton_max_it, k_tol, k_gamma_lin, k_initial, k_line_search, &
       k_fb_finish, k_restart, k_gmres_max_it, k_rtol, k_precond, k_forcing, k_gamma_alg, k_enabled, k_every, &
-      k_flux, k_alg_levels, k_criteria, k_checks, k_output_file, k_fields, k_estimators, k_history, k_xdmf
+      k_flux, k_alg_levels, k_criteria, k_checks, k_output_file, k_fields, k_estimators, k_history, k_xdmf, &
+      k_adapt_tol, k_theta, k_max_steps, k_max_vertices
    use twomem_input_options, only: kind_of_word, word_of_kind
    use twomem_input_rules, only: validate
    implicit none
    private
 
    public :: config_t, mesh_config_t, problem_config_t, newton_config_t, gmres_config_t
-   public :: estimate_config_t, output_config_t, string_t, config_len
+   public :: estimate_config_t, output_config_t, adapt_config_t, string_t, config_len
    public :: load_config, load_config_text, config_echo
 
 contains
@@ -329,6 +330,8 @@ contains
       case (k_gamma_lin); cfg%newton%gamma_lin = x
       case (k_rtol); cfg%gmres%rtol = x
       case (k_gamma_alg); cfg%estimate%gamma_alg = x
+      case (k_adapt_tol); cfg%adapt%tol = x
+      case (k_theta); cfg%adapt%theta = x
       end select
    end subroutine store_real
 
@@ -343,6 +346,8 @@ contains
       case (k_gmres_max_it); cfg%gmres%max_it = n
       case (k_every); cfg%estimate%every = n
       case (k_alg_levels); cfg%estimate%alg_levels = n
+      case (k_max_steps); cfg%adapt%max_steps = n
+      case (k_max_vertices); cfg%adapt%max_vertices = n
       end select
    end subroutine store_int
 
@@ -417,6 +422,10 @@ contains
       case (k_estimators); s = logical_text(cfg%output%estimators)
       case (k_history); s = logical_text(cfg%output%history)
       case (k_xdmf); s = logical_text(cfg%output%xdmf)
+      case (k_adapt_tol); s = format_real(cfg%adapt%tol)
+      case (k_theta); s = format_real(cfg%adapt%theta)
+      case (k_max_steps); s = int_text(cfg%adapt%max_steps)
+      case (k_max_vertices); s = int_text(cfg%adapt%max_vertices)
       case default; s = ''
       end select
    end function value_text

@@ -14,16 +14,17 @@ module twomem_input_keys
              k_cfun, k_linear, k_newton_max_it, k_tol, k_gamma_lin, k_initial, k_line_search, k_fb_finish, &
              k_restart, k_gmres_max_it, k_rtol, k_precond, k_forcing, &
              k_gamma_alg, k_enabled, k_every, k_flux, k_alg_levels, k_criteria, k_checks, &
-             k_output_file, k_fields, k_estimators, k_history, k_xdmf
+             k_output_file, k_fields, k_estimators, k_history, k_xdmf, &
+             k_adapt_tol, k_theta, k_max_steps, k_max_vertices
    public :: find_group, find_key, group_list, key_list, key_name, group_name
 
    !> width of group and key names
    integer, parameter :: name_len = 16
 
    integer, parameter :: group_mesh = 1, group_problem = 2, group_newton = 3, group_gmres = 4, &
-                         group_estimate = 5, group_output = 6
+                         group_estimate = 5, group_output = 6, group_adapt = 7
    character(len=name_len), parameter :: group_names(*) = [character(len=name_len) :: &
-      'mesh', 'problem', 'newton', 'gmres', 'estimate', 'output']
+      'mesh', 'problem', 'newton', 'gmres', 'estimate', 'output', 'adapt']
    integer, parameter :: n_groups = size(group_names)
 
    !> the type of a key's value. type_load: a real number, or a formula (quoted in a file; a bare
@@ -46,7 +47,8 @@ module twomem_input_keys
       k_restart = 22, k_gmres_max_it = 23, k_rtol = 24, k_precond = 25, k_forcing = 26, &
       k_gamma_alg = 27, k_enabled = 28, k_every = 29, k_flux = 30, k_alg_levels = 31, k_criteria = 32, &
       k_checks = 33, &
-      k_output_file = 34, k_fields = 35, k_estimators = 36, k_history = 37, k_xdmf = 38
+      k_output_file = 34, k_fields = 35, k_estimators = 36, k_history = 37, k_xdmf = 38, &
+      k_adapt_tol = 39, k_theta = 40, k_max_steps = 41, k_max_vertices = 42
 
    !> Within a group, the order of the echo and of the "valid keys" lists.
    type(key_t), parameter :: keys(*) = [ &
@@ -87,7 +89,11 @@ module twomem_input_keys
       key_t(k_fields, group_output, 'fields', type_logical), &
       key_t(k_estimators, group_output, 'estimators', type_logical), &
       key_t(k_history, group_output, 'history', type_logical), &
-      key_t(k_xdmf, group_output, 'xdmf', type_logical)]
+      key_t(k_xdmf, group_output, 'xdmf', type_logical), &
+      key_t(k_adapt_tol, group_adapt, 'tol', type_real), &
+      key_t(k_theta, group_adapt, 'theta', type_real), &
+      key_t(k_max_steps, group_adapt, 'max_steps', type_int), &
+      key_t(k_max_vertices, group_adapt, 'max_vertices', type_int)]
    integer, parameter :: n_keys = size(keys)
 
    !> Compile-time guards, through an invalid kind (-1) when they fail: every row sits at its

@@ -8,12 +8,24 @@ module twomem_io_result
    use twomem_base_system, only: rename_file, remove_file, process_id, base_name, register_temporary, &
       unregister_temporary
    use twomem_hdf5_file, only: h5_file_t
-   use twomem_io_xdmf, only: write_xdmf
+   use twomem_io_xdmf, only: write_xdmf, write_xdmf_steps
    use twomem_base_phases, only: phase_clock_t, phase_output, n_phases, phase_names
    implicit none
    private
 
-   public :: result_record_t, history_columns_t, output_choice_t, write_result, xdmf_path_for
+   public :: result_record_t, history_columns_t, adapt_step_t, output_choice_t, write_result, xdmf_path_for, &
+             steps_xdmf_path_for
+
+   !> One step of an adaptive run (`/adapt`): its mesh, solution and element indicators (whole,
+   !> as the final ones are stored) and its totals. energy_error is NaN without an exact
+   !> solution; wall_time covers the step's solve, estimate, marking and refinement.
+   type :: adapt_step_t
+      real(dp), allocatable :: vertices(:, :)
+      integer(ip), allocatable :: triangles(:, :)
+      real(dp), allocatable :: u1(:), u2(:), lambda(:), eta_disc_k(:)
+      real(dp) :: eta = 0, eta_disc = 0, eta_lin = 0, eta_alg = 0, energy_error = 0, wall_time = 0
+      integer :: newton_iterations = 0, gmres_iterations = 0
+   end type adapt_step_t
 
    !> `/history` column by column, one entry per recorded point (docs/output.md). The program
    !> copies the solver's rows in: the file's layout is fixed here, the solver's types stay above.
@@ -55,6 +67,9 @@ module twomem_io_result
       real(dp) :: wall_time = 0.0_dp
       integer(i8) :: peak_memory_kib = 0
       integer :: omp_threads = 1, mpi_ranks = 1
+      !> the steps of an adaptive run, the last one's mesh and fields being the record's own;
+      !> not allocated without adaptation
+      type(adapt_step_t), allocatable :: adapt(:)
    end type result_record_t
 
    !> The output.* switches.
@@ -80,6 +95,15 @@ contains
       end if
       xdmf = trim(path)//'.xdmf'
    end function xdmf_path_for
+
+   !> `name.h5` → `name.steps.xdmf`: the temporal collection of an adaptive run's meshes.
+   pure function steps_xdmf_path_for(path) result(xdmf)
+      character(len=*), intent(in) :: path
+      character(len=:), allocatable :: xdmf
+
+      xdmf = xdmf_path_for(path)
+      xdmf = xdmf(1:len(xdmf) - 5)//'.steps.xdmf'
+   end function steps_xdmf_path_for
 
    !> Write the result atomically. With `clock` (the run's phase clock, in its output phase) the
    !> file ends with the `/performance` group: each phase's time and peak memory up to then.
@@ -135,7 +159,61 @@ contains
                             [character(len=64) ::], cells, err)
          end if
       end if
+      if (allocated(err) .or. .not. (choice%xdmf .and. choice%fields .and. allocated(rec%adapt))) return
+      call write_xdmf_steps(steps_xdmf_path_for(path), base_name(path), step_groups(size(rec%adapt)), &
+                            [(size(rec%adapt(i)%vertices, 2, ip), i=1, size(rec%adapt))], &
+                            [(size(rec%adapt(i)%triangles, 2, ip), i=1, size(rec%adapt))], &
+                            [character(len=64) :: 'u1', 'u2', 'lambda'], [character(len=64) :: 'eta_disc'], err)
    end subroutine write_result
+
+   !> '/adapt/step_001', ...: where each step's mesh and fields are stored.
+   pure function step_groups(n) result(groups)
+      integer, intent(in) :: n
+      character(len=64) :: groups(n)
+
+      integer :: i
+
+      do i = 1, n
+         write (groups(i), '("/adapt/step_",i3.3)') i
+      end do
+   end function step_groups
+
+   !> `/adapt`: one entry per step in each dataset, and with the fields each step's mesh,
+   !> solution and discretization indicators in its own group.
+   subroutine write_adapt(h5, steps, fields, err)
+      type(h5_file_t), intent(inout) :: h5
+      type(adapt_step_t), intent(in) :: steps(:)
+      logical, intent(in) :: fields
+      type(error_t), allocatable, intent(out) :: err
+
+      character(len=64), allocatable :: groups(:)
+      character(len=:), allocatable :: g
+      integer :: i
+
+      call h5%write_int('/adapt/vertices', [(size(steps(i)%vertices, 2, ip), i=1, size(steps))], err)
+      if (.not. allocated(err)) call h5%write_int('/adapt/triangles', [(size(steps(i)%triangles, 2, ip), &
+                                                                        i=1, size(steps))], err)
+      if (.not. allocated(err)) call h5%write_real('/adapt/eta', steps%eta, err)
+      if (.not. allocated(err)) call h5%write_real('/adapt/eta_disc', steps%eta_disc, err)
+      if (.not. allocated(err)) call h5%write_real('/adapt/eta_lin', steps%eta_lin, err)
+      if (.not. allocated(err)) call h5%write_real('/adapt/eta_alg', steps%eta_alg, err)
+      if (.not. allocated(err)) call h5%write_real('/adapt/energy_error', steps%energy_error, err)
+      if (.not. allocated(err)) call h5%write_real('/adapt/wall_time', steps%wall_time, err)
+      if (.not. allocated(err)) call h5%write_int('/adapt/newton_iterations', int(steps%newton_iterations, ip), err)
+      if (.not. allocated(err)) call h5%write_int('/adapt/gmres_iterations', int(steps%gmres_iterations, ip), err)
+      if (allocated(err) .or. .not. fields) return
+      groups = step_groups(size(steps))
+      do i = 1, size(steps)
+         g = trim(groups(i))
+         call h5%write_real(g//'/vertices', steps(i)%vertices, err)
+         if (.not. allocated(err)) call h5%write_int(g//'/triangles', steps(i)%triangles - 1_ip, err)
+         if (.not. allocated(err)) call h5%write_real(g//'/u1', steps(i)%u1, err)
+         if (.not. allocated(err)) call h5%write_real(g//'/u2', steps(i)%u2, err)
+         if (.not. allocated(err)) call h5%write_real(g//'/lambda', steps(i)%lambda, err)
+         if (.not. allocated(err)) call h5%write_real(g//'/eta_disc', steps(i)%eta_disc_k, err)
+         if (allocated(err)) return
+      end do
+   end subroutine write_adapt
 
    subroutine write_contents(h5, rec, choice, with_mesh, err)
       type(h5_file_t), intent(inout) :: h5
@@ -171,6 +249,10 @@ contains
       end if
       if (choice%history) then
          call write_history(h5, rec%history, err)
+         if (allocated(err)) return
+      end if
+      if (allocated(rec%adapt)) then
+         call write_adapt(h5, rec%adapt, choice%fields, err)
          if (allocated(err)) return
       end if
       call write_summary(h5, rec, err)
@@ -240,6 +322,8 @@ contains
       if (.not. allocated(err)) call h5%write_attr('/summary', 'peak_memory_kib', int(rec%peak_memory_kib), err)
       if (.not. allocated(err)) call h5%write_attr('/summary', 'omp_threads', rec%omp_threads, err)
       if (.not. allocated(err)) call h5%write_attr('/summary', 'mpi_ranks', rec%mpi_ranks, err)
+      if (.not. allocated(err) .and. allocated(rec%adapt)) &
+         call h5%write_attr('/summary', 'adapt_steps', size(rec%adapt), err)
    end subroutine write_summary
 
    !> `/performance`: attributes `<phase>_seconds` and `<phase>_peak_mib` for every phase.

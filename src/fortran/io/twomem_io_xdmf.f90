@@ -10,7 +10,7 @@ module twomem_io_xdmf
    implicit none
    private
 
-   public :: write_xdmf
+   public :: write_xdmf, write_xdmf_steps
 
 contains
 
@@ -76,6 +76,73 @@ contains
       if (allocated(err)) call remove_file(tmp_path)
       call unregister_temporary()
    end subroutine write_xdmf
+
+   !> A temporal collection over the groups `groups` of the result file `h5_name` (each holding
+   !> `vertices`, `triangles` and the named node and cell fields): ParaView's time steps walk
+   !> through an adaptive run's meshes, step k at time k.
+   subroutine write_xdmf_steps(xdmf_path, h5_name, groups, nv, nt, node_fields, cell_fields, err)
+      character(len=*), intent(in) :: xdmf_path, h5_name
+      character(len=*), intent(in) :: groups(:)
+      integer(ip), intent(in) :: nv(:), nt(:)
+      character(len=*), intent(in) :: node_fields(:), cell_fields(:)
+      type(error_t), allocatable, intent(out) :: err
+
+      character(len=:), allocatable :: tmp_path, h5, g, nv_text, nt_text
+      character(len=256) :: msg
+      integer :: unit, ios, ignored, i, k
+
+      tmp_path = trim(xdmf_path)//'.tmp'//int_text(process_id())
+      h5 = xml_escape(trim(h5_name))
+      call register_temporary(tmp_path)
+      open (newunit=unit, file=tmp_path, status='replace', action='write', form='formatted', &
+            iostat=ios, iomsg=msg)
+      if (ios /= 0) then
+         call unregister_temporary()
+         call make_error(err, exit_io, xdmf_path, 'cannot write XDMF file: '//trim(msg))
+         return
+      end if
+      call emit(unit, '<?xml version="1.0" encoding="UTF-8"?>', ios, msg)
+      call emit(unit, '<Xdmf Version="3.0" xmlns:xi="http://www.w3.org/2001/XInclude">', ios, msg)
+      call emit(unit, '  <Domain>', ios, msg)
+      call emit(unit, '    <Grid Name="adapt" GridType="Collection" CollectionType="Temporal">', ios, msg)
+      do k = 1, size(groups)
+         g = trim(groups(k))
+         nv_text = int_text(int(nv(k)))
+         nt_text = int_text(int(nt(k)))
+         call emit(unit, '    <Grid Name="step '//int_text(k)//'" GridType="Uniform">', ios, msg)
+         call emit(unit, '      <Time Value="'//int_text(k)//'"/>', ios, msg)
+         call emit(unit, '      <Topology TopologyType="Triangle" NumberOfElements="'//nt_text//'">', ios, msg)
+         call emit_item(unit, h5, g//'/triangles', nt_text//' 3', 'Int', '4', ios, msg)
+         call emit(unit, '      </Topology>', ios, msg)
+         call emit(unit, '      <Geometry GeometryType="XY">', ios, msg)
+         call emit_item(unit, h5, g//'/vertices', nv_text//' 2', 'Float', '8', ios, msg)
+         call emit(unit, '      </Geometry>', ios, msg)
+         do i = 1, size(node_fields)
+            call emit_attribute(unit, h5, g//'/'//trim(node_fields(i)), 'Node', nv_text, ios, msg)
+         end do
+         do i = 1, size(cell_fields)
+            call emit_attribute(unit, h5, g//'/'//trim(cell_fields(i)), 'Cell', nt_text, ios, msg)
+         end do
+         call emit(unit, '    </Grid>', ios, msg)
+      end do
+      call emit(unit, '    </Grid>', ios, msg)
+      call emit(unit, '  </Domain>', ios, msg)
+      call emit(unit, '</Xdmf>', ios, msg)
+      if (ios == 0) then
+         close (unit, iostat=ios, iomsg=msg)
+      else
+         close (unit, status='delete', iostat=ignored)
+      end if
+      if (ios /= 0) then
+         call remove_file(tmp_path)
+         call unregister_temporary()
+         call make_error(err, exit_io, xdmf_path, 'cannot write XDMF file: '//trim(msg))
+         return
+      end if
+      call rename_file(tmp_path, xdmf_path, err)
+      if (allocated(err)) call remove_file(tmp_path)
+      call unregister_temporary()
+   end subroutine write_xdmf_steps
 
    !> A scalar field, named after the dataset's last path component.
    subroutine emit_attribute(unit, h5, dset_path, center, dims, ios, msg)
