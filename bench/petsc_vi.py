@@ -28,6 +28,19 @@ a shared machine are noisy: read medians, and the spread in the JSON output.
     /usr/bin/python3 bench/petsc_vi.py --levels 2     # coarse_h 0.05, boundary_h 0.01: 48k vertices
     /usr/bin/python3 bench/petsc_vi.py --levels 3 --skip-cold -o results.json
 
+Preconditioners (`--pc`, a comma list, one row pair each): `boomeramg` (the options database's
+CG + BoomerAMG on the whole reduced system), `split` (BoomerAMG per field w, s: PETSc's
+strongest measured on a single mesh) and `gmg` (PCMG with the red-refinement interpolations
+restricted to the inactive set, Galerkin coarse operators: its strongest on the hierarchy); see
+the class Precond. `--mesh file.msh` reads a Gmsh MSH 4.1/2.2 ASCII mesh here and solves it as
+it is (twomem: mesh.domain=gmsh, mesh.levels=0), PETSc cold only. `--whole` adds twomem's
+whole adaptive run (default method, estimators, output; the sum of its phases) as the first
+row. `--check` exits 1 when a PETSc solve did not converge or disagrees with twomem (the ctests
+bench/petsc_vi_mesh and bench/petsc_vi_gmg).
+
+    /usr/bin/python3 bench/petsc_vi.py --levels 3 --pc gmg,split --whole --threads 2:passive
+    /usr/bin/python3 bench/petsc_vi.py --mesh results/meshes/pacman_0.005.msh --pc split,boomeramg
+
 `--petsc-options "-ksp_monitor ..."` is passed to PETSc's options database after the defaults,
 so any option below can be overridden from the command line.
 """
@@ -785,6 +798,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     ap.add_argument("--petsc-options", default="", help="extra PETSc options, e.g. \"-snes_monitor -ksp_converged_reason\"")
     ap.add_argument("--agree", type=float, default=1e-8,
                     help="warn when a PETSc solution differs from twomem's reference by more (relative)")
+    ap.add_argument("--check", action="store_true",
+                    help="exit 1 when a PETSc solve did not converge or differs from twomem's reference by more "
+                         "than --agree (the test of this script: small meshes, --repeat 1)")
     ap.add_argument("-o", "--output", help="write every measurement as JSON here")
     args = ap.parse_args(argv)
     if args.levels < 0 or args.repeat < 1:
@@ -989,6 +1005,8 @@ def main(argv: list[str]) -> int:
                        load_before=load_before, load_after=load_after, rows=rows, petsc=petsc_tables)
         Path(args.output).write_text(json.dumps(results, indent=1, default=float))
         print(f"\nwritten: {args.output}")
+    if args.check and any(n.startswith("warning") for n in notes):
+        fail("--check: " + "; ".join(n for n in notes if n.startswith("warning")), 1)
     return 0
 
 
