@@ -28,6 +28,19 @@ a shared machine are noisy: read medians, and the spread in the JSON output.
     /usr/bin/python3 bench/petsc_vi.py --levels 2     # coarse_h 0.05, boundary_h 0.01: 48k vertices
     /usr/bin/python3 bench/petsc_vi.py --levels 3 --skip-cold -o results.json
 
+Preconditioners (`--pc`, a comma list, one row pair each): `boomeramg` (the options database's
+CG + BoomerAMG on the whole reduced system), `split` (BoomerAMG per field w, s: PETSc's
+strongest measured on a single mesh) and `gmg` (PCMG with the red-refinement interpolations
+restricted to the inactive set, Galerkin coarse operators: its strongest on the hierarchy); see
+the class Precond. `--mesh file.msh` reads a Gmsh MSH 4.1/2.2 ASCII mesh here and solves it as
+it is (twomem: mesh.domain=gmsh, mesh.levels=0), PETSc cold only. `--whole` adds twomem's
+whole adaptive run (default method, estimators, output; the sum of its phases) as the first
+row. `--check` exits 1 when a PETSc solve did not converge or disagrees with twomem (the ctests
+bench/petsc_vi_mesh and bench/petsc_vi_gmg).
+
+    /usr/bin/python3 bench/petsc_vi.py --levels 3 --pc gmg,split --whole --threads 2:passive
+    /usr/bin/python3 bench/petsc_vi.py --mesh results/meshes/pacman_0.005.msh --pc split,boomeramg
+
 `--petsc-options "-ksp_monitor ..."` is passed to PETSc's options database after the defaults,
 so any option below can be overridden from the command line.
 """
@@ -108,11 +121,14 @@ class Case:
     f1: float
     f2: float
     g: float
+    mesh_file: str = ""           # a Gmsh mesh solved as it is (mesh.levels = 0) instead of the disk
 
     def overrides(self, levels: int | None = None) -> list[str]:
         lv = self.levels if levels is None else levels
-        return [f"mesh.domain=disk", f"mesh.coarse_h={self.coarse_h}", f"mesh.boundary_h={self.boundary_h}",
-                f"mesh.levels={lv}", f"problem.mu1={self.mu1}", f"problem.mu2={self.mu2}",
+        mesh = ([f"mesh.domain=gmsh", f"mesh.file={self.mesh_file}", "mesh.levels=0"] if self.mesh_file else
+                [f"mesh.domain=disk", f"mesh.coarse_h={self.coarse_h}", f"mesh.boundary_h={self.boundary_h}",
+                 f"mesh.levels={lv}"])
+        return [*mesh, f"problem.mu1={self.mu1}", f"problem.mu2={self.mu2}",
                 f"problem.f1={self.f1}", f"problem.f2={self.f2}", f"problem.g={self.g}",
                 "problem.exact=none", "newton.cfun=min"]
 
@@ -144,6 +160,7 @@ class Omp:
     def env(self) -> dict:
         env = dict(os.environ, OMP_NUM_THREADS=str(self.threads))
         env.pop("OMP_WAIT_POLICY", None)
+        env.pop("OPENBLAS_NUM_THREADS", None)
         if self.wait:
             env["OMP_WAIT_POLICY"] = self.wait
         return env
@@ -153,10 +170,13 @@ class Omp:
         return s + (f", OMP_WAIT_POLICY={self.wait}" if self.wait else "")
 
 
-def run_twomem(exe: Path, case: Case, out: Path, extra: list[str], omp: Omp, levels: int | None = None) -> dict:
-    """Run twomem, return its result (mesh, solution, summary, performance) and the nested lines."""
-    cmd = [str(exe), "run", str(ROOT / "input" / "default.nml"), *case.overrides(levels), *TWOMEM_QUIET,
-           *extra, f"output.file={out}"]
+def run_twomem(exe: Path, case: Case, out: Path, extra: list[str], omp: Omp, levels: int | None = None,
+               quiet: bool = True) -> dict:
+    """Run twomem, return its result (mesh, solution, summary, performance) and the nested lines.
+    quiet: no estimators, history or XDMF (the timed solves); else the run as a user starts it,
+    with its estimators, history and result fields (XDMF off)."""
+    cmd = [str(exe), "run", str(ROOT / "input" / "default.nml"), *case.overrides(levels),
+           *(TWOMEM_QUIET if quiet else ["output.xdmf=.false."]), *extra, f"output.file={out}"]
     env = omp.env()
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
     if proc.returncode != 0:
@@ -219,6 +239,71 @@ def red_refine(mesh: Mesh) -> Mesh:
     ab, bc, ca = m[:, 0], m[:, 1], m[:, 2]
     children = np.concatenate([np.stack(k, axis=1) for k in ((a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca))])
     return make_mesh(np.concatenate([v, mid]), children)
+
+
+def read_gmsh(path: Path) -> Mesh:
+    """The triangles of a Gmsh MSH 4.1 or 2.2 ASCII file as they are (read here, not by twomem):
+    nodes no triangle uses dropped (twomem drops them too), clockwise triangles turned."""
+    try:
+        lines = path.read_text().splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        fail(f"{path}: cannot read the mesh ({exc}; binary MSH files are not read here)")
+    def section(name: str) -> int:
+        try:
+            return lines.index(f"${name}") + 1
+        except ValueError:
+            fail(f"{path}: no ${name} section")
+    version = lines[section("MeshFormat")].split()
+    if version[1] != "0":
+        fail(f"{path}: binary MSH files are not read here: save it as ASCII")
+    tags, coords, tris = [], [], []
+    i = section("Nodes")
+    if version[0].startswith("4"):
+        nblocks = int(lines[i].split()[0])
+        i += 1
+        for _ in range(nblocks):
+            dim, _, parametric, count = (int(x) for x in lines[i].split())
+            tags.append(np.array(lines[i + 1:i + 1 + count], dtype=np.int64))
+            xyz = np.array(" ".join(lines[i + 1 + count:i + 1 + 2 * count]).split(), dtype=float)
+            coords.append(xyz.reshape(count, -1)[:, :2] if count else np.zeros((0, 2)))
+            i += 1 + 2 * count
+        i = section("Elements")
+        nblocks = int(lines[i].split()[0])
+        i += 1
+        for _ in range(nblocks):
+            dim, _, etype, count = (int(x) for x in lines[i].split())
+            if etype == 2:
+                tris.append(np.array(" ".join(lines[i + 1:i + 1 + count]).split(), dtype=np.int64).reshape(count, 4)[:, 1:])
+            elif dim == 2:
+                fail(f"{path}: element type {etype} in a surface: only 3-node triangles are read")
+            i += 1 + count
+    elif version[0].startswith("2"):
+        count = int(lines[i])
+        data = np.array(" ".join(lines[i + 1:i + 1 + count]).split(), dtype=float).reshape(count, 4)
+        tags.append(data[:, 0].astype(np.int64))
+        coords.append(data[:, 1:3])
+        i = section("Elements")
+        for line in lines[i + 1:i + 1 + int(lines[i])]:
+            f = line.split()
+            if f[1] == "2":
+                tris.append(np.array([f[-3:]], dtype=np.int64))
+    else:
+        fail(f"{path}: MSH version {version[0]}: only 4.1 and 2.2 are read")
+    if not tris:
+        fail(f"{path}: no triangles")
+    tags, coords, tri_tags = np.concatenate(tags), np.concatenate(coords), np.concatenate(tris)
+    index = np.full(int(tags.max()) + 1, -1, dtype=np.int64)
+    index[tags] = np.arange(tags.size)
+    t = index[tri_tags]
+    if np.any(t < 0):
+        fail(f"{path}: a triangle names a node that is not in $Nodes")
+    used, t = np.unique(t, return_inverse=True)               # drop nodes no triangle uses
+    t = t.reshape(-1, 3)
+    v = coords[used]
+    p0, p1, p2 = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    det = (p1[:, 0] - p0[:, 0]) * (p2[:, 1] - p0[:, 1]) - (p1[:, 1] - p0[:, 1]) * (p2[:, 0] - p0[:, 0])
+    t[det < 0] = t[det < 0][:, [0, 2, 1]]
+    return make_mesh(v, t)
 
 
 def prolong(coarse: Mesh, x: np.ndarray) -> np.ndarray:
@@ -391,7 +476,11 @@ def petsc_options(tol: Tolerances) -> dict:
     return {"snes_type": "vinewtonrsls", "snes_rtol": 0.0, "snes_stol": 0.0, "snes_vi_zero_tolerance": 0.0,
             "snes_max_it": tol.snes_max_it, "ksp_type": "cg", "ksp_norm_type": "unpreconditioned",
             "ksp_rtol": tol.ksp_rtol, "ksp_atol": 0.0, "ksp_max_it": tol.ksp_max_it,
-            "pc_type": "hypre", "pc_hypre_type": "boomeramg"}
+            "pc_type": "hypre", "pc_hypre_type": "boomeramg",
+            # the inner PCs of Precond (--pc split, gmg)
+            "inner_pc_mg_galerkin": "both", "inner_pc_fieldsplit_type": "additive",
+            "inner_fieldsplit_w_ksp_type": "preonly", "inner_fieldsplit_w_pc_type": "hypre",
+            "inner_fieldsplit_s_ksp_type": "preonly", "inner_fieldsplit_s_pc_type": "hypre"}
 
 
 def set_default_options(PETSc, defaults: dict) -> None:
@@ -420,8 +509,10 @@ def _pc_setup_time(PETSc) -> float:
     return PETSc.Log.Event("PCSetUp").getPerfInfo()["time"]
 
 
-def snes_solve(PETSc, vi: VI, x0: np.ndarray, tol: Tolerances, level: int, nv: int) -> tuple[np.ndarray, SolveStats]:
-    """One SNES vinewtonrsls solve of ∇J(x) = H x − b ⊥ w ≥ 0 from x0."""
+def snes_solve(PETSc, vi: VI, x0: np.ndarray, tol: Tolerances, level: int, nv: int,
+               precond: "Precond | None" = None) -> tuple[np.ndarray, SolveStats]:
+    """One SNES vinewtonrsls solve of ∇J(x) = H x − b ⊥ w ≥ 0 from x0; `precond` replaces the
+    options database's PC (BoomerAMG by default) by one built on the reduced systems."""
     t0 = time.perf_counter()
     comm = PETSc.COMM_SELF
     H = vi.H
@@ -449,6 +540,8 @@ def snes_solve(PETSc, vi: VI, x0: np.ndarray, tol: Tolerances, level: int, nv: i
     snes.setJacobian(jacobian, A, A)
     snes.setVariableBounds(lower, upper)
     snes.setFromOptions()
+    if precond is not None:
+        precond.install(PETSc, snes, level)
     if not PETSc.Options().hasName("snes_atol"):
         snes.setTolerances(atol=tol.newton_tol * float(np.linalg.norm(vi.b)))
     snes.setSolution(x)                                       # SNESSetUp_VI sizes its work vectors on it
@@ -469,13 +562,111 @@ def snes_solve(PETSc, vi: VI, x0: np.ndarray, tol: Tolerances, level: int, nv: i
     return xs, stats
 
 
+def interior_prolongation(coarse: Level, fine: Level) -> sp.csr_matrix:
+    """P1 interpolation from `coarse` to its red refinement `fine` (coarse vertices first, then
+    the edge midpoints: red_refine's numbering) between interior vertices, for both fields
+    [w; s]: the corrections vanish on ∂Ω, where w = s = g are fixed."""
+    nc, e = coarse.mesh.nv, coarse.mesh.edges
+    ne = e.shape[0]
+    rows = np.concatenate([np.arange(nc), nc + np.arange(ne), nc + np.arange(ne)])
+    cols = np.concatenate([np.arange(nc), e[:, 0], e[:, 1]])
+    vals = np.concatenate([np.ones(nc), np.full(2 * ne, 0.5)])
+    P = sp.csr_matrix((vals, (rows, cols)), shape=(nc + ne, nc))[fine.interior][:, coarse.interior]
+    return sp.block_diag((P, P), format="csr")
+
+
+def petsc_aij(PETSc, M: sp.csr_matrix):
+    M = M.tocsr()
+    M.sort_indices()
+    A = PETSc.Mat().createAIJ(size=M.shape, csr=(M.indptr.astype(PETSc.IntType), M.indices.astype(PETSc.IntType),
+                                                  M.data), comm=PETSc.COMM_SELF)
+    A.assemble()
+    return A
+
+
+class Precond:
+    """A preconditioner of the reduced systems that needs to know the inactive set: a PETSc
+    'python' PC whose set-up (once per SNES step, when the reduced matrix changes) reads the
+    inactive set from SNESVIGetInactiveSet (ascending indices of [w; s], so the reduced matrix's
+    rows are the inactive w first, then every s) and builds an inner PC on it, options prefix
+    `inner_`.
+
+    kind 'gmg': PCMG with the red-refinement interpolations of the hierarchy: the finest one
+    restricted to the inactive rows, coarse columns that no remaining row reaches dropped (they
+    would give zero rows in the Galerkin product), and the same, level by level, further down;
+    Galerkin coarse operators (PCMG's MatPtAP), LU on the coarsest level.
+    kind 'split': PCFIELDSPLIT of the reduced system into its w and s blocks, each by BoomerAMG:
+    the coupled system H = M ⊗ K, scalar to BoomerAMG, has positive off-diagonals c·k_ii between
+    w_i and s_i that its coarsening does not expect."""
+
+    def __init__(self, kind: str, n: int, prolongations: list | None = None):
+        self.kind, self.n, self.P = kind, n, prolongations or []
+        self.snes = self.inner = None
+        self.level = 0
+
+    def install(self, PETSc, snes, level: int) -> None:
+        self.PETSc, self.snes, self.level = PETSc, snes, level
+        ksp = snes.getKSP()
+        # vinewtonrsls resets its KSP from the options database whenever the inactive set
+        # changes (SNESVIResetPCandKSP), which would bring back -pc_type hypre; under a prefix
+        # nothing sets, the reset keeps CG, its tolerances and this PC
+        ksp.setOptionsPrefix("reduced_")
+        pc = ksp.getPC()
+        pc.setType("python")
+        pc.setPythonContext(self)
+
+    def setUp(self, pc) -> None:
+        PETSc = self.PETSc
+        A, _ = pc.getOperators()
+        idx = self.snes.getVIInactiveSet().getIndices()
+        if idx.size != A.getSize()[0]:
+            fail(f"inactive set ({idx.size}) and reduced matrix ({A.getSize()[0]}) differ in size")
+        if self.inner is not None:
+            self.inner.destroy()
+        inner = PETSc.PC().create(comm=PETSc.COMM_SELF)
+        inner.setOptionsPrefix("inner_")
+        inner.setOperators(A, A)
+        if self.kind == "gmg" and self.level == 0:
+            inner.setType("lu")                               # the coarsest mesh: no hierarchy below
+        elif self.kind == "gmg":
+            mats, rows = [], idx
+            for P in reversed(self.P[:self.level]):
+                R = P[rows]
+                keep = np.flatnonzero(np.diff(R.tocsc().indptr) > 0)
+                mats.append(R[:, keep])
+                rows = keep
+            inner.setType("mg")
+            inner.setMGLevels(len(mats) + 1)
+            for l, R in enumerate(reversed(mats), start=1):
+                inner.setMGInterpolation(l, petsc_aij(PETSc, R))
+        else:
+            nw = int(np.count_nonzero(idx < self.n))
+            inner.setType("fieldsplit")
+            inner.setFieldSplitIS(("w", PETSc.IS().createStride(nw, 0, 1, comm=PETSc.COMM_SELF)),
+                                  ("s", PETSc.IS().createStride(idx.size - nw, nw, 1, comm=PETSc.COMM_SELF)))
+        inner.setFromOptions()
+        inner.setUp()
+        self.inner = inner
+
+    def apply(self, pc, x, y) -> None:
+        self.inner.apply(x, y)
+
+
 def snes_reason(PETSc, snes) -> str:
     r = snes.getConvergedReason()
     names = {v: k for k, v in vars(PETSc.SNES.ConvergedReason).items() if not k.startswith("_") and isinstance(v, int)}
     return names.get(r, str(r))
 
 
-def petsc_nested(PETSc, levels: list[Level], systems: list[VI], case: Case, tol: Tolerances):
+def make_precond(kind: str, levels: list[Level], prolongations: list) -> "Precond | None":
+    """None for the options database's PC (BoomerAMG on the whole reduced system)."""
+    if kind == "boomeramg":
+        return None
+    return Precond(kind, levels[-1].interior.size, prolongations)
+
+
+def petsc_nested(PETSc, levels: list[Level], systems: list[VI], case: Case, tol: Tolerances, kind: str,
+                 prolongations: list):
     """Level 0 from (g, g), then each level from the midpoint interpolation of the previous one."""
     stats, x = [], None
     t_interp = 0.0
@@ -488,14 +679,17 @@ def petsc_nested(PETSc, levels: list[Level], systems: list[VI], case: Case, tol:
             w, s = prolong(levels[l - 1].mesh, w), prolong(levels[l - 1].mesh, s)
             x0 = np.concatenate([w[lv.interior], s[lv.interior]])
             t_interp += time.perf_counter() - t0
-        x, st = snes_solve(PETSc, vi, x0, tol, l, lv.mesh.nv)
+        x, st = snes_solve(PETSc, vi, x0, tol, l, lv.mesh.nv, make_precond(kind, levels[:l + 1], prolongations))
         stats.append(st)
     return x, stats, t_interp
 
 
-def petsc_cold(PETSc, levels: list[Level], systems: list[VI], case: Case, tol: Tolerances):
+def petsc_cold(PETSc, levels: list[Level], systems: list[VI], case: Case, tol: Tolerances, kind: str,
+               prolongations: list):
     vi = systems[-1]
-    x, st = snes_solve(PETSc, vi, np.full(2 * vi.n, case.g), tol, len(levels) - 1, levels[-1].mesh.nv)
+    L = len(levels) - 1
+    x, st = snes_solve(PETSc, vi, np.full(2 * vi.n, case.g), tol, L, levels[-1].mesh.nv,
+                       make_precond(kind, levels, prolongations))
     return x, [st], 0.0
 
 
@@ -590,11 +784,23 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     ap.add_argument("--repeat", type=int, default=3, help="timed runs per method; medians are reported")
     ap.add_argument("--cold-repeat", type=int, default=None, help="timed cold PETSc runs (default: --repeat)")
     ap.add_argument("--skip-cold", action="store_true", help="no cold PETSc solve on the finest mesh (slow when large)")
+    ap.add_argument("--skip-nested", action="store_true", help="no nested PETSc solve (always with --mesh)")
+    ap.add_argument("--mesh", help="a Gmsh MSH 4.1/2.2 ASCII mesh solved as it is (mesh.levels = 0 in twomem; "
+                    "PETSc cold only) instead of the refined disk")
+    ap.add_argument("--pc", default="boomeramg",
+                    help="PETSc preconditioners of the reduced systems, comma list, one row pair each: boomeramg "
+                         "(CG+BoomerAMG on the whole reduced system), split (BoomerAMG per field w, s), gmg "
+                         "(PCMG with the hierarchy's interpolations restricted to the inactive set; not with --mesh)")
+    ap.add_argument("--whole", action="store_true",
+                    help="also time twomem's whole adaptive run (the default method, estimators, output) as the first row")
     ap.add_argument("--newton-tol", type=float, default=1e-10, help="twomem newton.tol; SNES atol = this · ‖∇J(0)‖")
     ap.add_argument("--ksp-rtol", type=float, default=1e-10, help="CG relative tolerance (twomem: gmres.rtol = 1e-10)")
     ap.add_argument("--petsc-options", default="", help="extra PETSc options, e.g. \"-snes_monitor -ksp_converged_reason\"")
     ap.add_argument("--agree", type=float, default=1e-8,
                     help="warn when a PETSc solution differs from twomem's reference by more (relative)")
+    ap.add_argument("--check", action="store_true",
+                    help="exit 1 when a PETSc solve did not converge or differs from twomem's reference by more "
+                         "than --agree (the test of this script: small meshes, --repeat 1)")
     ap.add_argument("-o", "--output", help="write every measurement as JSON here")
     args = ap.parse_args(argv)
     if args.levels < 0 or args.repeat < 1:
@@ -605,26 +811,52 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         ap.error(f"--threads: {exc}: expected N or N:passive or N:active, comma separated")
     if args.cold_repeat is None:
         args.cold_repeat = args.repeat
+    if args.skip_cold:
+        args.cold_repeat = 0
+    args.pc = args.pc.split(",")
+    if any(pc not in PC_LABELS for pc in args.pc):
+        ap.error(f"--pc: one or more of {', '.join(PC_LABELS)}")
+    if args.mesh:
+        if not Path(args.mesh).is_file():
+            ap.error(f"--mesh: {args.mesh}: no such file")
+        if "gmg" in args.pc:
+            ap.error("--pc gmg needs the refinement hierarchy: not with --mesh")
+        args.mesh = str(Path(args.mesh).resolve())
+        args.levels, args.skip_nested = 0, True
+    if args.skip_nested and args.skip_cold:
+        ap.error("--skip-nested and --skip-cold leave no PETSc solve")
     return args
 
 
 def build_levels(exe: Path, case: Case, work: Path) -> tuple[list[Level], float]:
-    """Coarse mesh from twomem (levels=0), refined here; assembled on every level."""
-    coarse = run_twomem(exe, case, work / "coarse.h5", TWOMEM_TIMED, Omp(1), levels=0)
+    """Coarse mesh from twomem (levels=0), refined here, or the Gmsh mesh read here; assembled
+    on every level."""
     t0 = time.perf_counter()
-    meshes = [make_mesh(coarse["vertices"].astype(float), coarse["triangles"])]
+    if case.mesh_file:
+        meshes = [read_gmsh(Path(case.mesh_file))]
+    else:
+        coarse = run_twomem(exe, case, work / "coarse.h5", TWOMEM_TIMED, Omp(1), levels=0)
+        t0 = time.perf_counter()
+        meshes = [make_mesh(coarse["vertices"].astype(float), coarse["triangles"])]
     for _ in range(case.levels):
         meshes.append(red_refine(meshes[-1]))
     t_mesh = time.perf_counter() - t0
     return [assemble(m, case) for m in meshes], t_mesh
 
 
-def twomem_row(runs: list[dict], label: str, diff: dict) -> dict:
+PHASES = ("mesh", "assembly", "solve", "estimators", "error", "output")
+PC_LABELS = {"boomeramg": "CG+BoomerAMG", "split": "CG+BoomerAMG per field (w, s)",
+             "gmg": "CG+GMG on the inactive set (red-refinement interpolation, Galerkin)"}
+
+
+def twomem_row(runs: list[dict], label: str, diff: dict, whole: bool) -> dict:
+    """Solve seconds: the solve phase; for the whole run the sum of all its phases."""
     s = runs[0]["summary"]
+    times = [sum(r["performance"].get(f"{p}_seconds", 0.0) for p in PHASES) if whole
+             else r["performance"]["solve_seconds"] for r in runs]
     return dict(method=label, steps=fmt_steps(s["newton_iterations"], s["newton_iterations_coarse"], True),
                 krylov=fmt_steps(s["gmres_iterations"], s["gmres_iterations_coarse"], True),
-                solve_s=median([r["performance"]["solve_seconds"] for r in runs]),
-                solve_s_all=[r["performance"]["solve_seconds"] for r in runs],
+                solve_s=median(times), solve_s_all=times,
                 assembly_s=median([r["performance"]["assembly_seconds"] for r in runs]),
                 nested=runs[0]["nested"], difference=diff)
 
@@ -632,67 +864,74 @@ def twomem_row(runs: list[dict], label: str, diff: dict) -> dict:
 def petsc_row(summary: dict, label: str, nested: bool, diff: dict) -> dict:
     return dict(method=label, steps=fmt_steps(summary["snes_it_finest"], summary["snes_it_coarse"], nested),
                 krylov=fmt_steps(summary["ksp_it_finest"], summary["ksp_it_coarse"], nested),
-                solve_s=summary["solve_s"], difference=diff)
+                solve_s=summary["solve_s"], solve_s_all=summary["solve_s_all"], difference=diff)
 
 
 @dataclass
 class Measurements:
-    """Everything the repeats produce: per twomem configuration its runs, per PETSc start its
-    per-level statistics and interpolation times, and the last finest solution of each."""
+    """Everything the repeats produce: per twomem configuration its runs, per PETSc method
+    (preconditioner, start) its per-level statistics and interpolation times, and the last
+    finest solution of each."""
     configs: list
+    methods: list
     twomem: dict = field(default_factory=dict)
-    petsc: dict = field(default_factory=lambda: {"nested": [], "cold": []})
-    interp: dict = field(default_factory=lambda: {"nested": [], "cold": []})
+    petsc: dict = field(default_factory=dict)
+    interp: dict = field(default_factory=dict)
     x: dict = field(default_factory=dict)
 
 
-def twomem_configs(threads: list[Omp]) -> list[tuple[str, list[str], Omp]]:
-    configs = [(f"twomem, MG-GMRES, tol 1e-10, nested, {t.label()}", TWOMEM_TIMED, t) for t in threads]
+def twomem_configs(threads: list[Omp], whole: bool) -> list[tuple[str, list[str], Omp, bool]]:
+    """(label, overrides, OpenMP, whole run): the whole adaptive run first when asked for."""
+    configs = [("twomem, whole adaptive run (default method, RT1 estimators, output), nested, "
+                f"{threads[0].label()}", [], threads[0], True)] if whole else []
+    configs += [(f"twomem, MG-GMRES, tol 1e-10, nested, {t.label()}", TWOMEM_TIMED, t, False) for t in threads]
     configs.append((f"twomem, MG-GMRES, tol 1e-12 (reference), nested, {threads[0].label()}",
-                    TWOMEM_REFERENCE, threads[0]))
+                    TWOMEM_REFERENCE, threads[0], False))
     return configs
 
 
 def run_repeats(PETSc, args, exe: Path, case: Case, levels: list[Level], systems: list[VI],
                 tol: Tolerances, work: Path) -> Measurements:
-    """Interleaved repeats (twomem rows, PETSc nested, PETSc cold) so that slow phases of the
-    machine's load hit every method alike."""
-    m = Measurements(configs=twomem_configs(args.threads))
+    """Interleaved repeats (twomem rows, PETSc nested, PETSc cold, per preconditioner) so that
+    slow phases of the machine's load hit every method alike."""
+    starts = ([] if args.skip_nested else ["nested"]) + ([] if args.skip_cold else ["cold"])
+    m = Measurements(configs=twomem_configs(args.threads, args.whole),
+                     methods=[(pc, start) for pc in args.pc for start in starts])
     m.twomem = {i: [] for i in range(len(m.configs))}
-    cold_repeat = 0 if args.skip_cold else args.cold_repeat
-    for r in range(max(args.repeat, cold_repeat)):
+    m.petsc = {k: [] for k in m.methods}
+    m.interp = {k: [] for k in m.methods}
+    prolongations = [interior_prolongation(c, f) for c, f in zip(levels[:-1], levels[1:])]
+    for r in range(max(args.repeat, args.cold_repeat)):
         if r < args.repeat:
-            for i, (_, overrides, omp) in enumerate(m.configs):
-                run = run_twomem(exe, case, work / "timed.h5", overrides, omp)
+            for i, (_, overrides, omp, whole) in enumerate(m.configs):
+                run = run_twomem(exe, case, work / "timed.h5", overrides, omp, quiet=not whole)
                 del run["vertices"], run["triangles"]                # same mesh as the reference
                 m.twomem[i].append(run)
-            m.x["nested"], st, ti = petsc_nested(PETSc, levels, systems, case, tol)
-            m.petsc["nested"].append(st)
-            m.interp["nested"].append(ti)
             times = ", ".join(f"{m.twomem[i][-1]['performance']['solve_seconds']:.3g}" for i in m.twomem)
-            print(f"run {r + 1}: twomem (table rows) {times} s; PETSc nested {sum(s.solve_s for s in st) + ti:.3g} s",
-                  flush=True)
-        if r < cold_repeat:
-            m.x["cold"], st, ti = petsc_cold(PETSc, levels, systems, case, tol)
-            m.petsc["cold"].append(st)
-            m.interp["cold"].append(ti)
-            print(f"run {r + 1}: PETSc cold {st[0].solve_s:.3g} s ({st[0].snes_it} SNES, {st[0].ksp_it} CG)", flush=True)
+            print(f"run {r + 1}: twomem solve phases (table rows) {times} s", flush=True)
+        for pc, start in m.methods:
+            if r >= (args.repeat if start == "nested" else args.cold_repeat):
+                continue
+            solve = petsc_nested if start == "nested" else petsc_cold
+            m.x[pc, start], st, ti = solve(PETSc, levels, systems, case, tol, pc, prolongations)
+            m.petsc[pc, start].append(st)
+            m.interp[pc, start].append(ti)
+            print(f"run {r + 1}: PETSc {pc} {start} {sum(x.solve_s for x in st) + ti:.3g} s "
+                  f"({st[-1].snes_it} SNES, {st[-1].ksp_it} CG on the finest level)", flush=True)
     return m
 
 
 def build_rows(m: Measurements, fine: Level, case: Case, ref: dict, perm: np.ndarray, agree: float):
     """Table rows, PETSc per-level summaries and notes (self-checks, warnings)."""
     rows, petsc_tables, notes = [], {}, []
-    for i, (label, _, _) in enumerate(m.configs):
+    for i, (label, _, _, whole) in enumerate(m.configs):
         last = m.twomem[i][-1]                                # twomem's vertex order, like ref
         diff = difference({k: last[k][perm] for k in ("u1", "u2", "lam")}, ref, perm)
-        rows.append(twomem_row(m.twomem[i], label, diff))
-    for start in ("nested", "cold"):
-        if not m.petsc[start]:
-            continue
-        label = f"PETSc vinewtonrsls, CG+BoomerAMG, {start}"
-        summary = summarize_petsc(m.petsc[start], m.interp[start])
-        fld = fields(fine, case, *to_nodal(fine, m.x[start], case.g))
+        rows.append(twomem_row(m.twomem[i], label, diff, whole))
+    for pc, start in m.methods:
+        label = f"PETSc vinewtonrsls, {PC_LABELS[pc]}, {start}"
+        summary = summarize_petsc(m.petsc[pc, start], m.interp[pc, start])
+        fld = fields(fine, case, *to_nodal(fine, m.x[pc, start], case.g))
         diff = difference(fld, ref, perm)
         rows.append(petsc_row(summary, label, start == "nested", diff))
         kkt = summary["kkt"] = kkt_check(fine, case, fld)
@@ -708,13 +947,20 @@ def build_rows(m: Measurements, fine: Level, case: Case, ref: dict, perm: np.nda
 
 def main(argv: list[str]) -> int:
     args = parse_args(argv)
+    # PETSc runs on one core, and its vector operations call the system BLAS: with OpenBLAS's
+    # OpenMP build (which scripts/bootstrap.sh selects for UMFPACK) every VecTDot and VecAXPY
+    # of 2.5·10^4 entries then took 12 ms on the loaded machine (thread start-up and spinning),
+    # most of a solve. One thread for this process, before numpy or PETSc load the BLAS; twomem's
+    # runs get their own OMP_NUM_THREADS (Omp.env).
+    os.environ["OMP_NUM_THREADS"] = os.environ["OPENBLAS_NUM_THREADS"] = "1"
     import_numerics()
     PETSc = import_petsc(args.petsc_options.split())
     exe = Path(args.twomem)
     if not exe.is_file() or not os.access(exe, os.X_OK):
         fail(f"{exe}: no twomem executable (build it: cmake --preset release && cmake --build --preset release)", 3)
     exe = exe.resolve()
-    case = Case(args.coarse_h, args.boundary_h, args.levels, args.mu1, args.mu2, args.f1, args.f2, args.g)
+    case = Case(args.coarse_h, args.boundary_h, args.levels, args.mu1, args.mu2, args.f1, args.f2, args.g,
+                mesh_file=args.mesh or "")
     tol = Tolerances(newton_tol=args.newton_tol, ksp_rtol=args.ksp_rtol)
     defaults = petsc_options(tol)
     set_default_options(PETSc, defaults)
@@ -725,7 +971,9 @@ def main(argv: list[str]) -> int:
         work = Path(tmp)
         levels, t_mesh = build_levels(exe, case, work)
         fine = levels[-1]
-        print(f"case: disk coarse_h {case.coarse_h} boundary_h {case.boundary_h} levels {case.levels}, "
+        where = (f"Gmsh mesh {case.mesh_file} as it is" if case.mesh_file else
+                 f"disk coarse_h {case.coarse_h} boundary_h {case.boundary_h} levels {case.levels}")
+        print(f"case: {where}, "
               f"mu1 {case.mu1} mu2 {case.mu2} f1 {case.f1} f2 {case.f2} g {case.g}; vertices per level "
               + ", ".join(str(lv.mesh.nv) for lv in levels), flush=True)
         systems = [vi_system(lv, case) for lv in levels]
@@ -740,6 +988,9 @@ def main(argv: list[str]) -> int:
     rows, petsc_tables, notes = build_rows(m, fine, case, ref, perm, args.agree)
     if args.skip_cold:
         notes.append("PETSc cold solve skipped (--skip-cold).")
+    if args.whole:
+        notes.append("The whole adaptive run's time is the sum of its phases (mesh, assembly, solve, estimators, "
+                     "output: /performance); the other twomem rows' and PETSc's are their solves alone.")
     load_after = os.getloadavg()
     notes.append(f"\nload average (1, 5, 15 min) at start {load_before[0]:.1f} {load_before[1]:.1f} {load_before[2]:.1f}, "
                  f"at end {load_after[0]:.1f} {load_after[1]:.1f} {load_after[2]:.1f} on {os.cpu_count()} cores")
@@ -750,10 +1001,12 @@ def main(argv: list[str]) -> int:
                        petsc_options=defaults, petsc_user_options=args.petsc_options,
                        snes_atol=[tol.newton_tol * float(np.linalg.norm(vi.b)) for vi in systems],
                        twomem_timed_overrides=TWOMEM_TIMED, twomem_reference_overrides=TWOMEM_REFERENCE,
-                       repeat=args.repeat, cold_repeat=0 if args.skip_cold else args.cold_repeat,
+                       repeat=args.repeat, cold_repeat=args.cold_repeat, pc=args.pc,
                        load_before=load_before, load_after=load_after, rows=rows, petsc=petsc_tables)
         Path(args.output).write_text(json.dumps(results, indent=1, default=float))
         print(f"\nwritten: {args.output}")
+    if args.check and any(n.startswith("warning") for n in notes):
+        fail("--check: " + "; ".join(n for n in notes if n.startswith("warning")), 1)
     return 0
 
 
