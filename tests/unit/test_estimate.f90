@@ -32,7 +32,8 @@ module test_estimate
    implicit none
    private
 
-   public :: collect_estimate, solved_disk, random_vector, mesh_problem, poly_data_t, lifting_by_local_solves
+   public :: collect_estimate, solved_disk, random_vector, mesh_problem, poly_data_t, lifting_by_local_solves, &
+             path_fixtures, iterate_fields, check_normal_continuity
 
    !> λ enters the first membrane's equilibrium with +, the second's with −
    real(dp), parameter :: lambda_sign(2) = [1.0_dp, -1.0_dp]

@@ -82,7 +82,8 @@ contains
       if (need_estimates) then
          call clock%switch(phase_estimators)
          call estimator%init(hierarchy, data, merge(1, 0, cfg%estimate%flux == flux_rt1), cfg%estimate%alg_levels, &
-                             poincare_constant(cfg%mesh%domain, hierarchy%meshes(finest)%diameter), err, comm)
+                             poincare_constant(cfg%mesh%domain, hierarchy%meshes(finest)%diameter), err, comm, &
+                             bound=cfg%estimate%bound)
          if (allocated(err)) then
             exit_code = err%code
             return

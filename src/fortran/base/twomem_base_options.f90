@@ -22,6 +22,7 @@ module twomem_base_options
    public :: flux_rt1, flux_rt0
    public :: criteria_global, criteria_local
    public :: checks_predicted, checks_all
+   public :: bound_paper, bound_root, bound_sharp
 
    !> mesh.domain
    integer, parameter :: domain_disk = 1, domain_square = 2, domain_gmsh = 3
@@ -47,4 +48,7 @@ module twomem_base_options
    integer, parameter :: criteria_global = 1, criteria_local = 2
    !> estimate.checks
    integer, parameter :: checks_predicted = 1, checks_all = 2
+   !> estimate.bound: the paper's (41), its exact root with the triangles' Poincaré constant,
+   !> and that with the redistributed contact multiplier (docs/method.md §3, *Sharper bounds*)
+   integer, parameter :: bound_paper = 1, bound_root = 2, bound_sharp = 3
 end module twomem_base_options

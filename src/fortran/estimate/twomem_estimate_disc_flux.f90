@@ -1,6 +1,7 @@
 !> The discretization flux reconstruction σ_α,disc = Σ_a σ^a_α (paper Def. 4.1): on the patch of
 !> every vertex a, the RT_p flux closest to −μ_α ψ_a ∇u_α whose divergence has the moments of
-!> g^a_α = (f_α ∓ λ_h(a) − r_α) ψ_a − μ_α ∇u_α·∇ψ_a, with zero normal flux on the patch boundary
+!> g^a_α = (f_α ∓ λ_h(a) w_a − r_α) ψ_a − μ_α ∇u_α·∇ψ_a (w_a = 1 but with `estimate.bound = 'sharp'`:
+!> twomem_estimate_multiplier), with zero normal flux on the patch boundary
 !> (except on ∂Ω at boundary vertices). Both membranes share the patch geometry, so each patch
 !> is solved once with two right-hand sides: with its signature's factor and the operators of
 !> its triangles' shape classes (twomem_estimate_shapes) where the hierarchy stores them, or on
@@ -20,6 +21,7 @@ module twomem_estimate_disc_flux
    use twomem_estimate_patch_classes, only: patch_table_t, patch_signature_t, stored_order, max_patch
    use twomem_estimate_generic_patch, only: generic_scratch_t, solve_generic, patch_links
    use twomem_estimate_evaluated_iterate, only: evaluated_iterate_t, gradients_on, lifting_on
+   use twomem_estimate_multiplier, only: multiplier_weight
    implicit none
    private
 
@@ -230,7 +232,9 @@ contains
                      rhs_div(:, k, alpha) = loads%moments(:, i, scratch%triangles(s), alpha)
                   end if
                   d = mu(alpha)*(grad_u(1)*scratch%hat(1, i, s) + grad_u(2)*scratch%hat(2, i, s))
-                  rhs_div(:, k, alpha) = rhs_div(:, k, alpha) + lambda_sign(alpha)*lambda_a*ops%psi_q(:, i, s) &
+                  rhs_div(:, k, alpha) = rhs_div(:, k, alpha) + lambda_sign(alpha)*lambda_a* &
+                                         multiplier_weight(mesh, iterate%u, iterate%lambda_factor, a, scratch%triangles(s))* &
+                                         ops%psi_q(:, i, s) &
                                          - ops%bary_psi_q(:, 1, i, s)*r(1) - ops%bary_psi_q(:, 2, i, s)*r(2) &
                                          - ops%bary_psi_q(:, 3, i, s)*r(3) - d*ops%q_int(:, s)
                end associate
@@ -261,7 +265,7 @@ contains
       integer(ip) :: t, order(max_patch)
       real(dp) :: ratio, area_factor
       real(dp) :: rhs_div(3, max_patch, 2), fgrad(2, max_patch, 2), grad_psi(2), hat_gradients(2, 3)
-      real(dp) :: grad_u(2, 2), r(3, 2), lambda_a
+      real(dp) :: grad_u(2, 2), r(3, 2), lambda_a, weight
       real(dp), parameter :: lambda_sign(2) = [1.0_dp, -1.0_dp]
 
       ne = size(sig%classes)
@@ -278,10 +282,11 @@ contains
          grad_psi = hat_gradients(:, i)
          call gradients_on(iterate, mesh, t, hat_gradients, grad_u)
          call lifting_on(iterate, mesh, t, r)
+         weight = multiplier_weight(mesh, iterate%u, iterate%lambda_factor, a, t)
          do alpha = 1, 2
             fgrad(:, k, alpha) = -mu(alpha)*grad_u(:, alpha)
             rhs_div(1:nd, k, alpha) = moment(loads, shapes, i, t, c, area_factor, alpha) + area_factor*( &
-                                      lambda_sign(alpha)*lambda_a*shapes%psi_q(:, i, c) &
+                                      lambda_sign(alpha)*lambda_a*weight*shapes%psi_q(:, i, c) &
                                       - shapes%bary_psi_q(:, 1, i, c)*r(1, alpha) &
                                       - shapes%bary_psi_q(:, 2, i, c)*r(2, alpha) &
                                       - shapes%bary_psi_q(:, 3, i, c)*r(3, alpha) &

@@ -13,17 +13,17 @@ module twomem_estimate_element_terms
 
    public :: data_oscillation, quadratic_forms, add_in_child_basis
 
-   real(dp), parameter :: pi = acos(-1.0_dp)
-
 contains
 
-   !> (h_K/π) μ_α^{−1/2} ‖f_α − Π_1 f_α‖_K with the load's degree-5 rule.
-   subroutine data_oscillation(space, mesh, data, mu, osc)
+   !> (h_K C) μ_α^{−1/2} ‖f_α − Π_1 f_α‖_K with the load's degree-5 rule, C = `constant`.
+   subroutine data_oscillation(space, mesh, data, mu, osc, constant)
       type(rt_space_t), intent(in) :: space
       type(mesh_t), intent(in) :: mesh
       class(problem_data_t), intent(in) :: data
       real(dp), intent(in) :: mu(2)
       real(dp), allocatable, intent(out) :: osc(:, :)
+      !> the Poincaré constant over h_K: 1/π (the paper) or 1/j_{1,1} (any triangle)
+      real(dp), intent(in) :: constant
 
       type(rt_frame_t) :: frame
       real(dp) :: x(2), w, q(3), gram(3, 3), b(3, 2), projection(3, 2), f(2), ff(2)
@@ -32,7 +32,7 @@ contains
       integer(ip) :: t
 
       allocate (osc(2, mesh%nt))
-      !$omp parallel do default(none) shared(space, mesh, data, mu, osc) &
+      !$omp parallel do default(none) shared(space, mesh, data, mu, osc, constant) &
       !$omp private(t, frame, x, w, q, gram, b, projection, f, ff, k, i, alpha, piv, ok) schedule(static)
       do t = 1, mesh%nt
          frame = frame_of(mesh%vertices, mesh%triangles(:, t))
@@ -58,7 +58,7 @@ contains
          call lu_solve(gram, piv, projection)
          do alpha = 1, 2
             ! (the frame's scale is the triangle's diameter, mesh_t%diameter_of)
-            osc(alpha, t) = frame%scale/pi/sqrt(mu(alpha))* &
+            osc(alpha, t) = frame%scale*constant/sqrt(mu(alpha))* &
                             sqrt(max(0.0_dp, ff(alpha) - dot_product(b(:, alpha), projection(:, alpha))))
          end do
       end do

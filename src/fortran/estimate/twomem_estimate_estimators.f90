@@ -26,7 +26,7 @@ module twomem_estimate_estimators
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_io
    use twomem_base_comm, only: comm_t
-   use twomem_base_options, only: domain_disk, domain_square
+   use twomem_base_options, only: domain_disk, domain_square, bound_paper, bound_root, bound_sharp
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_mesh_hierarchy, only: mesh_hierarchy_t
    use twomem_fem_problem, only: problem_data_t
@@ -48,6 +48,7 @@ module twomem_estimate_estimators
    use twomem_estimate_triangle_ops, only: rt_mass_matrix
    use twomem_estimate_storage, only: storage_tier, tier_none, tier_single, tier_all
    use twomem_estimate_element_terms, only: data_oscillation, quadratic_forms, add_in_child_basis
+   use twomem_estimate_multiplier, only: multiplier_factors, multiplier_on
    use twomem_linalg_operators, only: preconditioner_t
    use omp_lib, only: omp_get_max_threads
    implicit none
@@ -56,6 +57,9 @@ module twomem_estimate_estimators
    public :: estimator_t, estimates_t, poincare_constant
 
    real(dp), parameter :: pi = acos(-1.0_dp)
+   !> j_{1,1}, the first positive zero of J_1: ‖v − v_K‖_K ≤ (h_K/j_{1,1}) ‖∇v‖_K on every
+   !> triangle K of diameter h_K (Laugesen and Siudeja 2010), sharper than convex domains' h_K/π
+   real(dp), parameter :: bessel_j1_first_zero = 3.831705970207512_dp
    !> the sums of the element pass: see element_estimators
    integer, parameter :: n_sums = 9
    !> the algebraic flux's coarse problem is solved exactly (factorized once) up to this many
@@ -85,6 +89,10 @@ module twomem_estimate_estimators
       real(dp), allocatable :: sigma(:, :, :)
       type(evaluated_iterate_t) :: iterate
       real(dp) :: mu(2) = 1, c_omega = 1
+      !> estimate.bound (bound_paper, bound_root, bound_sharp) and the oscillation's constant
+      !> over h_K that goes with it: 1/π, or 1/j_{1,1} for the triangles' Poincaré inequality
+      integer :: bound = bound_paper
+      real(dp) :: osc_constant = 1/pi
       !> the ranks (one by default), the copies to the ghost triangles, and a copy of the
       !> discrete problem's halo for the residual's products
       type(comm_t) :: comm
@@ -132,7 +140,7 @@ contains
    !> (collective; every rank returns the same error). `tier` and `exact_max` override the
    !> choices of what is stored for the patch problems (storage_tier) and of the algebraic
    !> flux's exact coarse solve (exact_coarse_max), for tests that compare the paths.
-   subroutine init(self, hierarchy, data, flux_order, alg_meshes, poincare, err, comm, tier, exact_max)
+   subroutine init(self, hierarchy, data, flux_order, alg_meshes, poincare, err, comm, tier, exact_max, bound)
       class(estimator_t), intent(out) :: self
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       class(problem_data_t), intent(in) :: data
@@ -142,11 +150,21 @@ contains
       type(comm_t), intent(in), optional :: comm
       integer, intent(in), optional :: tier
       integer(ip), intent(in), optional :: exact_max
+      !> estimate.bound: bound_paper (default), bound_root or bound_sharp
+      integer, intent(in), optional :: bound
 
       integer(ip) :: coarse_max
       integer :: stored
 
       if (present(comm)) self%comm = comm
+      if (present(bound)) self%bound = bound
+      if (self%bound /= bound_paper) self%osc_constant = 1/bessel_j1_first_zero
+      ! the multiplier's weights read u_h at the vertices of ghost triangles, which a rank's
+      ! piece does not hold: one rank only
+      if (self%bound == bound_sharp .and. self%comm%size > 1) then
+         call make_error(err, exit_io, 'estimate', "bound = 'sharp' needs one MPI rank")
+         return
+      end if
       call self%ghosts%init(self%comm, hierarchy%meshes(0))
       associate (mesh => hierarchy%meshes(hierarchy%levels))
          call self%space%init(flux_order)
@@ -168,7 +186,7 @@ contains
          call self%loads%init(self%space, mesh, data)
          ! (constant loads are their own projection: no oscillation to store)
          if (flux_order == 1 .and. .not. self%loads%constant) &
-            call data_oscillation(self%space, mesh, data, self%mu, self%osc_data)
+            call data_oscillation(self%space, mesh, data, self%mu, self%osc_data, self%osc_constant)
          coarse_max = exact_coarse_max
          if (present(exact_max)) coarse_max = exact_max
          call self%alg%init(self%space, hierarchy, data, alg_meshes, stored == tier_all, coarse_max, poincare, err, &
@@ -255,6 +273,7 @@ contains
          call scatter(p, x(1:n), p%g, it%u(:, 1))
          call scatter(p, x(n + 1:2*n), 0.0_dp, it%u(:, 2))
          call scatter(p, x(2*n + 1:3*n), 0.0_dp, it%lambda)
+         if (self%bound == bound_sharp) call multiplier_factors(mesh, it%u, it%lambda, it%lambda_factor)
          ! a ghost triangle may have vertices outside this rank's unknowns: its owner's values
          call it%share_ghosts(self%ghosts, mesh, hierarchy%levels)
 
@@ -433,7 +452,7 @@ contains
       est%osc = sqrt(sums(3))
       est%contact = sums(4)
       call nonconformity(sums(5), sums(6), sums(9), self%c_omega, est%nonc1, est%nonc2, est%nonc3, est%lin)
-      est%total = sqrt(max(0.0_dp, (est%eta_1 + est%alg_remainder + est%nonc1 + est%nonc2)**2 + est%nonc3 + est%contact))
+      est%total = bound_of(self%bound, est%eta_1 + est%alg_remainder + est%nonc1 + est%nonc2, est%nonc3 + est%contact)
       est%disc = sqrt(sums(7)) + sqrt(abs(est%contact))
       est%alg = sqrt(sums(8)) + est%alg_remainder
       est%complete = algebraic
@@ -456,6 +475,20 @@ contains
       call self%ghosts%fill(hierarchy%levels, est%alg_k)
       call self%ghosts%fill(hierarchy%levels, est%lin_k)
    end subroutine element_pass
+
+   !> The bound from the proof's last inequality e² ≤ A e + c/2 (A = η_1 + η_rem + η_nonc,1 +
+   !> η_nonc,2, c = η_nonc,3 + Σ η_C,K): the paper's (41), √(A² + c), through AB ≤ (A² + B²)/2,
+   !> or the inequality's exact root A/2 + √(A²/4 + c/2), never larger (docs/method.md §3).
+   pure real(dp) function bound_of(bound, a, c) result(eta)
+      integer, intent(in) :: bound
+      real(dp), intent(in) :: a, c
+
+      if (bound == bound_paper) then
+         eta = sqrt(max(0.0_dp, a**2 + c))
+      else
+         eta = a/2 + sqrt(max(0.0_dp, a**2/4 + c/2))
+      end if
+   end function bound_of
 
    !> The nodal field of the interior values x (discrete_problem_t%to_nodal into a kept array).
    subroutine scatter(p, x, boundary_value, u)
@@ -593,14 +626,27 @@ contains
                alg_k(alpha) = sqrt(max(0.0_dp, sq(2, alpha))/self%mu(alpha))
                flux_k(alpha) = sqrt(max(0.0_dp, sq(3, alpha))/self%mu(alpha))
             end do
+            ! contiguous copies: sections and vector subscripts as arguments cost a temporary each;
+            ! lam: the multiplier the fluxes equilibrate with (λ_h, or λ̃ with bound = 'sharp')
+            do k = 1, 3
+               uv(k, :) = self%iterate%u(v(k), :)
+            end do
+            if (self%bound == bound_sharp) then
+               call multiplier_on(hierarchy%meshes(finest), self%iterate%u, self%iterate%lambda, &
+                                  self%iterate%lambda_factor, t, lam)
+            else
+               do k = 1, 3
+                  lam(k) = self%iterate%lambda(v(k))
+               end do
+            end if
             if (self%space%order == 0 .and. self%loads%constant) then
                ! RT0, constant loads: f_α ∓ λ_h deviates from its mean as λ_h does, and for a
                ! linear function ∫_K (l − l̄)² = |K|/36 Σ_{i<j} (l_i − l_j)² (what the degree-5
                ! rule below gives, up to round-off, without 14 load evaluations per triangle)
-               associate (lv => self%iterate%lambda(v))
+               associate (lv => lam)
                   osc_sq = ((lv(1) - lv(2))**2 + (lv(2) - lv(3))**2 + (lv(3) - lv(1))**2)*frame%area/36
                end associate
-               osc_k = frame%scale/acos(-1.0_dp)*sqrt(osc_sq/self%mu)
+               osc_k = frame%scale*self%osc_constant*sqrt(osc_sq/self%mu)
             else if (self%space%order == 0) then
                ! RT0: the oscillation of f_α ∓ λ_h around its mean
                osc_mean = 0.0_dp
@@ -608,7 +654,7 @@ contains
                do k = 1, self%space%rule%n
                   x = matmul(frame%vertices, self%space%rule%bary(:, k))
                   w = self%space%rule%weights(k)*frame%area
-                  lam_x = dot_product(self%iterate%lambda(v), self%space%rule%bary(:, k))
+                  lam_x = dot_product(lam, self%space%rule%bary(:, k))
                   f = [data%load(1, x), data%load(2, x)] + lambda_sign*lam_x
                   osc_values(:, k) = f
                   osc_mean = osc_mean + w*f
@@ -618,18 +664,13 @@ contains
                   osc_w = self%space%rule%weights(k)*frame%area
                   osc_sq = osc_sq + osc_w*(osc_values(:, k) - osc_mean)**2
                end do
-               osc_k = frame%scale/acos(-1.0_dp)*sqrt(osc_sq/self%mu)
+               osc_k = frame%scale*self%osc_constant*sqrt(osc_sq/self%mu)
             else if (allocated(self%osc_data)) then
                osc_k = self%osc_data(:, t)
             else
                osc_k = 0.0_dp
             end if
 
-            ! contiguous copies: sections and vector subscripts as arguments cost a temporary each
-            do k = 1, 3
-               uv(k, :) = self%iterate%u(v(k), :)
-               lam(k) = self%iterate%lambda(v(k))
-            end do
             call iterate_parts(frame, hat, self%c_omega, self%mu, uv, lam, grad_k, contact_k, nonc1_k, nonc2_k, pos_ll)
             partial(:, b) = partial(:, b) + [sum((flux_k + osc_k)**2), sum(flux_k**2), sum(osc_k**2), contact_k, &
                                              nonc1_k**2, nonc2_k**2, sum((disc_k + osc_k)**2), sum(alg_k**2), pos_ll]

@@ -26,6 +26,9 @@ module twomem_estimate_evaluated_iterate
       !> `set_shares` turns it into its shares in place (R_α itself is not kept: what the
       !> algebraic flux needs of it, it takes before)
       real(dp), allocatable :: u(:, :), lambda(:), shares(:, :)
+      !> the weights of the multiplier the fluxes equilibrate with (twomem_estimate_multiplier):
+      !> all zero (λ_h itself) unless `estimate.bound = 'sharp'`
+      real(dp), allocatable :: lambda_factor(:)
       !> the owners' ∇u_α (ghost_grad(:, α, t − nt_owned)) and r_α (ghost_lift(:, α, ...)) on
       !> the ghost triangles t > nt_owned of the finest mesh (none on one rank)
       real(dp), allocatable :: ghost_grad(:, :, :), ghost_lift(:, :, :)
@@ -49,14 +52,15 @@ contains
       self%nt_owned = mesh%nt_owned
       n_ghost = mesh%nt - mesh%nt_owned
       allocate (self%u(mesh%nv, 2), self%lambda(mesh%nv), self%shares(mesh%nv, 2), &
-                self%ghost_grad(2, 2, n_ghost), self%ghost_lift(3, 2, n_ghost))
+                self%ghost_grad(2, 2, n_ghost), self%ghost_lift(3, 2, n_ghost), self%lambda_factor(mesh%nv))
+      self%lambda_factor = 0.0_dp
    end subroutine init
 
    subroutine free(self)
       class(evaluated_iterate_t), intent(inout) :: self
 
       if (allocated(self%u)) deallocate (self%u, self%lambda, self%shares, self%ghost_grad, &
-                                         self%ghost_lift)
+                                         self%ghost_lift, self%lambda_factor)
       self%nt_owned = 0
    end subroutine free
 

@@ -7,7 +7,7 @@
 module twomem_input_case
    use twomem_base_kinds, only: dp
    use twomem_base_options, only: domain_disk, exact_none, c_function_min, method_adaptive, initial_nested, &
-      line_search_auto, fb_finish_active_set, precond_mg, forcing_finish, flux_rt1, criteria_global, checks_predicted
+      line_search_auto, fb_finish_active_set, precond_mg, forcing_finish, flux_rt1, criteria_global, checks_predicted, bound_paper
    implicit none
    private
 
@@ -91,6 +91,8 @@ module twomem_input_case
       !> how much of the estimators the adaptive method's checks compute: checks_predicted (η_lin
       !> first, then η_disc and the rest only while Newton's test can hold) or checks_all (the paper)
       integer :: checks = checks_predicted
+      !> bound_paper (the paper's (41)), bound_root or bound_sharp (docs/method.md §3)
+      integer :: bound = bound_paper
    end type estimate_config_t
 
    type :: output_config_t

@@ -18,7 +18,7 @@ module twomem_input_config
       k_domain, k_mesh_file, k_coarse_h, k_levels, k_boundary_h, k_mu1, k_mu2, k_f1, k_f2, k_g, k_exact, &
       k_f1_file, k_f2_file, k_cfun, k_linear, k_newton_max_it, k_tol, k_gamma_lin, k_initial, k_line_search, &
       k_fb_finish, k_restart, k_gmres_max_it, k_rtol, k_precond, k_forcing, k_gamma_alg, k_enabled, k_every, &
-      k_flux, k_alg_levels, k_criteria, k_checks, k_output_file, k_fields, k_estimators, k_history, k_xdmf, &
+      k_flux, k_alg_levels, k_criteria, k_checks, k_bound, k_output_file, k_fields, k_estimators, k_history, k_xdmf, &
       k_adapt_tol, k_theta, k_max_steps, k_max_vertices
    use twomem_input_options, only: kind_of_word, word_of_kind
    use twomem_input_rules, only: validate
@@ -288,6 +288,7 @@ contains
       case (k_flux); cfg%estimate%flux = kind
       case (k_criteria); cfg%estimate%criteria = kind
       case (k_checks); cfg%estimate%checks = kind
+      case (k_bound); cfg%estimate%bound = kind
       end select
    end subroutine store_kind
 
@@ -309,6 +310,7 @@ contains
       case (k_flux); kind = cfg%estimate%flux
       case (k_criteria); kind = cfg%estimate%criteria
       case (k_checks); kind = cfg%estimate%checks
+      case (k_bound); kind = cfg%estimate%bound
       case default; kind = 0
       end select
    end function kind_value

@@ -13,7 +13,7 @@ module twomem_input_keys
              k_mu1, k_mu2, k_f1, k_f2, k_g, k_exact, k_f1_file, k_f2_file, &
              k_cfun, k_linear, k_newton_max_it, k_tol, k_gamma_lin, k_initial, k_line_search, k_fb_finish, &
              k_restart, k_gmres_max_it, k_rtol, k_precond, k_forcing, &
-             k_gamma_alg, k_enabled, k_every, k_flux, k_alg_levels, k_criteria, k_checks, &
+             k_gamma_alg, k_enabled, k_every, k_flux, k_alg_levels, k_criteria, k_checks, k_bound, &
              k_output_file, k_fields, k_estimators, k_history, k_xdmf, &
              k_adapt_tol, k_theta, k_max_steps, k_max_vertices
    public :: find_group, find_key, group_list, key_list, key_name, group_name
@@ -46,9 +46,9 @@ module twomem_input_keys
       k_line_search = 20, k_fb_finish = 21, &
       k_restart = 22, k_gmres_max_it = 23, k_rtol = 24, k_precond = 25, k_forcing = 26, &
       k_gamma_alg = 27, k_enabled = 28, k_every = 29, k_flux = 30, k_alg_levels = 31, k_criteria = 32, &
-      k_checks = 33, &
-      k_output_file = 34, k_fields = 35, k_estimators = 36, k_history = 37, k_xdmf = 38, &
-      k_adapt_tol = 39, k_theta = 40, k_max_steps = 41, k_max_vertices = 42
+      k_checks = 33, k_bound = 34, &
+      k_output_file = 35, k_fields = 36, k_estimators = 37, k_history = 38, k_xdmf = 39, &
+      k_adapt_tol = 40, k_theta = 41, k_max_steps = 42, k_max_vertices = 43
 
    !> Within a group, the order of the echo and of the "valid keys" lists.
    type(key_t), parameter :: keys(*) = [ &
@@ -85,6 +85,7 @@ module twomem_input_keys
       key_t(k_alg_levels, group_estimate, 'alg_levels', type_int), &
       key_t(k_criteria, group_estimate, 'criteria', type_word), &
       key_t(k_checks, group_estimate, 'checks', type_word), &
+      key_t(k_bound, group_estimate, 'bound', type_word), &
       key_t(k_output_file, group_output, 'file', type_path), &
       key_t(k_fields, group_output, 'fields', type_logical), &
       key_t(k_estimators, group_output, 'estimators', type_logical), &

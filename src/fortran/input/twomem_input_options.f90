@@ -9,10 +9,11 @@ module twomem_input_options
       c_function_min, c_function_fb, method_direct, method_gmres, method_adaptive, initial_paper, initial_nested, &
       line_search_auto, line_search_on, line_search_off, fb_finish_active_set, fb_finish_none, &
       precond_mg, precond_ilu0, precond_jacobi, precond_none, forcing_finish, forcing_paper, forcing_fixed, &
-      flux_rt1, flux_rt0, criteria_global, criteria_local, checks_predicted, checks_all
+      flux_rt1, flux_rt0, criteria_global, criteria_local, checks_predicted, checks_all, &
+      bound_paper, bound_root, bound_sharp
    use twomem_input_values, only: quote
    use twomem_input_keys, only: k_domain, k_exact, k_cfun, k_linear, k_initial, k_line_search, k_fb_finish, &
-      k_precond, k_forcing, k_flux, k_criteria, k_checks
+      k_precond, k_forcing, k_flux, k_criteria, k_checks, k_bound
    implicit none
    private
 
@@ -60,7 +61,10 @@ module twomem_input_options
       option_word_t(k_criteria, 'global', criteria_global, 'the paper''s global stopping criteria (63)'), &
       option_word_t(k_criteria, 'local', criteria_local, 'the local criteria (64) on every patch and element'), &
       option_word_t(k_checks, 'predicted', checks_predicted, 'eta_lin first, the rest while Newton''s test can hold'), &
-      option_word_t(k_checks, 'all', checks_all, 'every estimator at every check (the paper)')]
+      option_word_t(k_checks, 'all', checks_all, 'every estimator at every check (the paper)'), &
+      option_word_t(k_bound, 'paper', bound_paper, 'the bound (41) as the paper states it'), &
+      option_word_t(k_bound, 'root', bound_root, 'the exact root of the proof''s last inequality, triangle Poincare'), &
+      option_word_t(k_bound, 'sharp', bound_sharp, 'root, and the contact multiplier moved into the contact zone')]
 
    !> Compile-time guard, through an invalid kind (-1) when it fails: every word and help line
    !> is shorter than its field (a longer one, cut to the field, would fill it).

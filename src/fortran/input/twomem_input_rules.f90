@@ -16,7 +16,7 @@ module twomem_input_rules
    use twomem_input_keys, only: key_name, group_name, k_domain, k_mesh_file, k_coarse_h, k_levels, k_boundary_h, &
       k_mu1, k_mu2, k_f1, k_f2, k_g, k_exact, k_f1_file, k_f2_file, k_cfun, k_linear, k_newton_max_it, k_tol, &
       k_gamma_lin, k_initial, k_line_search, k_fb_finish, k_restart, k_gmres_max_it, k_rtol, k_precond, &
-      k_forcing, k_gamma_alg, k_every, k_flux, k_alg_levels, k_criteria, k_checks, k_adapt_tol, k_theta, &
+      k_forcing, k_gamma_alg, k_every, k_flux, k_alg_levels, k_criteria, k_checks, k_bound, k_adapt_tol, k_theta, &
       k_max_steps, k_max_vertices
    implicit none
    private
@@ -89,6 +89,7 @@ contains
       call check_int(err, origin, k_alg_levels, cfg%estimate%alg_levels, 1, 13)
       call check_word(err, origin, given, k_criteria, cfg%estimate%criteria)
       call check_word(err, origin, given, k_checks, cfg%estimate%checks)
+      call check_word(err, origin, given, k_bound, cfg%estimate%bound)
 
       call check_real(err, origin, k_adapt_tol, cfg%adapt%tol, ge=0.0_dp)
       call check_real(err, origin, k_theta, cfg%adapt%theta, gt=0.0_dp, le=1.0_dp)
