@@ -23,58 +23,22 @@ contains
       character(len=*), intent(in) :: node_fields(:), cell_fields(:)
       type(error_t), allocatable, intent(out) :: err
 
-      character(len=:), allocatable :: tmp_path, h5
+      character(len=:), allocatable :: tmp_path
       character(len=256) :: msg
-      character(len=:), allocatable :: nv_text, nt_text
-      integer :: unit, ios, ignored, i
+      integer :: unit, ios
 
-      tmp_path = trim(xdmf_path)//'.tmp'//int_text(process_id())
-      h5 = xml_escape(trim(h5_name))
-      nv_text = int_text(int(nv))
-      nt_text = int_text(int(nt))
-      call register_temporary(tmp_path)
-      open (newunit=unit, file=tmp_path, status='replace', action='write', form='formatted', &
-            iostat=ios, iomsg=msg)
-      if (ios /= 0) then
-         call unregister_temporary()
-         call make_error(err, exit_io, xdmf_path, 'cannot write XDMF file: '//trim(msg))
-         return
-      end if
-
+      call open_temporary(xdmf_path, tmp_path, unit, err)
+      if (allocated(err)) return
+      ios = 0
+      msg = ''
       call emit(unit, '<?xml version="1.0" encoding="UTF-8"?>', ios, msg)
       call emit(unit, '<Xdmf Version="3.0" xmlns:xi="http://www.w3.org/2001/XInclude">', ios, msg)
       call emit(unit, '  <Domain>', ios, msg)
-      call emit(unit, '    <Grid Name="twomem" GridType="Uniform">', ios, msg)
-      call emit(unit, '      <Topology TopologyType="Triangle" NumberOfElements="'//nt_text//'">', ios, msg)
-      call emit_item(unit, h5, '/mesh/triangles', nt_text//' 3', 'Int', '4', ios, msg)
-      call emit(unit, '      </Topology>', ios, msg)
-      call emit(unit, '      <Geometry GeometryType="XY">', ios, msg)
-      call emit_item(unit, h5, '/mesh/vertices', nv_text//' 2', 'Float', '8', ios, msg)
-      call emit(unit, '      </Geometry>', ios, msg)
-      do i = 1, size(node_fields)
-         call emit_attribute(unit, h5, trim(node_fields(i)), 'Node', nv_text, ios, msg)
-      end do
-      do i = 1, size(cell_fields)
-         call emit_attribute(unit, h5, trim(cell_fields(i)), 'Cell', nt_text, ios, msg)
-      end do
-      call emit(unit, '    </Grid>', ios, msg)
+      call emit_grid(unit, xml_escape(trim(h5_name)), 'twomem', '/mesh', '', nv, nt, node_fields, cell_fields, &
+                     ios, msg)
       call emit(unit, '  </Domain>', ios, msg)
       call emit(unit, '</Xdmf>', ios, msg)
-
-      if (ios == 0) then
-         close (unit, iostat=ios, iomsg=msg)
-      else
-         close (unit, status='delete', iostat=ignored)
-      end if
-      if (ios /= 0) then
-         call remove_file(tmp_path)
-         call unregister_temporary()
-         call make_error(err, exit_io, xdmf_path, 'cannot write XDMF file: '//trim(msg))
-         return
-      end if
-      call rename_file(tmp_path, xdmf_path, err)
-      if (allocated(err)) call remove_file(tmp_path)
-      call unregister_temporary()
+      call finish_temporary(xdmf_path, tmp_path, unit, ios, msg, err)
    end subroutine write_xdmf
 
    !> A temporal collection over the groups `groups` of the result file `h5_name` (each holding
@@ -87,47 +51,93 @@ contains
       character(len=*), intent(in) :: node_fields(:), cell_fields(:)
       type(error_t), allocatable, intent(out) :: err
 
-      character(len=:), allocatable :: tmp_path, h5, g, nv_text, nt_text
+      character(len=:), allocatable :: tmp_path, h5
       character(len=256) :: msg
-      integer :: unit, ios, ignored, i, k
+      integer :: unit, ios, k
+
+      call open_temporary(xdmf_path, tmp_path, unit, err)
+      if (allocated(err)) return
+      h5 = xml_escape(trim(h5_name))
+      ios = 0
+      msg = ''
+      call emit(unit, '<?xml version="1.0" encoding="UTF-8"?>', ios, msg)
+      call emit(unit, '<Xdmf Version="3.0" xmlns:xi="http://www.w3.org/2001/XInclude">', ios, msg)
+      call emit(unit, '  <Domain>', ios, msg)
+      call emit(unit, '    <Grid Name="adapt" GridType="Collection" CollectionType="Temporal">', ios, msg)
+      do k = 1, size(groups)
+         call emit_grid(unit, h5, 'step '//int_text(k), trim(groups(k)), trim(groups(k))//'/', nv(k), nt(k), &
+                        node_fields, cell_fields, ios, msg, time=k)
+      end do
+      call emit(unit, '    </Grid>', ios, msg)
+      call emit(unit, '  </Domain>', ios, msg)
+      call emit(unit, '</Xdmf>', ios, msg)
+      call finish_temporary(xdmf_path, tmp_path, unit, ios, msg, err)
+   end subroutine write_xdmf_steps
+
+   !> One triangle grid: the mesh datasets `mesh_group`/triangles and /vertices, the fields at
+   !> `field_prefix`//name, and with `time` the time value of a temporal collection's member.
+   subroutine emit_grid(unit, h5, name, mesh_group, field_prefix, nv, nt, node_fields, cell_fields, ios, msg, time)
+      integer, intent(in) :: unit
+      character(len=*), intent(in) :: h5, name, mesh_group, field_prefix
+      integer(ip), intent(in) :: nv, nt
+      character(len=*), intent(in) :: node_fields(:), cell_fields(:)
+      integer, intent(inout) :: ios
+      character(len=*), intent(inout) :: msg
+      integer, intent(in), optional :: time
+
+      character(len=:), allocatable :: nv_text, nt_text
+      integer :: i
+
+      nv_text = int_text(int(nv))
+      nt_text = int_text(int(nt))
+      call emit(unit, '    <Grid Name="'//name//'" GridType="Uniform">', ios, msg)
+      if (present(time)) call emit(unit, '      <Time Value="'//int_text(time)//'"/>', ios, msg)
+      call emit(unit, '      <Topology TopologyType="Triangle" NumberOfElements="'//nt_text//'">', ios, msg)
+      call emit_item(unit, h5, mesh_group//'/triangles', nt_text//' 3', 'Int', '4', ios, msg)
+      call emit(unit, '      </Topology>', ios, msg)
+      call emit(unit, '      <Geometry GeometryType="XY">', ios, msg)
+      call emit_item(unit, h5, mesh_group//'/vertices', nv_text//' 2', 'Float', '8', ios, msg)
+      call emit(unit, '      </Geometry>', ios, msg)
+      do i = 1, size(node_fields)
+         call emit_attribute(unit, h5, field_prefix//trim(node_fields(i)), 'Node', nv_text, ios, msg)
+      end do
+      do i = 1, size(cell_fields)
+         call emit_attribute(unit, h5, field_prefix//trim(cell_fields(i)), 'Cell', nt_text, ios, msg)
+      end do
+      call emit(unit, '    </Grid>', ios, msg)
+   end subroutine emit_grid
+
+   !> Open a temporary file beside `xdmf_path`, registered for removal should the run be killed.
+   subroutine open_temporary(xdmf_path, tmp_path, unit, err)
+      character(len=*), intent(in) :: xdmf_path
+      character(len=:), allocatable, intent(out) :: tmp_path
+      integer, intent(out) :: unit
+      type(error_t), allocatable, intent(out) :: err
+
+      character(len=256) :: msg
+      integer :: ios
 
       tmp_path = trim(xdmf_path)//'.tmp'//int_text(process_id())
-      h5 = xml_escape(trim(h5_name))
       call register_temporary(tmp_path)
       open (newunit=unit, file=tmp_path, status='replace', action='write', form='formatted', &
             iostat=ios, iomsg=msg)
       if (ios /= 0) then
          call unregister_temporary()
          call make_error(err, exit_io, xdmf_path, 'cannot write XDMF file: '//trim(msg))
-         return
       end if
-      call emit(unit, '<?xml version="1.0" encoding="UTF-8"?>', ios, msg)
-      call emit(unit, '<Xdmf Version="3.0" xmlns:xi="http://www.w3.org/2001/XInclude">', ios, msg)
-      call emit(unit, '  <Domain>', ios, msg)
-      call emit(unit, '    <Grid Name="adapt" GridType="Collection" CollectionType="Temporal">', ios, msg)
-      do k = 1, size(groups)
-         g = trim(groups(k))
-         nv_text = int_text(int(nv(k)))
-         nt_text = int_text(int(nt(k)))
-         call emit(unit, '    <Grid Name="step '//int_text(k)//'" GridType="Uniform">', ios, msg)
-         call emit(unit, '      <Time Value="'//int_text(k)//'"/>', ios, msg)
-         call emit(unit, '      <Topology TopologyType="Triangle" NumberOfElements="'//nt_text//'">', ios, msg)
-         call emit_item(unit, h5, g//'/triangles', nt_text//' 3', 'Int', '4', ios, msg)
-         call emit(unit, '      </Topology>', ios, msg)
-         call emit(unit, '      <Geometry GeometryType="XY">', ios, msg)
-         call emit_item(unit, h5, g//'/vertices', nv_text//' 2', 'Float', '8', ios, msg)
-         call emit(unit, '      </Geometry>', ios, msg)
-         do i = 1, size(node_fields)
-            call emit_attribute(unit, h5, g//'/'//trim(node_fields(i)), 'Node', nv_text, ios, msg)
-         end do
-         do i = 1, size(cell_fields)
-            call emit_attribute(unit, h5, g//'/'//trim(cell_fields(i)), 'Cell', nt_text, ios, msg)
-         end do
-         call emit(unit, '    </Grid>', ios, msg)
-      end do
-      call emit(unit, '    </Grid>', ios, msg)
-      call emit(unit, '  </Domain>', ios, msg)
-      call emit(unit, '</Xdmf>', ios, msg)
+   end subroutine open_temporary
+
+   !> Close the temporary file and rename it to `xdmf_path`, or delete it when a write failed
+   !> (`ios`, `msg`: the first failure), so that a reader never sees half of the file.
+   subroutine finish_temporary(xdmf_path, tmp_path, unit, ios, msg, err)
+      character(len=*), intent(in) :: xdmf_path, tmp_path
+      integer, intent(in) :: unit
+      integer, intent(inout) :: ios
+      character(len=*), intent(inout) :: msg
+      type(error_t), allocatable, intent(out) :: err
+
+      integer :: ignored
+
       if (ios == 0) then
          close (unit, iostat=ios, iomsg=msg)
       else
@@ -142,7 +152,7 @@ contains
       call rename_file(tmp_path, xdmf_path, err)
       if (allocated(err)) call remove_file(tmp_path)
       call unregister_temporary()
-   end subroutine write_xdmf_steps
+   end subroutine finish_temporary
 
    !> A scalar field, named after the dataset's last path component.
    subroutine emit_attribute(unit, h5, dset_path, center, dims, ios, msg)
