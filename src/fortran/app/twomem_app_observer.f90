@@ -19,12 +19,9 @@ module twomem_app_observer
    use twomem_newton_history, only: history_row_t
    use twomem_newton_inner, only: newton_observer_t
    use twomem_estimate_estimators, only: estimator_t, estimates_t
-   use twomem_base_kinds, only: ip
-   use twomem_fem_transfer, only: interior_prolongations, interior_numbering, interior_vertices, interior_halo
-   use twomem_linalg_csr, only: csr_t
-   use twomem_linalg_halo, only: halo_t
    use twomem_linalg_multigrid, only: multigrid_transfer_t, multigrid_options_t
    use twomem_linalg_mg_preconditioner, only: mg_preconditioner_t
+   use twomem_app_transfers, only: hierarchy_transfer
    implicit none
    private
 
@@ -262,35 +259,26 @@ contains
    end subroutine refresh
 
    !> The one-level algebraic flux's preconditioner, built if not yet: one V-cycle for the finest
-   !> stiffness on the transfers of the hierarchy's levels that have unknowns (one level: a direct
-   !> solve). Collective.
+   !> stiffness on the transfers the solves use (twomem_app_transfers: the hierarchy's levels
+   !> that have unknowns, with algebraic levels below a mesh too large for a direct solve, so
+   !> that a single mesh, an adapted one for instance, is not factorized whole at every
+   !> evaluation's first use). Collective.
    subroutine riesz_preconditioner(self, err)
       class(run_observer_t), intent(inout) :: self
       type(error_t), allocatable, intent(out) :: err
 
-      type(halo_t), allocatable :: halos(:)
-      type(csr_t), allocatable :: prolongations(:)
-      integer(ip), allocatable :: unknown(:), interior(:), keys(:)
       type(multigrid_options_t) :: options
-      integer :: l, bottom, top
+      integer :: bottom, top
 
       if (allocated(self%riesz)) return
       associate (comm => self%p%halo%comm, hierarchy => self%hierarchy)
          bottom = hierarchy%first_with_unknowns(comm)
-         top = hierarchy%levels
-         allocate (halos(0:top - bottom))
-         do l = bottom, top
-            unknown = interior_numbering(hierarchy%meshes(l))
-            interior = interior_vertices(unknown)
-            call interior_halo(hierarchy%meshes(l), interior, comm, halos(l - bottom))
-            if (l == bottom) keys = hierarchy%meshes(l)%global_vertex_of(interior)
-         end do
-         prolongations = interior_prolongations(hierarchy, top)
          allocate (self%transfer)
-         call self%transfer%init(prolongations(bottom + 1:top), err, halos=halos, coarse_keys=keys)
+         call hierarchy_transfer(comm, hierarchy, bottom, self%p, .true., self%transfer, err)
          if (allocated(err)) return
+         top = self%transfer%levels
          allocate (self%riesz)
-         call self%riesz%init(self%p%stiffness, self%transfer, top - bottom, options, err)
+         call self%riesz%init(self%p%stiffness, self%transfer, top, options, err)
       end associate
       if (allocated(err)) call self%free_riesz()
    end subroutine riesz_preconditioner
