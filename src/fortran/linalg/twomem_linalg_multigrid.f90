@@ -31,6 +31,7 @@ module twomem_linalg_multigrid
    use twomem_linalg_chebyshev, only: chebyshev_t, level_product
    use twomem_linalg_halo, only: halo_t
    use twomem_linalg_gathered_solve, only: gathered_solver_t
+   use twomem_linalg_umfpack, only: ordering_minimum_degree
    use twomem_linalg_vectors, only: copy_allocated, fill, threaded_from
    use twomem_base_comm, only: comm_t
    implicit none
@@ -303,7 +304,7 @@ contains
          end do
          !$omp end parallel do
       end if
-      call self%coarse%init(transfer%halos(0)%comm, transfer%coarse_keys, transfer%halos(0)%owned)
+      call self%coarse%init(transfer%halos(0)%comm, transfer%coarse_keys, transfer%halos(0)%owned, ordering=ordering_minimum_degree)
       if (present(start_from)) then
          call start_as(self, start_from, err)
       else if (fused) then
