@@ -451,13 +451,13 @@ contains
             if (allocated(err)) return
             ! the tables as the estimators build them, counting the boundary patches they factor
             call single%init(.false., 2)
-            call single%add_mesh(space, h%meshes(2), h%meshes(2), 2)
+            call single%add_mesh(space, shapes, h%meshes(2), h%meshes(2), 2)
             call single%finish(space, shapes, err)
             if (allocated(err)) return
             n_boundary = count(h%meshes(2)%boundary_vertex .and. single%levels(2)%id > 0)
             call refined%init(.true., 2)
             do j = alg%first(), 2
-               call refined%add_mesh(space, h%meshes(j - 1), h%meshes(j), j - 1)
+               call refined%add_mesh(space, shapes, h%meshes(j - 1), h%meshes(j), j - 1)
                do a = 1, h%meshes(j - 1)%nv
                   if (h%meshes(j - 1)%boundary_vertex(a) .and. refined%levels(j - 1)%id(a) > 0) n_boundary = n_boundary + 1
                end do
@@ -497,6 +497,8 @@ contains
       type(discrete_problem_t) :: p
       type(rt_space_t) :: space
       type(patch_table_t) :: table
+      !> not classified: the classes of red refinement
+      type(shape_classes_t) :: shapes
       integer(ip) :: a, expected(64), got(64)
       integer :: order, level, n, coded, code, k
       logical :: refined
@@ -509,7 +511,7 @@ contains
             ! level 2: the finest mesh's own patches; level 1: its patches on their refinement
             refined = level == 1
             call table%init(refined, 2)
-            call table%add_mesh(space, h%meshes(level), h%meshes(merge(2, level, refined)), level)
+            call table%add_mesh(space, shapes, h%meshes(level), h%meshes(merge(2, level, refined)), level)
             coded = 0
             associate (mesh => h%meshes(level))
                do a = 1, mesh%nv
@@ -517,11 +519,11 @@ contains
                   n = int(mesh%patch_ptr(a + 1) - mesh%patch_ptr(a))
                   code = table%levels(level)%order(a)
                   if (code /= no_code) coded = coded + 1
-                  call patch_order(mesh, level, a, expected(1:n))
-                  call stored_order(mesh, level, a, code, got(1:n))
+                  call patch_order(shapes, mesh, level, a, expected(1:n))
+                  call stored_order(shapes, mesh, level, a, code, got(1:n))
                   call check(err, all(got(1:n) == expected(1:n)), 'stored order = patch_order')
                   if (allocated(err)) return
-                  call stored_order(mesh, level, a, no_code, got(1:n))
+                  call stored_order(shapes, mesh, level, a, no_code, got(1:n))
                   call check(err, all(got(1:n) == expected(1:n)), 'no code: sorted on the spot')
                   if (allocated(err)) return
                   do k = 1, n

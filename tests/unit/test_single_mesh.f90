@@ -8,7 +8,10 @@
 module test_single_mesh
    use twomem_base_kinds, only: dp, ip
    use twomem_base_options, only: domain_disk, domain_square
-   use twomem_mesh_hierarchy, only: mesh_hierarchy_t
+   use twomem_mesh_triangulation, only: mesh_t
+   use twomem_mesh_generators, only: make_disk
+   use twomem_mesh_hierarchy, only: mesh_hierarchy_t, refinement_map_t
+   use twomem_mesh_bisection, only: longest_edge_first, bisect_marked
    use twomem_fem_discrete, only: discrete_problem_t
    use twomem_linalg_csr, only: csr_t
    use twomem_linalg_multigrid, only: multigrid_transfer_t, multigrid_options_t
@@ -38,6 +41,7 @@ contains
       type(unittest_t), allocatable, intent(out) :: tests(:)
 
       tests = [new_unittest('generic_path_equals_class_path', test_generic_equals_classes), &
+               new_unittest('bisected_mesh_classes_by_shape', test_bisected_classes), &
                new_unittest('one_level_flux_with_exact_riesz', test_one_level_exact), &
                new_unittest('one_level_flux_divergence_and_remainder', test_one_level_remainder)]
    end subroutine collect_single_mesh
@@ -97,6 +101,79 @@ contains
          end do
       end do
    end subroutine test_generic_equals_classes
+
+   !> On a disk mesh bisected towards one corner of its quadrant (newest-vertex bisection, six
+   !> rounds: triangles of every size, patches that mix them) taken as a single mesh, the classes
+   !> found by shape (shape_classes_t%classify) are far fewer than the triangles, most patches
+   !> get a signature, and the factored patches with the classes' operators at each triangle's
+   !> own ratio give the generic path's discretization and algebraic fluxes and estimators to
+   !> round-off, RT0 and RT1, for a random iterate.
+   subroutine test_bisected_classes(err)
+      type(error_t), allocatable, intent(out) :: err
+
+      type(mesh_t) :: coarse, fine
+      type(refinement_map_t) :: map
+      type(mesh_hierarchy_t) :: h
+      type(poly_data_t) :: data
+      type(discrete_problem_t) :: p
+      type(estimator_t) :: classes, generic
+      type(estimates_t) :: with_classes, without
+      real(dp), allocatable :: x(:), a(:), b(:), centre(:, :)
+      real(dp) :: ta, tb
+      integer :: round, order, k, n_shapes
+      integer(ip) :: t
+      character(len=40) :: what
+
+      call make_disk(0.4_dp, 0.2_dp, coarse, err)
+      if (allocated(err)) return
+      call longest_edge_first(coarse, err)
+      if (allocated(err)) return
+      do round = 1, 6
+         allocate (centre(2, coarse%nt))
+         do t = 1, coarse%nt
+            centre(:, t) = sum(coarse%vertices(:, coarse%triangles(:, t)), dim=2)/3
+         end do
+         call bisect_marked(coarse, norm2(centre - spread([0.5_dp, 0.3_dp], 2, coarse%nt), dim=1) < 0.4_dp, fine, &
+                            map, err)
+         if (allocated(err)) return
+         deallocate (centre)
+         coarse = fine
+      end do
+      call h%init(coarse, 0, err)
+      if (allocated(err)) return
+      data%c = [0.3_dp, -0.2_dp]
+      data%mu2 = 2*data%mu1
+      call p%init(h%meshes(0), data, err)
+      if (allocated(err)) return
+      x = random_vector(3*p%n, 61)
+      do order = 0, 1
+         write (what, '("RT",i0,", bisected disk")') order
+         call classes%init(h, data, order, 1, 1.0_dp, err, tier=tier_single)
+         if (allocated(err)) return
+         call generic%init(h, data, order, 1, 1.0_dp, err, tier=tier_none)
+         if (allocated(err)) return
+         n_shapes = classes%shapes%n_shapes()
+         call check(err, classes%classes .and. .not. generic%classes .and. n_shapes > 0 .and. &
+                    4*n_shapes < h%meshes(0)%nt, 'few shapes for many triangles, '//trim(what))
+         call check(err, 2*count(classes%single%levels(0)%id > 0) > h%meshes(0)%nv, &
+                    'most patches with a signature, '//trim(what))
+         if (allocated(err)) return
+         call classes%evaluate(h, data, p, x, with_classes, err, fields=.true.)
+         if (allocated(err)) return
+         call generic%evaluate(h, data, p, x, without, err, fields=.true.)
+         if (allocated(err)) return
+         call check(err, close(generic%sigma, classes%sigma, 1.0e-11_dp), 'sigma_disc coefficients, '//trim(what))
+         call check(err, close(generic%alg%levels(1)%sigma, classes%alg%levels(1)%sigma, 1.0e-11_dp), &
+                    'sigma_alg coefficients, '//trim(what))
+         do k = 1, size(fields)
+            call with_classes%field(trim(fields(k)), a, ta)
+            call without%field(trim(fields(k)), b, tb)
+            call check(err, close(b, a, 1.0e-11_dp) .and. abs(tb - ta) <= 1.0e-11_dp*abs(ta), &
+                       trim(fields(k))//' per element and total, '//trim(what))
+         end do
+         if (allocated(err)) return
+      end do
+   end subroutine test_bisected_classes
 
    !> The one-level algebraic flux with an exact preconditioner (a one-level transfer: the
    !> V-cycle is a direct solve) takes one conjugate-gradient step, leaves a remainder at

@@ -158,7 +158,7 @@ contains
       id = 0
       if (allocated(table%levels)) id = table%levels(coarse_level)%id(a)
       if (id > 0) then
-         call stored_order(coarse, coarse_level, a, table%levels(coarse_level)%order(a), order)
+         call stored_order(shapes, coarse, coarse_level, a, table%levels(coarse_level)%order(a), order)
       else
          order = coarse%patch_triangles(coarse%patch_ptr(a):coarse%patch_ptr(a + 1) - 1)
       end if
@@ -238,7 +238,7 @@ contains
       if (id > 0) then
          ! σ_alg has no flux datum: the factored solve leaves those columns out (rhs_flux unread)
          associate (sig => table%sig(id))
-            call solve_condensed_factored(space, shapes, sig%classes, ratio_level, sig%neumann, rhs_flux(1:2, :, :), &
+            call solve_condensed_factored(space, shapes, sig%classes, ratios(1:ne), sig%neumann, rhs_flux(1:2, :, :), &
                                           rhs_div, .false., sig%factor, children, sigma)
          end associate
          ok = .true.

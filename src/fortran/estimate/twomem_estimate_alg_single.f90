@@ -153,17 +153,17 @@ contains
       integer :: ne, k, i, cls, alpha, j, q
       integer(ip) :: t, order(mesh%patch_ptr(a + 1) - mesh%patch_ptr(a))
       real(dp) :: rhs_div(space%n_div, size(order), 2), no_flux(2, size(order), 2), hat(2, 3), r(3, 2), s(2)
-      real(dp) :: area_factor, ratio, c1, c2
+      real(dp) :: area_factor, ratios(size(order)), c1, c2
 
       ne = size(order)
-      ratio = 2.0_dp**level
-      area_factor = 1/ratio**2
-      call stored_order(mesh, level, a, table%levels(level)%order(a), order)
+      call stored_order(shapes, mesh, level, a, table%levels(level)%order(a), order)
       associate (sig => table%sig(id))
          do k = 1, ne
             t = order(k)
             i = corner_of(mesh, t, a)
             cls = sig%classes(k)
+            ratios(k) = shapes%ratio_of(level, t)
+            area_factor = 1/ratios(k)**2
             hat = p1_gradients(mesh, t)
             call source_on(mesh, t, hat, hat(:, i), source, from_nodal, grad_rho, r, s)
             rhs_div(:, k, :) = 0.0_dp
@@ -180,7 +180,7 @@ contains
             end do
          end do
          ! σ_alg has no flux datum: the factored solve leaves those columns out
-         call solve_condensed_factored(space, shapes, sig%classes, ratio, sig%neumann, no_flux, rhs_div, .false., &
+         call solve_condensed_factored(space, shapes, sig%classes, ratios, sig%neumann, no_flux, rhs_div, .false., &
                                        sig%factor, order, sigma)
       end associate
    end subroutine factored_patch

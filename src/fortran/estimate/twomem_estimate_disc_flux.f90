@@ -263,7 +263,7 @@ contains
       ! fixed-size work arrays (sizes checked when the table was built): no allocation per patch
       integer :: k, i, alpha, c, ne, nd
       integer(ip) :: t, order(max_patch)
-      real(dp) :: ratio, area_factor
+      real(dp) :: ratios(max_patch), area_factor
       real(dp) :: rhs_div(3, max_patch, 2), fgrad(2, max_patch, 2), grad_psi(2), hat_gradients(2, 3)
       real(dp) :: grad_u(2, 2), r(3, 2), lambda_a, weight
       real(dp), parameter :: lambda_sign(2) = [1.0_dp, -1.0_dp]
@@ -271,13 +271,13 @@ contains
       ne = size(sig%classes)
       lambda_a = iterate%lambda(a)
       nd = space%n_div
-      call stored_order(mesh, level, a, order_code, order(1:ne))
-      ratio = 2.0_dp**level
-      area_factor = 1/ratio**2
+      call stored_order(shapes, mesh, level, a, order_code, order(1:ne))
       do k = 1, ne
          t = order(k)
          c = sig%classes(k)
          i = sig%corners(k)
+         ratios(k) = shapes%ratio_of(level, t)
+         area_factor = 1/ratios(k)**2
          hat_gradients = p1_gradients(mesh, t)
          grad_psi = hat_gradients(:, i)
          call gradients_on(iterate, mesh, t, hat_gradients, grad_u)
@@ -293,7 +293,7 @@ contains
                                       - mu(alpha)*dot_product(grad_u(:, alpha), grad_psi)*shapes%q_int(:, c))
          end do
       end do
-      call solve_condensed_factored(space, shapes, sig%classes, ratio, sig%neumann, fgrad(:, 1:ne, :), &
+      call solve_condensed_factored(space, shapes, sig%classes, ratios(1:ne), sig%neumann, fgrad(:, 1:ne, :), &
                                     rhs_div(1:nd, 1:ne, :), .true., sig%factor, order(1:ne), sigma)
    end subroutine factored_patch
 end module twomem_estimate_disc_flux

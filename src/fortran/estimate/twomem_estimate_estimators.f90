@@ -38,7 +38,7 @@ module twomem_estimate_estimators
    use twomem_estimate_evaluated_iterate, only: evaluated_iterate_t, gradients_on
    use twomem_estimate_disc_flux, only: discretization_flux, load_moments_t
    use twomem_estimate_alg_flux, only: algebraic_flux_t, level_flux_t
-   use twomem_estimate_shapes, only: shape_classes_t, triangle_class
+   use twomem_estimate_shapes, only: shape_classes_t
    use twomem_estimate_coloring, only: coloring_t
    use twomem_estimate_ghosts, only: ghost_cells_t
    use twomem_estimate_patch_classes, only: patch_table_t
@@ -46,7 +46,7 @@ module twomem_estimate_estimators
    use twomem_estimate_estimates, only: estimates_t
    use twomem_estimate_generic_patch, only: generic_scratch_t
    use twomem_estimate_triangle_ops, only: rt_mass_matrix
-   use twomem_estimate_storage, only: storage_tier, tier_none, tier_single, tier_all
+   use twomem_estimate_storage, only: storage_tier, max_single_shapes, tier_none, tier_single, tier_all
    use twomem_estimate_element_terms, only: data_oscillation, quadratic_forms, add_in_child_basis
    use twomem_estimate_multiplier, only: multiplier_factors, multiplier_on
    use twomem_linalg_operators, only: preconditioner_t
@@ -170,11 +170,21 @@ contains
          call self%space%init(flux_order)
          self%mu = [data%mu1, data%mu2]
          self%c_omega = poincare*sqrt(1/data%mu1 + 1/data%mu2)
+         ! a single mesh shares classes only where its triangles repeat (an adapted mesh's
+         ! bisections do, a mesher's triangles do not): found by shape, up to what the budget holds
+         if (hierarchy%levels == 0) then
+            if (present(tier)) then
+               if (tier /= tier_none) call self%shapes%classify(mesh, int(mesh%nt))
+            else
+               call self%shapes%classify(mesh, max_single_shapes(mesh, flux_order))
+            end if
+         end if
          if (present(tier)) then
             stored = tier
          else
-            stored = storage_tier(hierarchy, flux_order, alg_meshes, self%comm)
+            stored = storage_tier(hierarchy, flux_order, alg_meshes, self%comm, self%shapes%n_shapes())
          end if
+         if (stored == tier_none) call self%shapes%free()
          self%classes = stored /= tier_none
          if (self%classes) then
             call self%shapes%init(self%space, hierarchy, err, multilevel=stored == tier_all)
@@ -213,13 +223,13 @@ contains
 
       finest = hierarchy%levels
       call self%single%init(.false., finest)
-      call self%single%add_mesh(self%space, hierarchy%meshes(finest), hierarchy%meshes(finest), finest)
+      call self%single%add_mesh(self%space, self%shapes, hierarchy%meshes(finest), hierarchy%meshes(finest), finest)
       call self%single%finish(self%space, self%shapes, err)
       if (allocated(err)) return
       call self%refined%init(.true., finest)
       if (self%alg%base < finest) then
          do j = self%alg%first(), finest
-            call self%refined%add_mesh(self%space, hierarchy%meshes(j - 1), hierarchy%meshes(j), j - 1)
+            call self%refined%add_mesh(self%space, self%shapes, hierarchy%meshes(j - 1), hierarchy%meshes(j), j - 1)
          end do
       end if
       call self%refined%finish(self%space, self%shapes, err)
@@ -577,7 +587,7 @@ contains
             v = hierarchy%meshes(finest)%triangles(:, t)
             frame = frame_of(hierarchy%meshes(finest)%vertices, v)
             if (self%classes) then
-               call triangle_class(finest, t, class, ratio)
+               call self%shapes%class_of(finest, t, class, ratio)
                inv_ratio_sq = 1.0_dp/ratio**2
             else
                call rt_mass_matrix(self%space, frame%vertices, mass)

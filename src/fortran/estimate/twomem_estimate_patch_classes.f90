@@ -21,7 +21,7 @@ module twomem_estimate_patch_classes
    use twomem_base_errors, only: error_t, make_error, exit_io
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_estimate_raviart_thomas, only: rt_space_t
-   use twomem_estimate_shapes, only: shape_classes_t, triangle_class
+   use twomem_estimate_shapes, only: shape_classes_t
    use twomem_estimate_patch, only: link_edge, on_opposite_edge, edge_neumann
    use twomem_estimate_patch_factor, only: patch_factor_t, condensed_factor, max_theta
    implicit none
@@ -100,7 +100,8 @@ contains
 
    !> The triangles of the patch of vertex a of `mesh` (level `level`) in canonical order: by
    !> class, then local index of a, then number.
-   pure subroutine patch_order(mesh, level, a, order)
+   pure subroutine patch_order(shapes, mesh, level, a, order)
+      type(shape_classes_t), intent(in) :: shapes
       type(mesh_t), intent(in) :: mesh
       integer, intent(in) :: level
       integer(ip), intent(in) :: a
@@ -113,7 +114,7 @@ contains
       n = size(order)
       do k = 1, n
          t = mesh%patch_triangles(mesh%patch_ptr(a) + k - 1)
-         call triangle_class(level, t, class, ratio)
+         call shapes%class_of(level, t, class, ratio)
          key = 4_ip*class + findloc(mesh%triangles(:, t), a, dim=1)
          ! insertion sort: patches have a handful of triangles
          j = k - 1
@@ -130,7 +131,8 @@ contains
 
    !> The patch triangles of vertex a in canonical order (patch_order), from its code in a table
    !> (level_ids_t%order), or sorted here for a patch without one (code = no_code).
-   pure subroutine stored_order(mesh, level, a, code, order)
+   pure subroutine stored_order(shapes, mesh, level, a, code, order)
+      type(shape_classes_t), intent(in) :: shapes
       type(mesh_t), intent(in) :: mesh
       integer, intent(in) :: level, code
       integer(ip), intent(in) :: a
@@ -140,7 +142,7 @@ contains
       integer :: k
 
       if (code == no_code) then
-         call patch_order(mesh, level, a, order)
+         call patch_order(shapes, mesh, level, a, order)
          return
       end if
       before = mesh%patch_ptr(a) - 1
@@ -150,7 +152,8 @@ contains
    end subroutine stored_order
 
    !> The code of stored_order for the canonical order of the triangles of the patch of vertex a.
-   pure integer function order_code(mesh, level, a) result(code)
+   pure integer function order_code(shapes, mesh, level, a) result(code)
+      type(shape_classes_t), intent(in) :: shapes
       type(mesh_t), intent(in) :: mesh
       integer, intent(in) :: level
       integer(ip), intent(in) :: a
@@ -161,7 +164,7 @@ contains
       n = int(mesh%patch_ptr(a + 1) - mesh%patch_ptr(a))
       code = no_code
       if (n > max_coded) return
-      call patch_order(mesh, level, a, order(1:n))
+      call patch_order(shapes, mesh, level, a, order(1:n))
       before = mesh%patch_ptr(a) - 1
       code = 0
       do k = 1, n
@@ -192,9 +195,10 @@ contains
    !> arithmetic). The keys of a chunk are built
    !> and looked up among the known signatures in parallel; the new ones are then numbered in
    !> that order, so that the numbering does not depend on the threads.
-   subroutine add_mesh(self, space, coarse, fine, level)
+   subroutine add_mesh(self, space, shapes, coarse, fine, level)
       class(patch_table_t), intent(inout) :: self
       type(rt_space_t), intent(in) :: space
+      type(shape_classes_t), intent(in) :: shapes
       type(mesh_t), intent(in) :: coarse, fine
       integer, intent(in) :: level
 
@@ -218,13 +222,13 @@ contains
       order = patch_vertices_by_first_triangle(coarse)
       n = size(order, kind=ip)
       do first = 1, n, chunk
-         !$omp parallel do default(none) shared(self, space, coarse, fine, level, order, keys, lengths, hashes, ids) &
+         !$omp parallel do default(none) shared(self, space, shapes, coarse, fine, level, order, keys, lengths, hashes, ids) &
          !$omp shared(first, n, codes) private(k) schedule(dynamic, 64)
          do k = 1, min(chunk, n - first + 1)
             ids(k) = 0
-            call patch_key(space, coarse, fine, level, self%refined, order(first + k - 1), keys(:, k), lengths(k))
+            call patch_key(space, shapes, coarse, fine, level, self%refined, order(first + k - 1), keys(:, k), lengths(k))
             if (lengths(k) == 0) cycle
-            codes(k) = order_code(coarse, level, order(first + k - 1))
+            codes(k) = order_code(shapes, coarse, level, order(first + k - 1))
             hashes(k) = key_hash(keys(1:lengths(k), k))
             ids(k) = self%hash(find(self%hash, self%sig, keys(1:lengths(k), k), hashes(k)))
          end do
@@ -272,8 +276,9 @@ contains
    !> a in the coarse triangles, then per patch triangle its class, zero-flux edge, edge links
    !> (free ones included) and relative trace signs. length = 0: the patch takes the general
    !> path (too many triangles or multipliers for the fixed-size factors).
-   pure subroutine patch_key(space, coarse, fine, level, refined, a, key, length)
+   pure subroutine patch_key(space, shapes, coarse, fine, level, refined, a, key, length)
       type(rt_space_t), intent(in) :: space
+      type(shape_classes_t), intent(in) :: shapes
       type(mesh_t), intent(in) :: coarse, fine
       integer, intent(in) :: level
       integer(ip), intent(in) :: a
@@ -291,7 +296,7 @@ contains
       nt = space%n_trace
       n_coarse = int(coarse%patch_ptr(a + 1) - coarse%patch_ptr(a))
       if (n_children*n_coarse > max_patch) return
-      call patch_order(coarse, level, a, order(1:n_coarse))
+      call patch_order(shapes, coarse, level, a, order(1:n_coarse))
       n_inner = 0
       if (refined) then
          ! the inner edges of each coarse triangle (its middle child's) first, one block each
@@ -309,7 +314,7 @@ contains
          do c = 1, n_children
             ne = ne + 1
             child = merge(4*(t - 1) + c, t, refined)
-            call triangle_class(child_level, child, classes(ne), ratio)
+            call shapes%class_of(child_level, child, classes(ne), ratio)
             call edge_signs(nt, fine%triangles(:, child), signs(:, ne))
             do m = 1, 3
                e = fine%triangle_edges(m, child)

@@ -113,8 +113,9 @@ contains
    !> (condensed_factor, for a patch with the same classes, neumann, links and relative signs):
    !> only the right-hand sides and the triangles' fluxes are computed per patch, for both
    !> membranes at once (each class operator and each number of the factor is read once for
-   !> the two, whose values sit side by side: mat_vec). All triangles are at ratio `ratio` (one
-   !> level). The flux datum of triangle k is (σ_0, φ_j)_K = ρ⁻² Φ_i fgrad(:, k, r) with Φ_i =
+   !> the two, whose values sit side by side: mat_vec). Triangle k is at ratio ratios(k) to its
+   !> class (one value on a red-refined level; a bisected mesh mixes sizes, which H does not
+   !> see: its blocks C z Cᵀ do not change with the ratio). The flux datum of triangle k is (σ_0, φ_j)_K = ρ⁻² Φ_i fgrad(:, k, r) with Φ_i =
    !> psi_phi(:, :, neumann(k)) of the class, i.e. σ_0 = fgrad ψ_i for the vertex opposite the
    !> zero-flux edge. A triangle without one takes no datum: in a discretization-flux patch it
    !> is a boundary vertex's triangle whose far edge lies on ∂Ω, so all three of its vertices
@@ -126,12 +127,12 @@ contains
    !> b = Σ_K (S O)_K t_K, and θ_K = (S O)_K θ back (±1 factors, exact). The patch's σ on
    !> triangle k is added to sigma(:, triangles(k), :) (the caller's whole field: no copy of the
    !> patch's part).
-   pure subroutine solve_condensed_factored(space, shapes, classes, ratio, neumann, fgrad, rhs_div, flux_data, factor, &
+   pure subroutine solve_condensed_factored(space, shapes, classes, ratios, neumann, fgrad, rhs_div, flux_data, factor, &
                                             triangles, sigma)
       type(rt_space_t), intent(in) :: space
       type(shape_classes_t), intent(in) :: shapes
       integer, intent(in) :: classes(:), neumann(:)
-      real(dp), intent(in) :: ratio, fgrad(:, :, :), rhs_div(:, :, :)
+      real(dp), intent(in) :: ratios(:), fgrad(:, :, :), rhs_div(:, :, :)
       logical, intent(in) :: flux_data
       type(patch_factor_t), intent(in) :: factor
       integer(ip), intent(in) :: triangles(:)
@@ -151,11 +152,11 @@ contains
       ! without a flux datum the operators' fgrad columns are left out
       n_data = merge(2, 0, flux_data)
       n_theta = factor%n_theta
-      rho = ratio
       b(:, 1:n_theta) = 0.0_dp
       b(:, free_slot) = 0.0_dp
       do k = 1, size(classes)
          c = classes(k)
+         rho = ratios(k)
          n_rows = factor%n_rows(k)
          i = neumann(k)
          do q = 1, nd
@@ -181,6 +182,7 @@ contains
       b(:, free_slot) = 0.0_dp
       do k = 1, size(classes)
          c = classes(k)
+         rho = ratios(k)
          n_rows = factor%n_rows(k)
          i = neumann(k)
          do q = 1, nd

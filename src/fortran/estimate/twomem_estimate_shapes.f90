@@ -24,7 +24,7 @@
 !> child are tabled per parent class, local vertex of a and child (child_*), so the patch loop
 !> reads no coordinates.
 module twomem_estimate_shapes
-   use twomem_base_kinds, only: dp, ip
+   use twomem_base_kinds, only: dp, ip, i8
    use twomem_base_errors, only: error_t, make_error, exit_io
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_mesh_hierarchy, only: mesh_hierarchy_t, red_children
@@ -79,7 +79,17 @@ module twomem_estimate_shapes
       !> takes one product (fewer, longer loops: this runs for every triangle of every patch);
       !> likewise y_zc = [y | zc] for a triangle with no zero-flux edge.
       real(dp), allocatable :: cond_a(:, :, :, :), cond_q(:, :, :, :), cond_r(:, :, :, :), y_zc(:, :, :)
+      !> classes found by shape on a single mesh (`classify`), instead of one per coarse triangle:
+      !> per triangle its class and ratio ρ to the class size, per shape its representative
+      !> triangle (class 2k − 1 is representative k as it is, 2k its point reflection)
+      integer, allocatable :: map(:)
+      real(dp), allocatable :: ratio(:)
+      integer(ip), allocatable :: representative(:)
    contains
+      procedure :: classify
+      procedure :: class_of
+      procedure :: ratio_of
+      procedure :: n_shapes
       procedure :: init
       procedure :: free
       procedure :: keep_mass_only
@@ -109,6 +119,125 @@ contains
       class = int(2*rest + 1 + reflected)
       ratio = 2.0_dp**level
    end subroutine triangle_class
+
+   !> The class of triangle t of level l and its ratio ρ to the class size: by shape on a
+   !> classified single mesh (classify), else as red refinement numbers it (triangle_class).
+   pure subroutine class_of(self, level, t, class, ratio)
+      class(shape_classes_t), intent(in) :: self
+      integer, intent(in) :: level
+      integer(ip), intent(in) :: t
+      integer, intent(out) :: class
+      real(dp), intent(out) :: ratio
+
+      if (allocated(self%map)) then
+         class = self%map(t)
+         ratio = self%ratio(t)
+      else
+         call triangle_class(level, t, class, ratio)
+      end if
+   end subroutine class_of
+
+   !> The ratio ρ of triangle t of level l to its class size (class_of's).
+   pure real(dp) function ratio_of(self, level, t) result(ratio)
+      class(shape_classes_t), intent(in) :: self
+      integer, intent(in) :: level
+      integer(ip), intent(in) :: t
+
+      if (allocated(self%map)) then
+         ratio = self%ratio(t)
+      else
+         ratio = 2.0_dp**level
+      end if
+   end function ratio_of
+
+   !> The number of distinct shapes `classify` found (0 before, or when it gave up).
+   pure integer function n_shapes(self)
+      class(shape_classes_t), intent(in) :: self
+
+      n_shapes = 0
+      if (allocated(self%representative)) n_shapes = size(self%representative)
+   end function n_shapes
+
+   !> Classes by shape on a single mesh (a mesh without red-refined levels): two triangles share
+   !> a class when one is a scaled and translated copy of the other with the local vertex order
+   !> kept, or its point reflection (class 2k − 1 or 2k, as for red refinement), so that the
+   !> class operators, patch signatures and factors serve every copy. Newest-vertex bisection
+   !> makes finitely many similarity classes per initial triangle: an adapted mesh of 1.2·10^5
+   !> triangles has about 600 shapes and 5·10^3 distinct patches for 6·10^4 vertices. A
+   !> mesher's mesh has about one shape per triangle: past max_shapes the search stops and
+   !> nothing is kept (the generic path then serves every patch). The key of a triangle: its
+   !> offsets from the barycentre over its longest edge, with the sign that points the first
+   !> vertex's offset to x > 0 (to y > 0 near the axis), rounded to 2^−30. Equal keys mean
+   !> copies to that precision (the red classes' check allows 10^−8 of the diameter); copies
+   !> whose offsets round apart only make one shape more.
+   subroutine classify(self, mesh, max_shapes)
+      class(shape_classes_t), intent(inout) :: self
+      type(mesh_t), intent(in) :: mesh
+      integer, intent(in) :: max_shapes
+
+      real(dp), parameter :: quantum = 2.0_dp**30, axis = 1.0e-6_dp
+      integer(i8), parameter :: prime = 2147483647_i8
+      integer(i8), allocatable :: shape_keys(:, :)
+      integer(i8) :: key(6), h
+      integer, allocatable :: table(:), shape_sign(:)
+      real(dp), allocatable :: shape_size(:)
+      integer(ip), allocatable :: representative(:)
+      integer(ip) :: t
+      integer :: n_slots, slot, n, i, sgn, k
+      real(dp) :: v(2, 3), centre(2), longest
+
+      if (allocated(self%map)) deallocate (self%map, self%ratio, self%representative)
+      n_slots = 64
+      do while (n_slots < 2*max_shapes)
+         n_slots = 2*n_slots
+      end do
+      allocate (table(n_slots), shape_keys(6, max_shapes), shape_sign(max_shapes), shape_size(max_shapes), &
+                representative(max_shapes), self%map(mesh%nt), self%ratio(mesh%nt))
+      table = 0
+      n = 0
+      do t = 1, mesh%nt
+         v = mesh%vertices(:, mesh%triangles(:, t))
+         centre = sum(v, dim=2)/3
+         longest = max(norm2(v(:, 2) - v(:, 3)), norm2(v(:, 3) - v(:, 1)), norm2(v(:, 1) - v(:, 2)))
+         do i = 1, 3
+            v(:, i) = (v(:, i) - centre)/longest
+         end do
+         if (abs(v(1, 1)) > axis) then
+            sgn = int(sign(1.0_dp, v(1, 1)))
+         else
+            sgn = int(sign(1.0_dp, v(2, 1)))
+         end if
+         key = nint(sgn*quantum*reshape(v, [6]), i8)
+         ! a polynomial hash kept below 2^51: no integer overflow
+         h = 0
+         do i = 1, 6
+            h = modulo(h*1000003_i8 + key(i), prime)
+         end do
+         slot = int(iand(h, int(n_slots - 1, i8))) + 1
+         do
+            k = table(slot)
+            if (k == 0) then
+               n = n + 1
+               if (n > max_shapes) then
+                  deallocate (self%map, self%ratio)
+                  return
+               end if
+               k = n
+               table(slot) = k
+               shape_keys(:, k) = key
+               shape_sign(k) = sgn
+               shape_size(k) = longest
+               representative(k) = t
+               exit
+            end if
+            if (all(shape_keys(:, k) == key)) exit
+            slot = iand(slot, n_slots - 1) + 1
+         end do
+         self%map(t) = 2*k - merge(1, 0, sgn == shape_sign(k))
+         self%ratio(t) = shape_size(k)/longest
+      end do
+      self%representative = representative(1:n)
+   end subroutine classify
 
    !> ±1 per trace row of a triangle with mesh vertices v: −1 on the t-moment of an edge whose
    !> mesh orientation (from the lower vertex number) runs against the local one (m+1 to m+2).
@@ -146,13 +275,17 @@ contains
       real(dp) :: mixed(space%n_flux + space%n_div, space%n_flux + space%n_div), inverse(size(mixed, 1), size(mixed, 1))
       type(rt_frame_t) :: frame
 
-      call self%free()
+      call self%free(keep_shapes=.true.)
       tables = .true.
       if (present(multilevel)) tables = multilevel
       nf = space%n_flux
       nd = space%n_div
       nc = 3*space%n_trace
-      n_classes = int(2*hierarchy%meshes(0)%nt)
+      if (allocated(self%map)) then
+         n_classes = 2*self%n_shapes()
+      else
+         n_classes = int(2*hierarchy%meshes(0)%nt)
+      end if
       block
          allocate (self%z(nf, nf, n_classes), self%y(nf, nd, n_classes), self%zc(nf, nc, n_classes), &
                    self%czc(nc, nc, n_classes), self%cy(nc, nd, n_classes), self%mass(nf, nf, n_classes))
@@ -173,6 +306,7 @@ contains
          !$omp reduction(.and.:all_ok) schedule(static)
          do c = 1, n_classes
             t0 = (c + 1)/2
+            if (allocated(self%map)) t0 = self%representative(t0)
             v0 = hierarchy%meshes(0)%vertices(:, hierarchy%meshes(0)%triangles(:, t0))
             if (modulo(c, 2) == 0) then
                ! the point reflection through the barycentre, local order kept
@@ -492,12 +626,20 @@ contains
       real(dp), allocatable :: mass(:, :, :)
 
       if (allocated(self%mass)) call move_alloc(self%mass, mass)
-      call self%free()
+      call self%free(keep_shapes=.true.)
       if (allocated(mass)) call move_alloc(mass, self%mass)
    end subroutine keep_mass_only
 
-   subroutine free(self)
+   !> Everything goes, but with keep_shapes the classification of `classify`.
+   subroutine free(self, keep_shapes)
       class(shape_classes_t), intent(inout) :: self
+      logical, intent(in), optional :: keep_shapes
+
+      logical :: keep
+
+      keep = .false.
+      if (present(keep_shapes)) keep = keep_shapes
+      if (.not. keep .and. allocated(self%map)) deallocate (self%map, self%ratio, self%representative)
 
       if (allocated(self%z)) deallocate (self%z, self%y, self%zc, self%czc)
       if (allocated(self%cy)) deallocate (self%cy)

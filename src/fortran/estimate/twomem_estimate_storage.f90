@@ -9,11 +9,12 @@
 module twomem_estimate_storage
    use twomem_base_kinds, only: dp
    use twomem_base_comm, only: comm_t
+   use twomem_mesh_triangulation, only: mesh_t
    use twomem_mesh_hierarchy, only: mesh_hierarchy_t
    implicit none
    private
 
-   public :: storage_tier
+   public :: storage_tier, max_single_shapes
 
    !> what the hierarchy stores for the patch problems (storage_tier)
    integer, parameter, public :: tier_none = 0, tier_single = 1, tier_all = 2
@@ -30,17 +31,21 @@ contains
    !> construction on the finest mesh; tier_none, nothing (every patch on the generic path).
    !> The first that fits the budget: max(setup_floor, setup_per_vertex per finest vertex),
    !> with the stored bytes estimated per coarse triangle (set-up data scale with the coarse
-   !> mesh, the rest of a run with the finest). A single mesh has a class per triangle and a
-   !> signature per patch: nothing to share, tier_none.
-   integer function storage_tier(hierarchy, order, alg_meshes, comm) result(tier)
+   !> mesh, the rest of a run with the finest). A single mesh stores its classes by shape
+   !> (shape_classes_t%classify) when every rank found them within max_single_shapes: tier_single
+   !> (there are no refined levels), else tier_none; `shapes` is this rank's count (0: gave up).
+   integer function storage_tier(hierarchy, order, alg_meshes, comm, shapes) result(tier)
       type(mesh_hierarchy_t), intent(in) :: hierarchy
-      integer, intent(in) :: order, alg_meshes
+      integer, intent(in) :: order, alg_meshes, shapes
       type(comm_t), intent(in) :: comm
 
       real(dp) :: coarse, finest, budget, classes(2), single, refined
 
       tier = tier_none
-      if (hierarchy%levels == 0) return
+      if (hierarchy%levels == 0) then
+         if (comm%min_real(real(shapes, dp)) > 0) tier = tier_single
+         return
+      end if
       coarse = comm%sum(real(hierarchy%meshes(0)%nt_owned, dp))
       finest = comm%sum(real(count(hierarchy%meshes(hierarchy%levels)%in_subdomain()), dp))
       budget = max(setup_floor, setup_per_vertex*finest)
@@ -63,4 +68,22 @@ contains
          tier = tier_single
       end if
    end function storage_tier
+
+   !> The most shapes a single mesh may store (shape_classes_t%classify) within this rank's
+   !> share of the budget: per shape its two classes (as itself and reflected) and the factors
+   !> of the distinct patches it makes (about eight per shape on meshes adapted by
+   !> newest-vertex bisection; measured with RT1 on the re-entrant corner's adaptive run).
+   integer function max_single_shapes(mesh, order) result(n)
+      type(mesh_t), intent(in) :: mesh
+      integer, intent(in) :: order
+
+      real(dp) :: per_shape
+
+      if (order == 1) then
+         per_shape = 2*5.9e3_dp + 8*2.6e3_dp
+      else
+         per_shape = 2*2.0e3_dp + 8*1.2e3_dp
+      end if
+      n = int(min(real(mesh%nt, dp), max(setup_floor, setup_per_vertex*count(mesh%in_subdomain()))/per_shape))
+   end function max_single_shapes
 end module twomem_estimate_storage
