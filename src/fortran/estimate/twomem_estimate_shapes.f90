@@ -167,20 +167,23 @@ contains
    !> mesher's mesh has about one shape per triangle: past max_shapes the search stops and
    !> nothing is kept (the generic path then serves every patch). The key of a triangle: its
    !> offsets from the barycentre over its longest edge, with the sign that points the first
-   !> vertex's offset to x > 0 (to y > 0 near the axis), rounded to 2^−30. Equal keys mean
-   !> copies to that precision (the red classes' check allows 10^−8 of the diameter); copies
-   !> whose offsets round apart only make one shape more.
+   !> vertex's offset to x > 0 (to y > 0 near the axis), rounded to 2^−30 to find candidates.
+   !> A candidate is a copy only if its offsets agree with the shape's first triangle to 10^−12
+   !> (round-off of bisection midpoints; a mesh file's 10^−11 near-copies stay apart): which
+   !> triangle comes first depends on the partition, so a looser match would make the
+   !> estimators depend on the rank count. Copies whose offsets round apart only make one
+   !> shape more.
    subroutine classify(self, mesh, max_shapes)
       class(shape_classes_t), intent(inout) :: self
       type(mesh_t), intent(in) :: mesh
       integer, intent(in) :: max_shapes
 
-      real(dp), parameter :: quantum = 2.0_dp**30, axis = 1.0e-6_dp
+      real(dp), parameter :: quantum = 2.0_dp**30, axis = 1.0e-6_dp, copy_tol = 1.0e-12_dp
       integer(i8), parameter :: prime = 2147483647_i8
       integer(i8), allocatable :: shape_keys(:, :)
       integer(i8) :: key(6), h
       integer, allocatable :: table(:), shape_sign(:)
-      real(dp), allocatable :: shape_size(:)
+      real(dp), allocatable :: shape_size(:), shape_offsets(:, :)
       integer(ip), allocatable :: representative(:)
       integer(ip) :: t
       integer :: n_slots, slot, n, i, sgn, k
@@ -191,8 +194,8 @@ contains
       do while (n_slots < 2*max_shapes)
          n_slots = 2*n_slots
       end do
-      allocate (table(n_slots), shape_keys(6, max_shapes), shape_sign(max_shapes), shape_size(max_shapes), &
-                representative(max_shapes), self%map(mesh%nt), self%ratio(mesh%nt))
+      allocate (table(n_slots), shape_keys(6, max_shapes), shape_offsets(6, max_shapes), shape_sign(max_shapes), &
+                shape_size(max_shapes), representative(max_shapes), self%map(mesh%nt), self%ratio(mesh%nt))
       table = 0
       n = 0
       do t = 1, mesh%nt
@@ -225,12 +228,15 @@ contains
                k = n
                table(slot) = k
                shape_keys(:, k) = key
+               shape_offsets(:, k) = sgn*reshape(v, [6])
                shape_sign(k) = sgn
                shape_size(k) = longest
                representative(k) = t
                exit
             end if
-            if (all(shape_keys(:, k) == key)) exit
+            if (all(shape_keys(:, k) == key)) then
+               if (maxval(abs(sgn*reshape(v, [6]) - shape_offsets(:, k))) <= copy_tol) exit
+            end if
             slot = iand(slot, n_slots - 1) + 1
          end do
          self%map(t) = 2*k - merge(1, 0, sgn == shape_sign(k))
