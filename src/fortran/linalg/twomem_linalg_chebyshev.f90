@@ -196,7 +196,12 @@ contains
          end do
          !$omp end parallel do
       else
-         call level_product(a, halo, x, y, diagonal, fixed)
+         ! (absent optional arrays are not passed on: see multigrid's two_grid_step)
+         if (present(diagonal)) then
+            call level_product(a, halo, x, y, diagonal, fixed)
+         else
+            call level_product(a, halo, x, y)
+         end if
          !$omp parallel do default(none) shared(n, b, x, d, r, y, self, theta) private(i) &
          !$omp schedule(static) if(n > threaded_from)
          do i = 1, n
@@ -208,7 +213,11 @@ contains
       end if
       do k = 2, self%degree
          ! r ← r − A d, then the three-term recurrence for the next correction
-         call level_product(a, halo, d, y, diagonal, fixed)
+         if (present(diagonal)) then
+            call level_product(a, halo, d, y, diagonal, fixed)
+         else
+            call level_product(a, halo, d, y)
+         end if
          rho = 1/(2*sigma - rho_old)
          !$omp parallel do default(none) shared(n, x, d, r, y, self, rho, rho_old, delta) private(i) &
          !$omp schedule(static) if(n > threaded_from)

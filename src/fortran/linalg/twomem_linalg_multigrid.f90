@@ -717,8 +717,15 @@ contains
 
       associate (lev => self%levels(l), p => self%transfer%p(l), r => self%transfer%r(l), &
                  halo => self%transfer%halos(l), v => work%levels(l), below => work%levels(l - 1))
-         call lev%smoother%smooth(a, halo, b, x, .true., v%r1, v%r2, v%r3, diagonal, fixed)
-         call level_product(a, halo, x, v%r3, diagonal, fixed)
+         ! absent optional arrays are not passed on: gfortran then builds their descriptors
+         ! from undefined bounds (the undefined-behaviour sanitizer's negation overflow)
+         if (present(diagonal)) then
+            call lev%smoother%smooth(a, halo, b, x, .true., v%r1, v%r2, v%r3, diagonal, fixed)
+            call level_product(a, halo, x, v%r3, diagonal, fixed)
+         else
+            call lev%smoother%smooth(a, halo, b, x, .true., v%r1, v%r2, v%r3)
+            call level_product(a, halo, x, v%r3)
+         end if
          ! the residual from the entries this rank owns: the ranks' restrictions then add up
          call owned_residual(b, v%r3, halo%owned, v%r1)
          if (allocated(lev%rt)) then
@@ -733,7 +740,11 @@ contains
          else
             call prolong_add(p, p%val, below%x, x)
          end if
-         call lev%smoother%smooth(a, halo, b, x, .false., v%r1, v%r2, v%r3, diagonal, fixed)
+         if (present(diagonal)) then
+            call lev%smoother%smooth(a, halo, b, x, .false., v%r1, v%r2, v%r3, diagonal, fixed)
+         else
+            call lev%smoother%smooth(a, halo, b, x, .false., v%r1, v%r2, v%r3)
+         end if
       end associate
    end subroutine two_grid_step
 
