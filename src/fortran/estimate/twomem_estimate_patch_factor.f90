@@ -115,7 +115,8 @@ contains
    !> membranes at once (each class operator and each number of the factor is read once for
    !> the two, whose values sit side by side: mat_vec). Triangle k is at ratio ratios(k) to its
    !> class (one value on a red-refined level; a bisected mesh mixes sizes, which H does not
-   !> see: its blocks C z Cᵀ do not change with the ratio). The flux datum of triangle k is (σ_0, φ_j)_K = ρ⁻² Φ_i fgrad(:, k, r) with Φ_i =
+   !> see: its blocks C z Cᵀ do not change with the ratio). The flux datum of triangle k is
+   !> (σ_0, φ_j)_K = ρ⁻² Φ_i fgrad(:, k, r) with Φ_i =
    !> psi_phi(:, :, neumann(k)) of the class, i.e. σ_0 = fgrad ψ_i for the vertex opposite the
    !> zero-flux edge. A triangle without one takes no datum: in a discretization-flux patch it
    !> is a boundary vertex's triangle whose far edge lies on ∂Ω, so all three of its vertices
