@@ -167,10 +167,10 @@ contains
    !> mesher's mesh has about one shape per triangle: past max_shapes the search stops and
    !> nothing is kept (the generic path then serves every patch). The key of a triangle: its
    !> offsets from the barycentre over its longest edge, with the sign that points the first
-   !> vertex's offset to x > 0 (to y > 0 near the axis), rounded to 2^−30 to find candidates.
-   !> A candidate is a copy only if its offsets agree with the shape's first triangle to 10^−12
-   !> (round-off of bisection midpoints; a mesh file's 10^−11 near-copies stay apart): which
-   !> triangle comes first depends on the partition, so a looser match would make the
+   !> vertex's offset to x > 0 (to y > 0 near the axis), rounded to 2^−30 and hashed to find
+   !> candidates. A candidate is a copy if its offsets agree with the shape's first triangle to
+   !> 10^−12 (round-off of bisection midpoints; a mesh file's 10^−11 near-copies stay apart):
+   !> which triangle comes first depends on the partition, so a looser match would make the
    !> estimators depend on the rank count. Copies whose offsets round apart only make one
    !> shape more.
    subroutine classify(self, mesh, max_shapes)
@@ -180,21 +180,20 @@ contains
 
       real(dp), parameter :: quantum = 2.0_dp**30, axis = 1.0e-6_dp, copy_tol = 1.0e-12_dp
       integer(i8), parameter :: prime = 2147483647_i8
-      integer(i8), allocatable :: shape_keys(:, :)
       integer(i8) :: key(6), h
       integer, allocatable :: table(:), shape_sign(:)
       real(dp), allocatable :: shape_size(:), shape_offsets(:, :)
       integer(ip), allocatable :: representative(:)
       integer(ip) :: t
       integer :: n_slots, slot, n, i, sgn, k
-      real(dp) :: v(2, 3), centre(2), longest
+      real(dp) :: v(2, 3), centre(2), longest, offsets(6)
 
       if (allocated(self%map)) deallocate (self%map, self%ratio, self%representative)
       n_slots = 64
       do while (n_slots < 2*max_shapes)
          n_slots = 2*n_slots
       end do
-      allocate (table(n_slots), shape_keys(6, max_shapes), shape_offsets(6, max_shapes), shape_sign(max_shapes), &
+      allocate (table(n_slots), shape_offsets(6, max_shapes), shape_sign(max_shapes), &
                 shape_size(max_shapes), representative(max_shapes), self%map(mesh%nt), self%ratio(mesh%nt))
       table = 0
       n = 0
@@ -210,7 +209,8 @@ contains
          else
             sgn = int(sign(1.0_dp, v(2, 1)))
          end if
-         key = nint(sgn*quantum*reshape(v, [6]), i8)
+         offsets = sgn*reshape(v, [6])
+         key = nint(quantum*offsets, i8)
          ! a polynomial hash kept below 2^51: no integer overflow
          h = 0
          do i = 1, 6
@@ -227,16 +227,13 @@ contains
                end if
                k = n
                table(slot) = k
-               shape_keys(:, k) = key
-               shape_offsets(:, k) = sgn*reshape(v, [6])
+               shape_offsets(:, k) = offsets
                shape_sign(k) = sgn
                shape_size(k) = longest
                representative(k) = t
                exit
             end if
-            if (all(shape_keys(:, k) == key)) then
-               if (maxval(abs(sgn*reshape(v, [6]) - shape_offsets(:, k))) <= copy_tol) exit
-            end if
+            if (maxval(abs(offsets - shape_offsets(:, k))) <= copy_tol) exit
             slot = iand(slot, n_slots - 1) + 1
          end do
          self%map(t) = 2*k - merge(1, 0, sgn == shape_sign(k))
