@@ -20,6 +20,10 @@ module twomem_linalg_chebyshev
 
    public :: chebyshev_t, level_product
 
+   !> the arrays of `level_product` and `smooth` for an operator that is not cut
+   real(dp), parameter, public :: uncut_diagonal(0) = [real(dp) ::]
+   logical, parameter, public :: uncut_fixed(0) = [logical ::]
+
    type :: chebyshev_t
       integer :: degree = 2
       !> the smoothed interval is [upper/ratio, upper]
@@ -38,17 +42,20 @@ module twomem_linalg_chebyshev
 contains
 
    !> y = A x with the parts of shared rows summed: the product of a distributed operator. With
-   !> `diagonal` and `fixed` (always both), A is a cut at the fixed unknowns with that diagonal
-   !> (csr_t%cut_matvec); so are the operators of `setup` and `smooth` given them.
+   !> `diagonal` and `fixed` of a's size, A is a cut at the fixed unknowns with that diagonal
+   !> (csr_t%cut_matvec); with uncut_diagonal and uncut_fixed (empty), `a` itself. So are the
+   !> operators of `smooth`, and of `setup` given them. The V-cycle passes the two arrays
+   !> always: an absent optional array passed on made gfortran build its descriptor from
+   !> undefined bounds (the undefined-behaviour sanitizer's negation overflow).
    subroutine level_product(a, halo, x, y, diagonal, fixed)
       type(csr_t), intent(in) :: a
       type(halo_t), intent(inout) :: halo
       real(dp), intent(in) :: x(:)
       real(dp), intent(out) :: y(:)
-      real(dp), intent(in), optional :: diagonal(:)
-      logical, intent(in), optional :: fixed(:)
+      real(dp), intent(in) :: diagonal(:)
+      logical, intent(in) :: fixed(:)
 
-      if (present(diagonal)) then
+      if (size(fixed) > 0) then
          call a%cut_matvec(diagonal, fixed, x, y)
       else
          call a%matvec(x, y)
@@ -164,8 +171,8 @@ contains
    end subroutine row_parts
 
    !> `degree` Chebyshev steps on A x = b from x (from zero when `from_zero`, saving a product).
-   !> r, d and y are work vectors of the size of b. `diagonal` and `fixed`: A is `a` cut (see
-   !> `level_product`).
+   !> r, d and y are work vectors of the size of b. `diagonal` and `fixed`: A is `a` cut, or `a`
+   !> itself (uncut_*; see `level_product`).
    subroutine smooth(self, a, halo, b, x, from_zero, r, d, y, diagonal, fixed)
       class(chebyshev_t), intent(in) :: self
       type(csr_t), intent(in) :: a
@@ -174,8 +181,8 @@ contains
       real(dp), intent(inout) :: x(:)
       logical, intent(in) :: from_zero
       real(dp), intent(inout) :: r(:), d(:), y(:)
-      real(dp), intent(in), optional :: diagonal(:)
-      logical, intent(in), optional :: fixed(:)
+      real(dp), intent(in) :: diagonal(:)
+      logical, intent(in) :: fixed(:)
 
       real(dp) :: theta, delta, sigma, rho, rho_old
       integer(ip) :: i, n
@@ -196,12 +203,7 @@ contains
          end do
          !$omp end parallel do
       else
-         ! (absent optional arrays are not passed on: see multigrid's two_grid_step)
-         if (present(diagonal)) then
-            call level_product(a, halo, x, y, diagonal, fixed)
-         else
-            call level_product(a, halo, x, y)
-         end if
+         call level_product(a, halo, x, y, diagonal, fixed)
          !$omp parallel do default(none) shared(n, b, x, d, r, y, self, theta) private(i) &
          !$omp schedule(static) if(n > threaded_from)
          do i = 1, n
@@ -213,11 +215,7 @@ contains
       end if
       do k = 2, self%degree
          ! r ← r − A d, then the three-term recurrence for the next correction
-         if (present(diagonal)) then
-            call level_product(a, halo, d, y, diagonal, fixed)
-         else
-            call level_product(a, halo, d, y)
-         end if
+         call level_product(a, halo, d, y, diagonal, fixed)
          rho = 1/(2*sigma - rho_old)
          !$omp parallel do default(none) shared(n, x, d, r, y, self, rho, rho_old, delta) private(i) &
          !$omp schedule(static) if(n > threaded_from)

@@ -28,7 +28,7 @@ module twomem_linalg_multigrid
    use twomem_linalg_csr, only: csr_t
    use twomem_linalg_galerkin, only: galerkin_pattern, galerkin_assemble, galerkin_rows, galerkin_diagonal_rows, &
                                      cut_rows, touched_rows, truncate_transfer
-   use twomem_linalg_chebyshev, only: chebyshev_t, level_product
+   use twomem_linalg_chebyshev, only: chebyshev_t, level_product, uncut_diagonal, uncut_fixed
    use twomem_linalg_halo, only: halo_t
    use twomem_linalg_gathered_solve, only: gathered_solver_t
    use twomem_linalg_umfpack, only: ordering_minimum_degree
@@ -697,14 +697,15 @@ contains
       else if (l == self%top .and. associated(self%base)) then
          call two_grid_step(self, l, self%finest, b, x, work, self%cut_diagonal, self%levels(l)%fixed)
       else if (l == self%top) then
-         call two_grid_step(self, l, self%finest, b, x, work)
+         call two_grid_step(self, l, self%finest, b, x, work, uncut_diagonal, uncut_fixed)
       else
-         call two_grid_step(self, l, self%levels(l)%a, b, x, work)
+         call two_grid_step(self, l, self%levels(l)%a, b, x, work, uncut_diagonal, uncut_fixed)
       end if
    end subroutine cycle_level
 
    !> Pre-smoothing, the coarse correction by a cycle on level l−1, post-smoothing; on the
-   !> operator `a`, cut when given `diagonal` and `fixed` (the split finest level).
+   !> operator `a`, cut by `diagonal` and `fixed` on the split finest level, else with
+   !> uncut_diagonal and uncut_fixed (level_product).
    recursive subroutine two_grid_step(self, l, a, b, x, work, diagonal, fixed)
       type(multigrid_t), intent(inout) :: self
       integer, intent(in) :: l
@@ -712,20 +713,13 @@ contains
       real(dp), intent(in) :: b(:)
       real(dp), intent(out) :: x(:)
       type(multigrid_work_t), intent(inout) :: work
-      real(dp), intent(in), optional :: diagonal(:)
-      logical, intent(in), optional :: fixed(:)
+      real(dp), intent(in) :: diagonal(:)
+      logical, intent(in) :: fixed(:)
 
       associate (lev => self%levels(l), p => self%transfer%p(l), r => self%transfer%r(l), &
                  halo => self%transfer%halos(l), v => work%levels(l), below => work%levels(l - 1))
-         ! absent optional arrays are not passed on: gfortran then builds their descriptors
-         ! from undefined bounds (the undefined-behaviour sanitizer's negation overflow)
-         if (present(diagonal)) then
-            call lev%smoother%smooth(a, halo, b, x, .true., v%r1, v%r2, v%r3, diagonal, fixed)
-            call level_product(a, halo, x, v%r3, diagonal, fixed)
-         else
-            call lev%smoother%smooth(a, halo, b, x, .true., v%r1, v%r2, v%r3)
-            call level_product(a, halo, x, v%r3)
-         end if
+         call lev%smoother%smooth(a, halo, b, x, .true., v%r1, v%r2, v%r3, diagonal, fixed)
+         call level_product(a, halo, x, v%r3, diagonal, fixed)
          ! the residual from the entries this rank owns: the ranks' restrictions then add up
          call owned_residual(b, v%r3, halo%owned, v%r1)
          if (allocated(lev%rt)) then
@@ -740,11 +734,7 @@ contains
          else
             call prolong_add(p, p%val, below%x, x)
          end if
-         if (present(diagonal)) then
-            call lev%smoother%smooth(a, halo, b, x, .false., v%r1, v%r2, v%r3, diagonal, fixed)
-         else
-            call lev%smoother%smooth(a, halo, b, x, .false., v%r1, v%r2, v%r3)
-         end if
+         call lev%smoother%smooth(a, halo, b, x, .false., v%r1, v%r2, v%r3, diagonal, fixed)
       end associate
    end subroutine two_grid_step
 
