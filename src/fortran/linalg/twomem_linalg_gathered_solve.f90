@@ -39,6 +39,8 @@ module twomem_linalg_gathered_solve
       integer(ip), allocatable :: slots(:)
       integer(ip) :: local_nnz = -1
       logical :: analysed = .false.
+      !> the whole matrix's diagonal is factorized times (1 + diagonal_shift) (`init`)
+      real(dp) :: diagonal_shift = 0.0_dp
    contains
       procedure :: init
       procedure :: factor
@@ -51,19 +53,24 @@ contains
    !> The unknowns: key(i) of local unknown i, owned(i) if this rank owns it (each key is owned
    !> by exactly one rank), and the fill-reducing ordering and refinement steps of rank 0's
    !> factorization (twomem_linalg_umfpack; nested dissection and UMFPACK's default if absent).
+   !> `diagonal_shift` (default 0): the factorized matrix is the whole one with its diagonal
+   !> times 1 + diagonal_shift, for a caller whose matrix may be singular to round-off and
+   !> who needs a bounded solve more than an exact one (multigrid's coarsest level).
    !> Collective.
-   subroutine init(self, comm, key, owned, ordering, refinement_steps)
+   subroutine init(self, comm, key, owned, ordering, refinement_steps, diagonal_shift)
       class(gathered_solver_t), intent(out) :: self
       type(comm_t), intent(in) :: comm
       integer(ip), intent(in) :: key(:)
       logical, intent(in) :: owned(:)
       integer, intent(in), optional :: ordering, refinement_steps
+      real(dp), intent(in), optional :: diagonal_shift
 
       integer(ip), allocatable :: mine(:)
       integer(ip) :: k
 
       if (present(ordering)) call self%direct%set_ordering(ordering)
       if (present(refinement_steps)) call self%direct%set_refinement(refinement_steps)
+      if (present(diagonal_shift)) self%diagonal_shift = diagonal_shift
       self%comm = comm
       self%global = key
       self%owned = owned
@@ -150,6 +157,12 @@ contains
          do k = 1, size(all_vals, kind=ip)
             self%whole%val(self%slots(k)) = self%whole%val(self%slots(k)) + all_vals(k)
          end do
+         if (self%diagonal_shift > 0.0_dp) then
+            do i = 1, self%whole%n
+               k = self%whole%find(i, i)
+               if (k > 0) self%whole%val(k) = self%whole%val(k)*(1 + self%diagonal_shift)
+            end do
+         end if
          call self%direct%factor(self%whole, err)
       end if
       call self%comm%agree(err)

@@ -12,7 +12,8 @@
 !> a rank's fine unknowns have their coarse parents on the same rank. Unknowns may be fixed
 !> (Dirichlet rows of the finest operator): their prolongation rows are truncated, and a coarse
 !> unknown is fixed when the fine unknown it is injected into is, so no coarse level ever moves
-!> a fixed unknown and every coarse operator stays SPD on its free unknowns. The patterns are
+!> a fixed unknown and every coarse operator stays SPD on its free unknowns in exact arithmetic
+!> (truncated algebraic levels can be singular to round-off: `coarsest_shift`). The patterns are
 !> analysed once (`init`); new values or a new fixed set only redo the numeric products, the
 !> smoothers' diagonals and the coarse factorization (`refresh`).
 !> A refresh told which finest rows changed recomputes only the coarse rows those changes and
@@ -39,6 +40,16 @@ module twomem_linalg_multigrid
    private
 
    public :: multigrid_t, multigrid_options_t, multigrid_transfer_t, multigrid_work_t
+
+   !> The coarsest level below the finest is factorized with its diagonal times 1 + this. Truncated
+   !> smoothed-aggregation prolongations can make coarse basis functions linearly dependent on
+   !> the free unknowns (aggregates overlapping at a few free vertices inside a contact zone):
+   !> the Galerkin operator is then singular to round-off, and UMFPACK's solve amplified its
+   !> round-off into corrections of 10^20 and more along the dependent combinations, which GMRES
+   !> met as a breakdown or a stalled Newton (26 steps instead of 2 on an adaptive step of the
+   !> pacman benchmark with adapt.theta = 0.7). Those combinations prolong to (nearly) zero, so
+   !> the shift only bounds them; elsewhere it changes the coarse correction by 1e-10 relative.
+   real(dp), parameter :: coarsest_shift = 1.0e-10_dp
 
    type :: multigrid_options_t
       !> Chebyshev degree of the pre- and of the post-smoothing
@@ -186,7 +197,8 @@ contains
          end do
          !$omp end parallel do
       end if
-      call self%coarse%init(transfer%halos(0)%comm, transfer%coarse_keys, transfer%halos(0)%owned, ordering=ordering_minimum_degree)
+      call self%coarse%init(transfer%halos(0)%comm, transfer%coarse_keys, transfer%halos(0)%owned, &
+                            ordering=ordering_minimum_degree, diagonal_shift=merge(coarsest_shift, 0.0_dp, top > 0))
       if (present(start_from)) then
          call start_as(self, start_from, err)
       else if (fused) then
