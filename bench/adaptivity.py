@@ -5,8 +5,8 @@ the optimal rate), the default adaptive method, f1 = −1, f2 = 0, g = 0.05, μ1
 tables on stdout, JSON and a figure in the output directory.
 
     python bench/adaptivity.py [--exe build/release/twomem] [--h 0.2] [--levels 2,3,4,5,6]
-                               [--theta 0.5] [--threads 2] [--omp-wait passive] [--repeat 1]
-                               [--check 3] [-o results/adaptivity]
+                               [--theta 0.5] [--set KEY=VALUE ...] [--threads 2]
+                               [--omp-wait passive] [--repeat 1] [--check 3] [-o results/adaptivity]
 
 The initial mesh is Gmsh's of size --h (the gmsh Python wheel: `.venv/bin/pip install gmsh`).
 Uniform refinement runs it with mesh.levels = each of --levels (red refinement, nested
@@ -24,6 +24,10 @@ they solve the same discrete domain. Tables:
    refinement) over the plain run's wall time;
 5. where the error is known: the same adaptive loop on the unit disk with the `radial` closed
    form (fine boundary polygon), η, the energy error and the effectivity per step.
+--set adds an override to every run (uniform, adaptive, plain and radial), e.g.
+`--set estimate.bound=sharp --set newton.gamma_lin=0.1` for the sharper bound with Newton's
+linearization estimate held to a tenth of the discretization one.
+
 Wall times on a shared machine vary by tens of percent from run to run: compare ratios. Every
 run gets OMP_WAIT_POLICY=--omp-wait (default passive: on a machine loaded by other work,
 threads spinning at OpenMP barriers made a 6·10^4-vertex run 5 times slower; `default` leaves
@@ -62,7 +66,7 @@ def write_msh(xy: np.ndarray, triangles: np.ndarray, path: Path) -> Path:
 
 
 def twomem(args, out: Path, *extra: str, ok=(0,)) -> None:
-    cmd = [args.exe, "run", str(ROOT / "input" / "default.nml"), *extra, f"output.file={out}"]
+    cmd = [args.exe, "run", str(ROOT / "input" / "default.nml"), *extra, *args.set, f"output.file={out}"]
     env = dict(os.environ, OMP_NUM_THREADS=str(args.threads))
     env.pop("OMP_WAIT_POLICY", None)
     if args.omp_wait != "default":
@@ -148,6 +152,8 @@ def main() -> int:
     ap.add_argument("--h", type=float, default=0.2, help="Gmsh size of the initial mesh (default 0.2)")
     ap.add_argument("--levels", default="2,3,4,5,6", help="uniform refinement levels (default 2,3,4,5,6)")
     ap.add_argument("--theta", type=float, default=0.5, help="Dörfler fraction (default 0.5)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="an override for every run (repeatable), e.g. estimate.bound=sharp")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--omp-wait", choices=("passive", "active", "default"), default="passive",
                     help="OMP_WAIT_POLICY of every run (default passive; default: unset)")
