@@ -140,6 +140,25 @@ def test_singular_coarse_level_keeps_newton_short():
     assert newton.max() <= 4, newton
 
 
+def test_first_check_goes_by_the_previous_eta_disc():
+    """A refinement step's first estimator check is told the previous mesh's η_disc scaled to the
+    new mesh: while η_lin is far above γ_lin times it, the check computes η_lin alone instead of
+    the discretization flux (which a check with nothing to go by computes), and the steps end as
+    before, each with one whole evaluation."""
+    path = out_file("adapt_hint.h5")
+    mesh = SOURCE / "tests" / "data" / "meshes" / "pacman_msh41.msh"
+    proc = run("mesh.domain=gmsh", f"mesh.file={mesh}", "mesh.levels=0", "problem.exact=none", "problem.f1=-1",
+               "problem.f2=0", "problem.g=0.05", "adapt.tol=1e-6", "adapt.max_steps=8", f"output.file={path}",
+               check_rc=1)
+    steps = proc.stdout.split("adapt: step ")
+    first_checks = [next(line for line in step.splitlines() if line.startswith("newton    1")) for step in steps[1:-1]]
+    assert len(first_checks) == 7
+    assert all("(no evaluation)" in line for line in first_checks), first_checks
+    with h5py.File(path, "r") as f:
+        newton = f["adapt/newton_iterations"][()]
+    assert newton[1:].max() <= 3, newton
+
+
 def test_tol_zero_writes_no_adapt_group():
     path = out_file("adapt_off.h5")
     run("mesh.levels=1", f"output.file={path}")

@@ -7,8 +7,11 @@
 !> generic patches and one-level algebraic flux, whose costs per vertex do not depend on how
 !> the mesh was made. The first step is a plain run on the configured mesh (its nested start
 !> included), whose finest level the refinement starts from with longest edges as refinement
-!> edges. The loop stops at η ≤ tol, or at adapt.max_steps solves, or before a mesh would
-!> exceed adapt.max_vertices; the last step solved is the result. A distributed run keeps the
+!> edges. Each later solve's first estimator check is told the previous η_disc scaled by the
+!> optimal rate, (N_old/N_new)^½, which the new one follows to within a few percent: the check
+!> then skips the discretization flux while η_lin is clearly too large for Newton to stop.
+!> The loop stops at η ≤ tol, or at adapt.max_steps solves, or before a mesh would exceed
+!> adapt.max_vertices; the last step solved is the result. A distributed run keeps the
 !> mesh, not the matrices, replicated between solves: every rank marks and bisects the whole
 !> mesh identically (both are deterministic) from rank 0's gathered solution and indicators,
 !> and METIS partitions each new mesh as a user's mesh is partitioned at start-up.
@@ -61,7 +64,7 @@ contains
       real(dp), allocatable :: indicators(:), fields(:, :), nodal(:, :), eta(:)
       logical, allocatable :: marked(:)
       character(len=:), allocatable :: stop_reason
-      real(dp) :: t_step
+      real(dp) :: t_step, hint
       integer(ip) :: a
       integer :: k
       logical :: solved
@@ -121,8 +124,9 @@ contains
          k = k + 1
          t_step = wall_time()
          call clock%switch(phase_assembly)
+         hint = eta(2)*sqrt(real(size(fields, 1), dp)/real(current%nv, dp))
          call solve_mesh(cfg, comm, single, data, clock, rec, solved, exit_code, err, nodal=nodal, &
-                         indicators=indicators)
+                         indicators=indicators, eta_disc_hint=hint)
          if (allocated(err)) return
          call clock%switch(phase_mesh)
       end do
@@ -134,7 +138,8 @@ contains
    end subroutine adapt_mesh
 
    !> What marking and interpolation need, identical on every rank: the element indicators
-   !> and the nodal u1, u2, λ (nv, 3) of the whole mesh, and η, from rank 0's gathered record.
+   !> and the nodal u1, u2, λ (nv, 3) of the whole mesh, and η and η_disc, from rank 0's
+   !> gathered record.
    !> Collective.
    subroutine share_step(comm, rec, indicators, fields, eta)
       type(comm_t), intent(in) :: comm
@@ -144,7 +149,7 @@ contains
 
       if (comm%is_root()) then
          fields = reshape([rec%u1, rec%u2, rec%lambda], [size(rec%u1), 3])
-         eta = [rec%eta_total]
+         eta = [rec%eta_total, rec%eta_disc]
       end if
       if (comm%size == 1) return
       call comm%bcast(indicators)

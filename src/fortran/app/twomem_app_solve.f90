@@ -37,10 +37,12 @@ contains
 
    !> Solve the problem on the finest mesh of `hierarchy` and fill `rec` (rank 0: the whole
    !> mesh). Without `nodal`, from the configured initial guess (nested iteration on the
-   !> hierarchy); with it, from those nodal fields (nv, 3) of u1, u2, λ. `converged`: Newton's.
-   !> `exit_code` is what a failure means for the run. Collective; every rank returns the same
-   !> error.
-   subroutine solve_mesh(cfg, comm, hierarchy, data, clock, rec, converged, exit_code, err, nodal, indicators)
+   !> hierarchy); with it, from those nodal fields (nv, 3) of u1, u2, λ, and with
+   !> `eta_disc_hint` a prediction of η_disc for the adaptive method's first check
+   !> (newton_options_t). `converged`: Newton's. `exit_code` is what a failure means for the
+   !> run. Collective; every rank returns the same error.
+   subroutine solve_mesh(cfg, comm, hierarchy, data, clock, rec, converged, exit_code, err, nodal, indicators, &
+                         eta_disc_hint)
       type(config_t), intent(in) :: cfg
       type(comm_t), intent(in) :: comm
       type(mesh_hierarchy_t), target, intent(in) :: hierarchy
@@ -53,6 +55,7 @@ contains
       real(dp), intent(in), optional :: nodal(:, :)
       !> η_disc,K of the final iterate, gathered (rank 0), for marking
       real(dp), allocatable, intent(out), optional :: indicators(:)
+      real(dp), intent(in), optional :: eta_disc_hint
 
       type(discrete_problem_t), target :: p
       type(newton_options_t) :: options
@@ -75,6 +78,7 @@ contains
          omp_get_max_threads()
 
       call newton_options_from(cfg, comm, options)
+      if (present(eta_disc_hint)) options%eta_disc_hint = eta_disc_hint
       call check_distributed(cfg, comm, options, err)
       if (allocated(err)) return
       ! estimator work only when the method, the output or the refinement asks for it

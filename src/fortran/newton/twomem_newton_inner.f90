@@ -72,15 +72,18 @@ module twomem_newton_inner
    !> steps while η_lin moves by orders of magnitude), η_disc at this iterate (the
    !> discretization flux, about half of an evaluation); and if the test holds with it, the
    !> rest (the algebraic flux, η_alg, the bound). A check that stops before the last stage
-   !> keeps in its row what it computed. The first check has no η_disc to go by, and neither
-   !> has a check after an evaluation that failed: they start at the second stage. Judging by
+   !> keeps in its row what it computed. The first check has no η_disc to go by unless the
+   !> caller predicts one (`newton_options_t%eta_disc_hint`: a step of adaptive refinement
+   !> scales the previous mesh's η_disc, which η_disc follows to within a few percent), and a
+   !> check after an evaluation that failed has none: they start at the second stage. Judging by
    !> the global test also serves the local criteria, which imply it. Only the first stage
    !> predicts: a wrong skip costs one more Newton step, and no stop is ever decided without a
    !> whole evaluation.
    type :: check_schedule_t
       logical :: predict = .false.
       real(dp) :: gamma_lin = 0.3_dp
-      !> η_disc of the last evaluation (none yet, or it failed: −1)
+      !> η_disc of the last evaluation, or the caller's prediction before the first (none, or
+      !> the last evaluation failed: −1)
       real(dp) :: eta_disc = -1
    contains
       procedure :: decide
@@ -350,6 +353,7 @@ contains
       self%gamma_alg = options%gamma_alg
       self%schedule%predict = options%predicted_checks
       self%schedule%gamma_lin = options%gamma_lin
+      self%schedule%eta_disc = merge(options%eta_disc_hint, -1.0_dp, options%eta_disc_hint > 0)
       self%newton_tol = options%tol
       self%t0 = t0
       if (present(prec)) self%prec => prec

@@ -32,6 +32,9 @@ module twomem_newton_options
       !> adaptive method: a check computes η_lin first, then η_disc and then the rest only while
       !> the Newton test can still hold (estimate.checks = 'predicted'; check_schedule_t)
       logical :: predicted_checks = .true.
+      !> a prediction of η_disc at the start, for the first predicted check (check_schedule_t):
+      !> an adaptive refinement step's, from the previous mesh's; −1: none
+      real(dp) :: eta_disc_hint = -1
       integer :: max_it = 100
       real(dp) :: tol = 1.0e-10_dp
       logical :: line_search = .false.
