@@ -14,9 +14,9 @@
 !> instead of dividing it by √2, so the adaptive loop reaches a given error in about half the
 !> steps with meshes of the same size, and the sum over its steps costs less against the last
 !> one (docs/performance.md). Closure, nesting and the finitely many similarity classes are
-!> those of single bisection. New vertices are edge midpoints,
-!> numbered after the old ones in edge order, so a P1 function prolongs by midpoint averaging
-!> (`refinement_map_t`, as for red refinement). On the initial mesh the longest edge of each
+!> those of single bisection. New vertices are edge midpoints, numbered after the old ones in
+!> edge order, so a P1 function prolongs by midpoint averaging (`refinement_map_t`, as for red
+!> refinement). On the initial mesh the longest edge of each
 !> triangle is its refinement edge, which keeps the closure short and the shapes regular.
 module twomem_mesh_bisection
    use twomem_base_kinds, only: dp, ip
