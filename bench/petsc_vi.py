@@ -41,6 +41,9 @@ bench/petsc_vi_mesh and bench/petsc_vi_gmg).
     /usr/bin/python3 bench/petsc_vi.py --levels 3 --pc gmg,split --whole --threads 2:passive
     /usr/bin/python3 bench/petsc_vi.py --mesh results/meshes/pacman_0.005.msh --pc split,boomeramg
 
+The discrete problem (meshes, P1 assembly, the QP, the KKT check) is bench/petsc_vi_problem.py's;
+this script runs the solvers and compares them.
+
 `--petsc-options "-ksp_monitor ..."` is passed to PETSc's options database after the defaults,
 so any option below can be overridden from the command line.
 """
@@ -64,8 +67,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PETSC_DIR = f"/usr/lib/petscdir/petsc3.18/{sysconfig.get_config_var('MULTIARCH') or 'x86_64-linux-gnu'}-real"
 PROG = "petsc_vi.py"
 # bound by import_numerics() once the arguments are parsed
-h5py = np = sp = None
-RULE5_BARY = RULE5_WEIGHTS = None
+h5py = np = sp = problem = None
 
 
 def fail(message: str, code: int = 2) -> None:
@@ -95,17 +97,17 @@ def import_petsc(extra_options: list[str]):
 
 
 def import_numerics() -> None:
-    """h5py, numpy and scipy as the module's globals, and the quadrature rule built on them: after
-    the arguments are parsed, so that `--help` needs none of them."""
-    global h5py, np, sp, RULE5_BARY, RULE5_WEIGHTS
+    """h5py, numpy, scipy and the discrete problem (bench/petsc_vi_problem.py, whose quadrature rule
+    checks itself on import) as the module's globals: after the arguments are parsed, so that
+    `--help` needs none of them."""
+    global h5py, np, sp, problem
     try:
         import h5py
         import numpy as np
         import scipy.sparse as sp
     except ImportError as exc:
         fail(f"{exc.name} is not importable under {sys.executable}: run bench/setup_petsc.sh", 3)
-    RULE5_BARY, RULE5_WEIGHTS = _dunavant5()
-    _check_rule5()
+    import petsc_vi_problem as problem
 
 
 # --------------------------------------------------------------------------------------------
@@ -199,263 +201,6 @@ def read_result(path: Path) -> dict:
 
 
 # --------------------------------------------------------------------------------------------
-# meshes: red refinement, as twomem does it (edge numbering may differ)
-# --------------------------------------------------------------------------------------------
-@dataclass
-class Mesh:
-    vertices: np.ndarray          # (nv, 2)
-    triangles: np.ndarray         # (nt, 3) int64, counter-clockwise
-    edges: np.ndarray             # (ne, 2) unique vertex pairs, i < j
-    edge_of: np.ndarray           # (nt, 3) edge index of the sides (0,1), (1,2), (2,0)
-    boundary: np.ndarray          # (nv,) bool: on an edge of exactly one triangle
-
-    @property
-    def nv(self) -> int:
-        return self.vertices.shape[0]
-
-
-def make_mesh(vertices: np.ndarray, triangles: np.ndarray) -> Mesh:
-    """Edges (by a 1-D key i·nv + j, faster than unique over rows) and boundary vertices."""
-    nv = vertices.shape[0]
-    t = triangles
-    sides = np.stack([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]], axis=1).reshape(-1, 2)
-    sides.sort(axis=1)
-    keys, edge_of, counts = np.unique(sides[:, 0] * nv + sides[:, 1], return_inverse=True, return_counts=True)
-    edges = np.stack([keys // nv, keys % nv], axis=1)
-    if np.any(counts > 2):
-        fail("non-manifold mesh: an edge is shared by more than two triangles")
-    boundary = np.zeros(nv, dtype=bool)
-    boundary[edges[counts == 1].ravel()] = True
-    return Mesh(vertices=vertices, triangles=t, edges=edges, edge_of=edge_of.reshape(-1, 3), boundary=boundary)
-
-
-def red_refine(mesh: Mesh) -> Mesh:
-    """Coarse vertices first, then one midpoint per edge (boundary midpoints stay on the chords);
-    four children per triangle, all with the parent's orientation."""
-    v, t = mesh.vertices, mesh.triangles
-    mid = 0.5 * (v[mesh.edges[:, 0]] + v[mesh.edges[:, 1]])
-    m = mesh.edge_of + mesh.nv                                # midpoints of (a,b), (b,c), (c,a)
-    a, b, c = t[:, 0], t[:, 1], t[:, 2]
-    ab, bc, ca = m[:, 0], m[:, 1], m[:, 2]
-    children = np.concatenate([np.stack(k, axis=1) for k in ((a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca))])
-    return make_mesh(np.concatenate([v, mid]), children)
-
-
-def read_gmsh(path: Path) -> Mesh:
-    """The triangles of a Gmsh MSH 4.1 or 2.2 ASCII file as they are (read here, not by twomem):
-    nodes no triangle uses dropped (twomem drops them too), clockwise triangles turned."""
-    try:
-        lines = path.read_text().splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        fail(f"{path}: cannot read the mesh ({exc}; binary MSH files are not read here)")
-    def section(name: str) -> int:
-        try:
-            return lines.index(f"${name}") + 1
-        except ValueError:
-            fail(f"{path}: no ${name} section")
-    version = lines[section("MeshFormat")].split()
-    if version[1] != "0":
-        fail(f"{path}: binary MSH files are not read here: save it as ASCII")
-    tags, coords, tris = [], [], []
-    i = section("Nodes")
-    if version[0].startswith("4"):
-        nblocks = int(lines[i].split()[0])
-        i += 1
-        for _ in range(nblocks):
-            dim, _, parametric, count = (int(x) for x in lines[i].split())
-            tags.append(np.array(lines[i + 1:i + 1 + count], dtype=np.int64))
-            xyz = np.array(" ".join(lines[i + 1 + count:i + 1 + 2 * count]).split(), dtype=float)
-            coords.append(xyz.reshape(count, -1)[:, :2] if count else np.zeros((0, 2)))
-            i += 1 + 2 * count
-        i = section("Elements")
-        nblocks = int(lines[i].split()[0])
-        i += 1
-        for _ in range(nblocks):
-            dim, _, etype, count = (int(x) for x in lines[i].split())
-            if etype == 2:
-                tris.append(np.array(" ".join(lines[i + 1:i + 1 + count]).split(), dtype=np.int64).reshape(count, 4)[:, 1:])
-            elif dim == 2:
-                fail(f"{path}: element type {etype} in a surface: only 3-node triangles are read")
-            i += 1 + count
-    elif version[0].startswith("2"):
-        count = int(lines[i])
-        data = np.array(" ".join(lines[i + 1:i + 1 + count]).split(), dtype=float).reshape(count, 4)
-        tags.append(data[:, 0].astype(np.int64))
-        coords.append(data[:, 1:3])
-        i = section("Elements")
-        for line in lines[i + 1:i + 1 + int(lines[i])]:
-            f = line.split()
-            if f[1] == "2":
-                tris.append(np.array([f[-3:]], dtype=np.int64))
-    else:
-        fail(f"{path}: MSH version {version[0]}: only 4.1 and 2.2 are read")
-    if not tris:
-        fail(f"{path}: no triangles")
-    tags, coords, tri_tags = np.concatenate(tags), np.concatenate(coords), np.concatenate(tris)
-    index = np.full(int(tags.max()) + 1, -1, dtype=np.int64)
-    index[tags] = np.arange(tags.size)
-    t = index[tri_tags]
-    if np.any(t < 0):
-        fail(f"{path}: a triangle names a node that is not in $Nodes")
-    used, t = np.unique(t, return_inverse=True)               # drop nodes no triangle uses
-    t = t.reshape(-1, 3)
-    v = coords[used]
-    p0, p1, p2 = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
-    det = (p1[:, 0] - p0[:, 0]) * (p2[:, 1] - p0[:, 1]) - (p1[:, 1] - p0[:, 1]) * (p2[:, 0] - p0[:, 0])
-    t[det < 0] = t[det < 0][:, [0, 2, 1]]
-    return make_mesh(v, t)
-
-
-def prolong(coarse: Mesh, x: np.ndarray) -> np.ndarray:
-    """P1 interpolation of a nodal field from `coarse` to its red refinement: midpoint averages."""
-    return np.concatenate([x, 0.5 * (x[coarse.edges[:, 0]] + x[coarse.edges[:, 1]])])
-
-
-def match_vertices(mine: np.ndarray, theirs: np.ndarray) -> tuple[np.ndarray, float]:
-    """Permutation p with theirs[p] ≈ mine (same vertex set), and the largest coordinate gap.
-
-    Vertices are ordered by coordinates rounded to 1e-9 (far below the smallest edge) so that a
-    last-bit difference cannot reorder them; the gap is then measured on the raw coordinates.
-    """
-    if mine.shape != theirs.shape:
-        fail(f"finest mesh differs from twomem's: {mine.shape[0]} vertices here, {theirs.shape[0]} in twomem")
-    def order(v):
-        k = np.round(v * 1e9).astype(np.int64)
-        return np.lexsort((k[:, 1], k[:, 0]))
-    om, ot = order(mine), order(theirs)
-    perm = np.empty_like(om)
-    perm[om] = ot
-    gap = float(np.max(np.abs(theirs[perm] - mine)))
-    if gap > 1e-12:
-        fail(f"finest mesh differs from twomem's: vertex coordinates differ by up to {gap:.3e}")
-    return perm, gap
-
-
-# --------------------------------------------------------------------------------------------
-# P1 assembly (independent of twomem): stiffness, lumped mass, degree-5 loads
-# --------------------------------------------------------------------------------------------
-def _dunavant5() -> tuple[np.ndarray, np.ndarray]:
-    """Dunavant's 7-point rule, exact for degree 5: barycentric points (7, 3), weights (sum 1)."""
-    pts, wts = [(1 / 3, 1 / 3, 1 / 3)], [0.225]
-    for a, b, w in ((0.059715871789770, 0.470142064105115, 0.132394152788506),
-                    (0.797426985353087, 0.101286507323456, 0.125939180544827)):
-        pts += [(a, b, b), (b, a, b), (b, b, a)]
-        wts += [w] * 3
-    return np.array(pts), np.array(wts)
-
-
-def _check_rule5() -> None:
-    """∫ x^i y^j over the reference triangle is i! j! / (i + j + 2)!: exact for i + j ≤ 5."""
-    from math import factorial
-    x, y = RULE5_BARY[:, 1], RULE5_BARY[:, 2]
-    for i in range(6):
-        for j in range(6 - i):
-            exact = factorial(i) * factorial(j) / factorial(i + j + 2)
-            if abs(0.5 * RULE5_WEIGHTS @ (x ** i * y ** j) - exact) > 1e-14:
-                fail(f"degree-5 rule is not exact for x^{i} y^{j}")
-
-
-@dataclass
-class Level:
-    mesh: Mesh
-    K: sp.csr_matrix              # (nv, nv) P1 stiffness, all vertices
-    mass: np.ndarray              # (nv,) |ω_a|/3
-    load1: np.ndarray             # (nv,) (f1, ψ_a) by the degree-5 rule
-    load2: np.ndarray
-    interior: np.ndarray          # indices of interior vertices
-    seconds: float = 0.0          # assembly time
-
-
-def assemble(mesh: Mesh, case: Case) -> Level:
-    t0 = time.perf_counter()
-    v, t = mesh.vertices, mesh.triangles
-    p0, p1, p2 = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
-    det = (p1[:, 0] - p0[:, 0]) * (p2[:, 1] - p0[:, 1]) - (p1[:, 1] - p0[:, 1]) * (p2[:, 0] - p0[:, 0])
-    if np.any(det <= 0):
-        fail("mesh has a triangle that is not counter-clockwise or is degenerate")
-    area = 0.5 * det
-    opp = np.stack([p2 - p1, p0 - p2, p1 - p0], axis=1)       # side opposite each corner
-    grad = np.stack([-opp[:, :, 1], opp[:, :, 0]], axis=2) / det[:, None, None]
-    kloc = area[:, None, None] * np.einsum("kid,kjd->kij", grad, grad)
-    rows = np.repeat(t, 3, axis=1).ravel()
-    cols = np.tile(t, (1, 3)).ravel()
-    K = sp.csr_matrix((kloc.ravel(), (rows, cols)), shape=(mesh.nv, mesh.nv))   # duplicates summed
-    mass = np.bincount(t.ravel(), weights=np.repeat(area / 3.0, 3), minlength=mesh.nv)
-    load1 = load_vector(mesh, area, lambda x: np.full(x.shape[:-1], case.f1))
-    load2 = load_vector(mesh, area, lambda x: np.full(x.shape[:-1], case.f2))
-    lv = Level(mesh=mesh, K=K, mass=mass, load1=load1, load2=load2, interior=np.flatnonzero(~mesh.boundary))
-    lv.seconds = time.perf_counter() - t0
-    return lv
-
-
-def load_vector(mesh: Mesh, area: np.ndarray, f) -> np.ndarray:
-    """(f, ψ_a) = Σ_K |K| Σ_q w_q f(x_q) ψ_a(x_q) with the degree-5 rule; f takes points (..., 2)."""
-    t = mesh.triangles
-    xq = np.einsum("qi,kid->kqd", RULE5_BARY, mesh.vertices[t])          # (nt, 7, 2)
-    fw = f(xq) * RULE5_WEIGHTS[None, :] * area[:, None]                  # (nt, 7)
-    local = fw @ RULE5_BARY                                              # (nt, 3): ψ_i(x_q) = bary_i
-    return np.bincount(t.ravel(), weights=local.ravel(), minlength=mesh.nv)
-
-
-# --------------------------------------------------------------------------------------------
-# the VI in (w, s) = (u1 − u2, u1 + u2)
-# --------------------------------------------------------------------------------------------
-@dataclass
-class VI:
-    H: sp.csr_matrix              # (2n, 2n) Hessian of the QP at the interior unknowns [w; s]
-    b: np.ndarray                 # (2n,) so that ∇J(x) = H x − b (lifting of w = s = g included)
-    n: int
-
-
-def vi_system(lv: Level, case: Case) -> VI:
-    """J(u1, u2) = ½μ1 u1ᵀK u1 + ½μ2 u2ᵀK u2 − (f1, u1) − (f2, u2) with u1 = (s + w)/2,
-    u2 = (s − w)/2 gives ∂²J/∂w² = ∂²J/∂s² = (μ1+μ2)/4 K and ∂²J/∂w∂s = (μ1−μ2)/4 K; the linear
-    part is ½[(f1 − f2, ψ); (f1 + f2, ψ)] minus the boundary columns applied to w = s = g."""
-    a, c = (case.mu1 + case.mu2) / 4.0, (case.mu1 - case.mu2) / 4.0
-    I = lv.interior
-    B = np.flatnonzero(lv.mesh.boundary)
-    KI = lv.K[I]
-    KII, KIB = KI[:, I], KI[:, B]
-    H = sp.bmat([[a * KII, c * KII], [c * KII, a * KII]], format="csr")
-    lift = KIB @ np.full(B.size, case.g)                      # K_IB g, for both w and s
-    b_w = 0.5 * (lv.load1[I] - lv.load2[I]) - (a + c) * lift
-    b_s = 0.5 * (lv.load1[I] + lv.load2[I]) - (c + a) * lift
-    H.sort_indices()
-    return VI(H=H, b=np.concatenate([b_w, b_s]), n=I.size)
-
-
-def to_nodal(lv: Level, x: np.ndarray, g: float) -> tuple[np.ndarray, np.ndarray]:
-    """Interior [w; s] → nodal w, s with the boundary values w = s = g."""
-    n = lv.interior.size
-    w, s = np.full(lv.mesh.nv, g), np.full(lv.mesh.nv, g)
-    w[lv.interior], s[lv.interior] = x[:n], x[n:]
-    return w, s
-
-
-def fields(lv: Level, case: Case, w: np.ndarray, s: np.ndarray) -> dict:
-    """u1, u2 and λ = (μ1 K u1 − F1)/D at interior vertices (0 on ∂Ω), from the first equation."""
-    u1, u2 = 0.5 * (s + w), 0.5 * (s - w)
-    lam = np.zeros(lv.mesh.nv)
-    I = lv.interior
-    lam[I] = (case.mu1 * (lv.K @ u1)[I] - lv.load1[I]) / lv.mass[I]
-    return dict(u1=u1, u2=u2, lam=lam)
-
-
-def kkt_check(lv: Level, case: Case, fld: dict) -> dict:
-    """The second equation μ2 K u2 + D λ = F2 (the first defines λ) and complementarity of a
-    solution, relative to the size of their terms: an assembly-independent self-check."""
-    I = lv.interior
-    u1, u2, lam = fld["u1"], fld["u2"], fld["lam"]
-    ku2 = case.mu2 * (lv.K @ u2)[I]
-    r2 = ku2 + lv.mass[I] * lam[I] - lv.load2[I]
-    scale = max(np.max(np.abs(ku2)), np.max(np.abs(lv.mass[I] * lam[I])), np.max(np.abs(lv.load2[I])))
-    w = (u1 - u2)[I]
-    return dict(eq2_rel=float(np.max(np.abs(r2)) / scale),
-                min_gap=float(np.min(w)), min_lambda=float(np.min(lam[I])),
-                compl_rel=float(np.max(np.abs(np.minimum(w / np.max(np.abs(w)), lam[I] / np.max(np.abs(lam[I])))))))
-
-
-# --------------------------------------------------------------------------------------------
 # PETSc
 # --------------------------------------------------------------------------------------------
 @dataclass
@@ -509,7 +254,7 @@ def _pc_setup_time(PETSc) -> float:
     return PETSc.Log.Event("PCSetUp").getPerfInfo()["time"]
 
 
-def snes_solve(PETSc, vi: VI, x0: np.ndarray, tol: Tolerances, level: int, nv: int,
+def snes_solve(PETSc, vi: problem.VI, x0: np.ndarray, tol: Tolerances, level: int, nv: int,
                precond: "Precond | None" = None) -> tuple[np.ndarray, SolveStats]:
     """One SNES vinewtonrsls solve of ∇J(x) = H x − b ⊥ w ≥ 0 from x0; `precond` replaces the
     options database's PC (BoomerAMG by default) by one built on the reduced systems."""
@@ -562,7 +307,7 @@ def snes_solve(PETSc, vi: VI, x0: np.ndarray, tol: Tolerances, level: int, nv: i
     return xs, stats
 
 
-def interior_prolongation(coarse: Level, fine: Level) -> sp.csr_matrix:
+def interior_prolongation(coarse: problem.Level, fine: problem.Level) -> sp.csr_matrix:
     """P1 interpolation from `coarse` to its red refinement `fine` (coarse vertices first, then
     the edge midpoints: red_refine's numbering) between interior vertices, for both fields
     [w; s]: the corrections vanish on ∂Ω, where w = s = g are fixed."""
@@ -658,14 +403,14 @@ def snes_reason(PETSc, snes) -> str:
     return names.get(r, str(r))
 
 
-def make_precond(kind: str, levels: list[Level], prolongations: list) -> "Precond | None":
+def make_precond(kind: str, levels: list[problem.Level], prolongations: list) -> "Precond | None":
     """None for the options database's PC (BoomerAMG on the whole reduced system)."""
     if kind == "boomeramg":
         return None
     return Precond(kind, levels[-1].interior.size, prolongations)
 
 
-def petsc_nested(PETSc, levels: list[Level], systems: list[VI], case: Case, tol: Tolerances, kind: str,
+def petsc_nested(PETSc, levels: list[problem.Level], systems: list[problem.VI], case: Case, tol: Tolerances, kind: str,
                  prolongations: list):
     """Level 0 from (g, g), then each level from the midpoint interpolation of the previous one."""
     stats, x = [], None
@@ -675,8 +420,8 @@ def petsc_nested(PETSc, levels: list[Level], systems: list[VI], case: Case, tol:
             x0 = np.full(2 * vi.n, case.g)
         else:
             t0 = time.perf_counter()
-            w, s = to_nodal(levels[l - 1], x, case.g)
-            w, s = prolong(levels[l - 1].mesh, w), prolong(levels[l - 1].mesh, s)
+            w, s = problem.to_nodal(levels[l - 1], x, case.g)
+            w, s = problem.prolong(levels[l - 1].mesh, w), problem.prolong(levels[l - 1].mesh, s)
             x0 = np.concatenate([w[lv.interior], s[lv.interior]])
             t_interp += time.perf_counter() - t0
         x, st = snes_solve(PETSc, vi, x0, tol, l, lv.mesh.nv, make_precond(kind, levels[:l + 1], prolongations))
@@ -684,7 +429,7 @@ def petsc_nested(PETSc, levels: list[Level], systems: list[VI], case: Case, tol:
     return x, stats, t_interp
 
 
-def petsc_cold(PETSc, levels: list[Level], systems: list[VI], case: Case, tol: Tolerances, kind: str,
+def petsc_cold(PETSc, levels: list[problem.Level], systems: list[problem.VI], case: Case, tol: Tolerances, kind: str,
                prolongations: list):
     vi = systems[-1]
     L = len(levels) - 1
@@ -828,20 +573,20 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     return args
 
 
-def build_levels(exe: Path, case: Case, work: Path) -> tuple[list[Level], float]:
+def build_levels(exe: Path, case: Case, work: Path) -> tuple[list[problem.Level], float]:
     """Coarse mesh from twomem (levels=0), refined here, or the Gmsh mesh read here; assembled
     on every level."""
     t0 = time.perf_counter()
     if case.mesh_file:
-        meshes = [read_gmsh(Path(case.mesh_file))]
+        meshes = [problem.read_gmsh(Path(case.mesh_file))]
     else:
         coarse = run_twomem(exe, case, work / "coarse.h5", TWOMEM_TIMED, Omp(1), levels=0)
         t0 = time.perf_counter()
-        meshes = [make_mesh(coarse["vertices"].astype(float), coarse["triangles"])]
+        meshes = [problem.make_mesh(coarse["vertices"].astype(float), coarse["triangles"])]
     for _ in range(case.levels):
-        meshes.append(red_refine(meshes[-1]))
+        meshes.append(problem.red_refine(meshes[-1]))
     t_mesh = time.perf_counter() - t0
-    return [assemble(m, case) for m in meshes], t_mesh
+    return [problem.assemble(m, case) for m in meshes], t_mesh
 
 
 PHASES = ("mesh", "assembly", "solve", "estimators", "error", "output")
@@ -890,7 +635,7 @@ def twomem_configs(threads: list[Omp], whole: bool) -> list[tuple[str, list[str]
     return configs
 
 
-def run_repeats(PETSc, args, exe: Path, case: Case, levels: list[Level], systems: list[VI],
+def run_repeats(PETSc, args, exe: Path, case: Case, levels: list[problem.Level], systems: list[problem.VI],
                 tol: Tolerances, work: Path) -> Measurements:
     """Interleaved repeats (twomem rows, PETSc nested, PETSc cold, per preconditioner) so that
     slow phases of the machine's load hit every method alike."""
@@ -921,7 +666,7 @@ def run_repeats(PETSc, args, exe: Path, case: Case, levels: list[Level], systems
     return m
 
 
-def build_rows(m: Measurements, fine: Level, case: Case, ref: dict, perm: np.ndarray, agree: float):
+def build_rows(m: Measurements, fine: problem.Level, case: Case, ref: dict, perm: np.ndarray, agree: float):
     """Table rows, PETSc per-level summaries and notes (self-checks, warnings)."""
     rows, petsc_tables, notes = [], {}, []
     for i, (label, _, _, whole) in enumerate(m.configs):
@@ -931,10 +676,10 @@ def build_rows(m: Measurements, fine: Level, case: Case, ref: dict, perm: np.nda
     for pc, start in m.methods:
         label = f"PETSc vinewtonrsls, {PC_LABELS[pc]}, {start}"
         summary = summarize_petsc(m.petsc[pc, start], m.interp[pc, start])
-        fld = fields(fine, case, *to_nodal(fine, m.x[pc, start], case.g))
+        fld = problem.fields(fine, case, *problem.to_nodal(fine, m.x[pc, start], case.g))
         diff = difference(fld, ref, perm)
         rows.append(petsc_row(summary, label, start == "nested", diff))
-        kkt = summary["kkt"] = kkt_check(fine, case, fld)
+        kkt = summary["kkt"] = problem.kkt_check(fine, case, fld)
         petsc_tables[label] = summary
         notes.append(f"{label}: second equation residual {kkt['eq2_rel']:.1e} (relative), min(w) {kkt['min_gap']:.1e}, "
                      f"min(λ) {kkt['min_lambda']:.1e}, max|min(w, λ)| {kkt['compl_rel']:.1e} (each scaled by its max)")
@@ -976,11 +721,11 @@ def main(argv: list[str]) -> int:
         print(f"case: {where}, "
               f"mu1 {case.mu1} mu2 {case.mu2} f1 {case.f1} f2 {case.f2} g {case.g}; vertices per level "
               + ", ".join(str(lv.mesh.nv) for lv in levels), flush=True)
-        systems = [vi_system(lv, case) for lv in levels]
+        systems = [problem.vi_system(lv, case) for lv in levels]
         ref = run_twomem(exe, case, work / "reference.h5", TWOMEM_REFERENCE, args.threads[0])
         if ref["triangles"].shape != fine.mesh.triangles.shape:
             fail("finest mesh differs from twomem's: triangle counts differ")
-        perm, gap = match_vertices(fine.mesh.vertices, ref["vertices"])
+        perm, gap = problem.match_vertices(fine.mesh.vertices, ref["vertices"])
         print(f"mesh check: finest mesh equals twomem's ({fine.mesh.nv} vertices, "
               f"{fine.mesh.triangles.shape[0]} triangles; coordinates differ by at most {gap:.1e})", flush=True)
         m = run_repeats(PETSc, args, exe, case, levels, systems, tol, work)
@@ -1016,4 +761,6 @@ if __name__ == "__main__":
     except Exception as exc:                                  # PETSc errors: one line, no traceback
         if type(exc).__module__.startswith("petsc4py"):
             fail(f"PETSc: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}", 3)
+        if problem is not None and isinstance(exc, problem.ProblemError):  # a bad mesh: its one line
+            fail(str(exc))
         raise
