@@ -28,6 +28,9 @@ DEBUG = os.environ.get("TWOMEM_BUILD_TYPE", "").lower() == "debug"
 #: the debug build (-O0) stops earlier
 TOL = 4e-3 if DEBUG else 3e-3
 RADIAL = ("mesh.levels=0", "mesh.coarse_h=0.25", "mesh.boundary_h=0.01", "problem.exact=radial")
+#: the adaptivity benchmark's case (docs/performance.md) on its 96-vertex Gmsh mesh of the pacman domain
+PACMAN = ("mesh.domain=gmsh", f"mesh.file={SOURCE / 'tests' / 'data' / 'meshes' / 'pacman_msh41.msh'}",
+          "mesh.levels=0", "problem.exact=none", "problem.f1=-1", "problem.f2=0", "problem.g=0.05")
 
 
 def adapt_steps(path):
@@ -129,10 +132,7 @@ def test_singular_coarse_level_keeps_newton_short():
     steps there (GMRES broke down or stalled). Bounded by the coarsest level's diagonal shift, every
     step takes the two or three Newton steps of an interpolated start."""
     path = out_file("adapt_pacman.h5")
-    mesh = SOURCE / "tests" / "data" / "meshes" / "pacman_msh41.msh"
-    run("mesh.domain=gmsh", f"mesh.file={mesh}", "mesh.levels=0", "problem.exact=none", "problem.f1=-1",
-        "problem.f2=0", "problem.g=0.05", "adapt.tol=1e-6", "adapt.theta=0.7", "adapt.max_steps=6",
-        f"output.file={path}", check_rc=1)
+    run(*PACMAN, "adapt.tol=1e-6", "adapt.theta=0.7", "adapt.max_steps=6", f"output.file={path}", check_rc=1)
     with h5py.File(path, "r") as f:
         newton = f["adapt/newton_iterations"][()]
         vertices = f["adapt/vertices"][()]
@@ -146,10 +146,7 @@ def test_first_check_goes_by_the_previous_eta_disc():
     the discretization flux (which a check with nothing to go by computes), and the steps end as
     before, each with one whole evaluation."""
     path = out_file("adapt_hint.h5")
-    mesh = SOURCE / "tests" / "data" / "meshes" / "pacman_msh41.msh"
-    proc = run("mesh.domain=gmsh", f"mesh.file={mesh}", "mesh.levels=0", "problem.exact=none", "problem.f1=-1",
-               "problem.f2=0", "problem.g=0.05", "adapt.tol=1e-6", "adapt.max_steps=8", f"output.file={path}",
-               check_rc=1)
+    proc = run(*PACMAN, "adapt.tol=1e-6", "adapt.max_steps=8", f"output.file={path}", check_rc=1)
     steps = proc.stdout.split("adapt: step ")
     first_checks = [next(line for line in step.splitlines() if line.startswith("newton    1")) for step in steps[1:-1]]
     assert len(first_checks) == 7
