@@ -5,7 +5,8 @@
 !> level nearly independent of the mesh. Nested iteration starts below the coarsest mesh too
 !> when that mesh is large (a user's fine mesh given as it is): on meshes coarsened from it
 !> (`twomem_app_coarse_meshes`). The multigrid transfers of the whole hierarchy are built once
-!> here and serve every level (`twomem_app_transfers`).
+!> here and serve every level (`twomem_app_transfers`); the caller owns them, so that the
+!> estimators' Riesz preconditioner can use them too, through the run's last evaluation.
 module twomem_app_levels
    use, intrinsic :: iso_fortran_env, only: output_unit
    use twomem_base_kinds, only: dp, ip
@@ -29,13 +30,21 @@ module twomem_app_levels
    implicit none
    private
 
-   public :: solve_levels, solve_from, coarse_work_t
+   public :: solve_levels, solve_from, coarse_work_t, uses_multigrid
 
 contains
 
-   !> Newton for the finest problem p (nested iteration when newton.initial = 'nested').
-   !> Collective.
-   subroutine solve_levels(cfg, comm, hierarchy, data, p, options, clock, newton, coarse, err, observer)
+   !> Whether the solves with `options` build multigrid transfers (with algebraic levels below a
+   !> large mesh), rather than the one level of a direct or single-level preconditioned solve.
+   pure logical function uses_multigrid(options)
+      type(newton_options_t), intent(in) :: options
+
+      uses_multigrid = options%precond == precond_mg .and. options%linear /= method_direct
+   end function uses_multigrid
+
+   !> Newton for the finest problem p (nested iteration when newton.initial = 'nested'), on the
+   !> transfers `transfer` built here. Collective.
+   subroutine solve_levels(cfg, comm, hierarchy, data, p, options, clock, transfer, newton, coarse, err, observer)
       type(config_t), intent(in) :: cfg
       type(comm_t), intent(in) :: comm
       type(mesh_hierarchy_t), intent(in) :: hierarchy
@@ -43,13 +52,13 @@ contains
       type(discrete_problem_t), target, intent(in) :: p
       type(newton_options_t), intent(in) :: options
       type(phase_clock_t), intent(inout) :: clock
+      type(multigrid_transfer_t), target, intent(inout) :: transfer
       type(newton_result_t), intent(out) :: newton
       type(coarse_work_t), intent(out) :: coarse
       type(error_t), allocatable, intent(out) :: err
       class(newton_observer_t), intent(inout), optional :: observer
 
       type(newton_options_t) :: quiet
-      type(multigrid_transfer_t), target :: transfer
       real(dp), allocatable :: fine(:, :), x0(:)
       real(dp) :: t_level
       integer :: l, finest, bottom, shift
@@ -58,8 +67,7 @@ contains
       finest = hierarchy%levels
       bottom = hierarchy%first_with_unknowns(comm)
       nested = cfg%newton%initial == initial_nested
-      call hierarchy_transfer(comm, hierarchy, bottom, p, options%precond == precond_mg .and. &
-                              options%linear /= method_direct, transfer, err)
+      call hierarchy_transfer(comm, hierarchy, bottom, p, uses_multigrid(options), transfer, err)
       if (allocated(err)) return
       ! level l of the hierarchy is level l + shift of the transfers
       shift = transfer%algebraic - bottom
@@ -118,24 +126,23 @@ contains
 
    !> Newton for the finest problem p from nodal fields (nv, 3) of u1, u2, λ (an interpolated
    !> solution of a coarser mesh of the same domain, as in nested iteration: its contact set
-   !> settled first). Collective.
-   subroutine solve_from(comm, hierarchy, p, options, nodal, newton, err, observer)
+   !> settled first), on the transfers `transfer` built here. Collective.
+   subroutine solve_from(comm, hierarchy, p, options, nodal, transfer, newton, err, observer)
       type(comm_t), intent(in) :: comm
       type(mesh_hierarchy_t), intent(in) :: hierarchy
       type(discrete_problem_t), target, intent(in) :: p
       type(newton_options_t), intent(in) :: options
       real(dp), intent(in) :: nodal(:, :)
+      type(multigrid_transfer_t), target, intent(inout) :: transfer
       type(newton_result_t), intent(out) :: newton
       type(error_t), allocatable, intent(out) :: err
       class(newton_observer_t), intent(inout), optional :: observer
 
-      type(multigrid_transfer_t), target :: transfer
       real(dp), allocatable :: x0(:)
       integer :: bottom
 
       bottom = hierarchy%first_with_unknowns(comm)
-      call hierarchy_transfer(comm, hierarchy, bottom, p, options%precond == precond_mg .and. &
-                              options%linear /= method_direct, transfer, err)
+      call hierarchy_transfer(comm, hierarchy, bottom, p, uses_multigrid(options), transfer, err)
       if (allocated(err)) return
       x0 = interior_values(p, nodal)
       call settle_contact(p, x0)

@@ -3,9 +3,12 @@
 !> solution is known, the energy error. It counts and times the estimator evaluations, so that
 !> their cost can be reported next to the solver's. When the estimators' algebraic flux is the
 !> one-level construction, it owns the preconditioner of that flux's Riesz problem: one V-cycle
-!> for the finest stiffness on multigrid transfers of its own (the levels that nested iteration
-!> and the Newton preconditioner use), built at an evaluation that needs it and freed with the
-!> evaluation's workspaces (`free_workspaces`, `drop_partial`) and when evaluations end.
+!> for the finest stiffness on the multigrid transfers that nested iteration and the Newton
+!> preconditioner use (the solve's own, shared through `share_transfer`, since building them
+!> again, aggregation and its Galerkin products, costs about a twentieth of a run on a large
+!> single mesh; transfers of its own when the solve has none), built at an evaluation that needs
+!> it and freed with the evaluation's workspaces (`free_workspaces`, `drop_partial`) and when
+!> evaluations end.
 module twomem_app_observer
    use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
    use twomem_base_kinds, only: dp, ip
@@ -50,11 +53,14 @@ module twomem_app_observer
       !> the first failure of an evaluation (its estimators stay NaN, which no stopping test
       !> accepts); the run reports it after Newton
       type(error_t), allocatable :: err
-      !> the one-level algebraic flux's preconditioner and its transfers (see the module header)
-      type(multigrid_transfer_t), allocatable :: transfer
+      !> the one-level algebraic flux's preconditioner and its transfers (see the module header):
+      !> the solve's, or `own` ones
+      type(multigrid_transfer_t), pointer :: solve_transfer => null()
+      type(multigrid_transfer_t), allocatable :: own_transfer
       type(mg_preconditioner_t), allocatable :: riesz
    contains
       procedure :: init
+      procedure :: share_transfer
       procedure :: observe
       procedure :: linearization_estimate
       procedure :: discretization_estimate
@@ -94,6 +100,15 @@ contains
       self%gamma_lin = gamma_lin
       self%local_criteria = local_criteria
    end subroutine init
+
+   !> The Riesz preconditioner is to use the solve's multigrid transfers `transfer` (built by
+   !> the solve before its first evaluation), which must outlive the observer's evaluations.
+   subroutine share_transfer(self, transfer)
+      class(run_observer_t), intent(inout) :: self
+      type(multigrid_transfer_t), target, intent(in) :: transfer
+
+      self%solve_transfer => transfer
+   end subroutine share_transfer
 
    subroutine observe(self, x, row, estimates)
       class(run_observer_t), intent(inout) :: self
@@ -264,26 +279,41 @@ contains
    !> that a single mesh, an adapted one for instance, is not factorized whole at every
    !> evaluation's first use). Collective.
    subroutine riesz_preconditioner(self, err)
-      class(run_observer_t), intent(inout) :: self
+      class(run_observer_t), target, intent(inout) :: self
       type(error_t), allocatable, intent(out) :: err
 
       type(multigrid_options_t) :: options
-      integer :: bottom, top
+      type(multigrid_transfer_t), pointer :: transfer
 
-      if (allocated(self%riesz)) return
-      associate (comm => self%p%halo%comm, hierarchy => self%hierarchy)
-         bottom = hierarchy%first_with_unknowns(comm)
-         allocate (self%transfer)
-         call hierarchy_transfer(comm, hierarchy, bottom, self%p, .true., self%transfer, err)
-         if (allocated(err)) return
-         top = self%transfer%levels
-         allocate (self%riesz)
-         call self%riesz%init(self%p%stiffness, self%transfer, top, options, err)
-      end associate
+      if (associated(self%solve_transfer)) then
+         transfer => self%solve_transfer
+      else
+         if (.not. allocated(self%own_transfer)) then
+            allocate (self%own_transfer)
+            associate (comm => self%p%halo%comm, hierarchy => self%hierarchy)
+               call hierarchy_transfer(comm, hierarchy, hierarchy%first_with_unknowns(comm), self%p, .true., &
+                                       self%own_transfer, err)
+            end associate
+            if (allocated(err)) then
+               call self%free_riesz()
+               return
+            end if
+         end if
+         transfer => self%own_transfer
+      end if
+      if (allocated(self%riesz)) then
+         ! the Newton preconditioner drops the shared restrictions while an evaluation runs
+         ! (elimination_preconditioner_t%release); transposed again, they have the same bits
+         call transfer%restore_restrictions()
+         return
+      end if
+      allocate (self%riesz)
+      call self%riesz%init(self%p%stiffness, transfer, transfer%levels, options, err)
       if (allocated(err)) call self%free_riesz()
    end subroutine riesz_preconditioner
 
-   !> The one-level algebraic flux's preconditioner and transfers go (after the last evaluation).
+   !> The one-level algebraic flux's preconditioner and its own transfers go (after the last
+   !> evaluation); the solve's stay the solve's.
    subroutine free_riesz(self)
       class(run_observer_t), intent(inout) :: self
 
@@ -291,6 +321,6 @@ contains
          call self%riesz%release()
          deallocate (self%riesz)
       end if
-      if (allocated(self%transfer)) deallocate (self%transfer)
+      if (allocated(self%own_transfer)) deallocate (self%own_transfer)
    end subroutine free_riesz
 end module twomem_app_observer

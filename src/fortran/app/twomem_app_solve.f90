@@ -24,7 +24,8 @@ module twomem_app_solve
    use twomem_newton_solver, only: newton_options_t, newton_result_t, automatic_every
    use twomem_estimate_estimators, only: estimator_t, estimates_t, poincare_constant
    use twomem_app_observer, only: run_observer_t
-   use twomem_app_levels, only: solve_levels, solve_from, coarse_work_t
+   use twomem_app_levels, only: solve_levels, solve_from, coarse_work_t, uses_multigrid
+   use twomem_linalg_multigrid, only: multigrid_transfer_t
    use twomem_io_result, only: result_record_t, history_columns_t
    use twomem_newton_history, only: history_t
    use twomem_io_gather, only: gather_plan_t
@@ -62,6 +63,9 @@ contains
       type(newton_result_t) :: newton
       type(run_observer_t), target :: observer
       type(estimator_t), target :: estimator
+      !> the solve's multigrid transfers, kept through the final evaluation for its Riesz
+      !> preconditioner (run_observer_t)
+      type(multigrid_transfer_t), target :: transfer
       type(coarse_work_t) :: coarse
       integer :: finest, n_whole
       logical :: need_estimates
@@ -98,18 +102,19 @@ contains
                                         (cfg%estimate%enabled .and. cfg%output%history), &
                          gamma_alg=cfg%estimate%gamma_alg, gamma_lin=cfg%newton%gamma_lin, &
                          local_criteria=options%local_criteria)
+      if (uses_multigrid(options)) call observer%share_transfer(transfer)
 
       call clock%switch(phase_solve)
       if (present(nodal)) then
          if (observer%with_error .or. observer%with_estimates) then
-            call solve_from(comm, hierarchy, p, options, nodal, newton, err, observer)
+            call solve_from(comm, hierarchy, p, options, nodal, transfer, newton, err, observer)
          else
-            call solve_from(comm, hierarchy, p, options, nodal, newton, err)
+            call solve_from(comm, hierarchy, p, options, nodal, transfer, newton, err)
          end if
       else if (observer%with_error .or. observer%with_estimates) then
-         call solve_levels(cfg, comm, hierarchy, data, p, options, clock, newton, coarse, err, observer)
+         call solve_levels(cfg, comm, hierarchy, data, p, options, clock, transfer, newton, coarse, err, observer)
       else
-         call solve_levels(cfg, comm, hierarchy, data, p, options, clock, newton, coarse, err)
+         call solve_levels(cfg, comm, hierarchy, data, p, options, clock, transfer, newton, coarse, err)
       end if
       ! what the observer measured inside the Newton loop is not solver time
       call clock%charge(phase_estimators, observer%estimator_time)
