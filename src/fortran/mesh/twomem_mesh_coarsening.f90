@@ -49,11 +49,14 @@ module twomem_mesh_coarsening
    !> a round that removes fewer than this fraction of the vertices ends the coarsening
    real(dp), parameter :: stall = 0.03_dp
 
-   !> The mesh being coarsened: triangles (dead ones have vertex 0), each vertex's triangles
-   !> (star) and, for a boundary vertex, its two boundary neighbours.
+   !> The mesh being coarsened: triangles (dead ones have vertex 0), the triangle across each
+   !> of their edges (nbr(i, t): across the edge opposite t's local vertex i, 0 on the
+   !> boundary; kept through collapses and flips, so that the Delaunay passes find a neighbour
+   !> without searching stars), each vertex's triangles (star) and, for a boundary vertex, its
+   !> two boundary neighbours.
    type :: work_mesh_t
       real(dp), allocatable :: x(:, :)
-      integer(ip), allocatable :: tri(:, :), star(:, :), bnbr(:, :), merged_into(:)
+      integer(ip), allocatable :: tri(:, :), nbr(:, :), star(:, :), bnbr(:, :), merged_into(:)
       integer, allocatable :: nstar(:)
       logical, allocatable :: alive(:), boundary(:), corner(:)
       !> triangles changed since the last Delaunay pass looked at them
@@ -113,9 +116,9 @@ contains
       type(work_mesh_t), intent(out) :: w
       type(error_t), allocatable, intent(out) :: err
 
-      integer(ip) :: t, a, b, v, nb
-      integer :: i, k
-      integer(ip), allocatable :: count_b(:)
+      integer(ip) :: t, s, a, b, v, nb, e
+      integer :: i, j, k
+      integer(ip), allocatable :: count_b(:), first(:)
 
       w%x = fine%vertices
       w%tri = fine%triangles
@@ -138,8 +141,27 @@ contains
             w%star(w%nstar(v), v) = t
          end do
       end do
-      ! a boundary edge belongs to one triangle: it is (a, b) of triangle t with no other
-      ! triangle of a's star holding b
+      ! the neighbours across edges, from the edge numbers: first(e) = 3(t − 1) + i for the
+      ! first triangle t met with e opposite its vertex i
+      allocate (w%nbr(3, fine%nt), first(fine%ne))
+      w%nbr = 0
+      first = 0
+      do t = 1, fine%nt
+         do i = 1, 3
+            e = fine%triangle_edges(i, t)
+            if (first(e) == 0) then
+               first(e) = 3*(t - 1) + i
+            else
+               s = (first(e) - 1)/3 + 1
+               j = int(first(e) - 3*(s - 1))
+               w%nbr(i, t) = s
+               w%nbr(j, s) = t
+            end if
+         end do
+      end do
+      deallocate (first)
+      ! a boundary edge belongs to one triangle: it is (a, b) of triangle t, opposite its
+      ! third vertex, with no triangle across
       w%boundary = .false.
       w%bnbr = 0
       count_b = 0
@@ -147,7 +169,7 @@ contains
          do i = 1, 3
             a = w%tri(i, t)
             b = w%tri(mod(i, 3) + 1, t)
-            if (shared_triangles(w, a, b) /= 1) cycle
+            if (w%nbr(mod(i + 1, 3) + 1, t) /= 0) cycle
             w%boundary(a) = .true.
             w%boundary(b) = .true.
             count_b(a) = count_b(a) + 1
@@ -189,19 +211,6 @@ contains
       e2 = w%x(:, w%bnbr(2, v)) - w%x(:, v)
       turn = abs(atan2(e1(1)*e2(2) - e1(2)*e2(1), dot_product(e1, e2)))
    end function turn_at
-
-   !> The number of live triangles holding both a and b.
-   integer function shared_triangles(w, a, b) result(n)
-      type(work_mesh_t), intent(in) :: w
-      integer(ip), intent(in) :: a, b
-
-      integer :: k
-
-      n = 0
-      do k = 1, w%nstar(a)
-         if (any(w%tri(:, w%star(k, a)) == b)) n = n + 1
-      end do
-   end function shared_triangles
 
    !> One pass of collapses over the vertices in order; a removed vertex's neighbours wait for
    !> the next round.
@@ -335,7 +344,10 @@ contains
       do k = 1, w%nstar(v)
          t = w%star(k, v)
          if (any(w%tri(:, t) == u)) then
-            ! the triangle dies: out of its other vertices' stars
+            ! the triangle (u, v, x) dies: the triangles across its edges vx and xu become
+            ! neighbours across ux
+            call relink(w, t, w%nbr(slot_of(w, t, u), t), w%nbr(slot_of(w, t, v), t))
+            ! and it leaves its other vertices' stars
             do i = 1, 3
                a = w%tri(i, t)
                if (a /= v) call remove_from_star(w, a, t)
@@ -363,6 +375,42 @@ contains
       w%merged_into(v) = u
       w%n_alive = w%n_alive - 1
    end subroutine collapse
+
+   !> Triangles p and q, the neighbours of a dying triangle t across two of its edges, become
+   !> neighbours of each other across the edge that replaces both (either may be 0: boundary).
+   subroutine relink(w, t, p, q)
+      type(work_mesh_t), intent(inout) :: w
+      integer(ip), intent(in) :: t, p, q
+
+      if (p /= 0) call repoint(w, p, t, q)
+      if (q /= 0) call repoint(w, q, t, p)
+   end subroutine relink
+
+   !> Triangle t's neighbour `old` becomes `new`.
+   subroutine repoint(w, t, old, new)
+      type(work_mesh_t), intent(inout) :: w
+      integer(ip), intent(in) :: t, old, new
+
+      integer :: i
+
+      do i = 1, 3
+         if (w%nbr(i, t) == old) then
+            w%nbr(i, t) = new
+            return
+         end if
+      end do
+   end subroutine repoint
+
+   !> The local index (1..3) of vertex a in triangle t.
+   pure integer function slot_of(w, t, a) result(i)
+      type(work_mesh_t), intent(in) :: w
+      integer(ip), intent(in) :: t, a
+
+      do i = 1, 2
+         if (w%tri(i, t) == a) return
+      end do
+      i = 3
+   end function slot_of
 
    subroutine remove_from_star(w, a, t)
       type(work_mesh_t), intent(inout) :: w
@@ -399,7 +447,7 @@ contains
                a = w%tri(i, t)
                b = w%tri(mod(i, 3) + 1, t)
                c = w%tri(mod(i + 1, 3) + 1, t)
-               s = other_triangle(w, a, b, t)
+               s = w%nbr(mod(i + 1, 3) + 1, t)
                if (s == 0) cycle
                d = sum(w%tri(:, s)) - a - b
                if (.not. should_flip(w, a, b, c, d)) cycle
@@ -414,20 +462,6 @@ contains
          if (.not. any_dirty) exit
       end do
    end subroutine flip_to_delaunay
-
-   !> The live triangle other than t holding a and b (0: the edge is on the boundary).
-   integer(ip) function other_triangle(w, a, b, t) result(s)
-      type(work_mesh_t), intent(in) :: w
-      integer(ip), intent(in) :: a, b, t
-
-      integer :: k
-
-      do k = 1, w%nstar(a)
-         s = w%star(k, a)
-         if (s /= t .and. any(w%tri(:, s) == b)) return
-      end do
-      s = 0
-   end function other_triangle
 
    !> Triangles (a, b, c) and (b, a, d), both counter-clockwise: whether d lies inside the
    !> circumcircle of (a, b, c) and the quadrilateral is convex (the flip to c–d is valid).
@@ -458,8 +492,18 @@ contains
       type(work_mesh_t), intent(inout) :: w
       integer(ip), intent(in) :: t, s, a, b, c, d
 
+      integer(ip) :: across_bc, across_ca, across_ad, across_db
+
+      across_bc = w%nbr(slot_of(w, t, a), t)
+      across_ca = w%nbr(slot_of(w, t, b), t)
+      across_ad = w%nbr(slot_of(w, s, b), s)
+      across_db = w%nbr(slot_of(w, s, a), s)
       w%tri(:, t) = [a, d, c]
       w%tri(:, s) = [d, b, c]
+      w%nbr(:, t) = [s, across_ca, across_ad]
+      w%nbr(:, s) = [across_bc, t, across_db]
+      if (across_ad /= 0) call repoint(w, across_ad, s, t)
+      if (across_bc /= 0) call repoint(w, across_bc, t, s)
       call remove_from_star(w, a, s)
       call remove_from_star(w, b, t)
       w%nstar(c) = w%nstar(c) + 1
