@@ -11,7 +11,11 @@ start (the mesh gathered on every rank of a distributed run) must leave the fine
 8 Newton steps, where the paper's cold start takes
 one step per layer of vertices between its first contact front and the free boundary. A
 refinement hierarchy whose coarse mesh has more than 10^4 triangles gets the same algebraic
-levels below its coarsest mesh.
+levels below its coarsest mesh. A mesh file of more than 10^4 triangles is solved in a
+numbering along the domain (the mesher's numbering scatters every row over memory) and written
+back in the file's numbering: the same disk as a Gmsh file with its nodes and triangles
+shuffled must give the direct solution, node for node, through the coarsened start, the
+algebraic levels and the estimators.
 """
 from __future__ import annotations
 
@@ -103,3 +107,38 @@ def test_two_ranks_reach_the_direct_solution(direct_fine, cfun):
     assert s["gmres_iterations"]/max(1, s["newton_iterations"]) <= 20
     # every rank coarsens the gathered mesh alike: the nested start holds on two ranks too
     assert s["newton_iterations"] <= 8
+
+
+def write_shuffled_msh(path, vertices: np.ndarray, triangles: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh as an MSH 2.2 file whose nodes and triangles come in random order; returns the
+    file's node order (node k is vertex order[k]) and its triangles in file numbering (0-based)."""
+    rng = np.random.default_rng(seed)
+    order = rng.permutation(len(vertices))
+    number = np.empty(len(vertices), dtype=np.int64)
+    number[order] = np.arange(len(vertices))
+    shuffled = number[triangles[rng.permutation(len(triangles))]]
+    with open(path, "w") as f:
+        f.write(f"$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n{len(order)}\n")
+        for k, v in enumerate(order):
+            f.write(f"{k + 1} {float(vertices[v, 0])!r} {float(vertices[v, 1])!r} 0\n")
+        f.write(f"$EndNodes\n$Elements\n{len(shuffled)}\n")
+        for k, t in enumerate(shuffled):
+            f.write(f"{k + 1} 2 2 1 1 {t[0] + 1} {t[1] + 1} {t[2] + 1}\n")
+        f.write("$EndElements\n")
+    return order, shuffled
+
+
+def test_a_mesh_file_keeps_its_numbering(direct_fine):
+    path = out_file("any_mesh/shuffled_disk.msh")
+    order, shuffled = write_shuffled_msh(path, direct_fine["vertices"], direct_fine["triangles"], seed=7)
+    assert len(shuffled) > 10**4
+    got = solve("shuffled_gmres", "mesh.domain=gmsh", f"mesh.file={path}", "mesh.levels=0", *MEMBRANES,
+                "newton.linear=gmres", "gmres.precond=mg", "estimate.enabled=.true.")
+    assert "nested: coarsened mesh" in got["stdout"]
+    np.testing.assert_array_equal(got["vertices"], direct_fine["vertices"][order])
+    np.testing.assert_array_equal(got["triangles"], shuffled)
+    ref = dict(direct_fine)
+    for field in ("u1", "u2", "lambda"):
+        ref[field] = direct_fine[field][order]
+    assert_same_solution(got, ref, "shuffled mesh file")
+    assert got["summary"]["newton_iterations"] <= 8

@@ -99,7 +99,9 @@ contains
          if (allocated(err)) return
       end do
       ! the given mesh's start from the finest coarse level's solution, at this rank's vertices
-      at = mesh%global_vertex_of(p%interior)
+      ! (one rank coarsened its own piece, in its numbering; several the gathered whole mesh)
+      at = p%interior
+      if (comm%size > 1) at = mesh%global_vertex_of(at)
       x0 = [nodal(at, 1), nodal(at, 2), nodal(at, 3)]
       call settle_contact(p, x0)
    end subroutine coarsened_start

@@ -43,7 +43,9 @@ contains
       call share_mesh(comm, whole, 'coarse mesh', err)
       call comm%agree(err)
       if (allocated(err)) return
-      call distribute_coarse(comm, whole, piece, err)
+      ! a file's mesh is numbered as its mesher made it: along the domain instead (the result
+      ! keeps the file's numbering)
+      call distribute_coarse(comm, whole, piece, err, spatial=cfg%mesh%domain == domain_gmsh)
       call comm%agree(err)
       if (allocated(err)) return
       call whole%free()

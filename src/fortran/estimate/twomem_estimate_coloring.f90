@@ -17,6 +17,7 @@ module twomem_estimate_coloring
    use twomem_base_kinds, only: dp, ip
    use twomem_base_sort, only: sorting_permutation
    use twomem_mesh_triangulation, only: mesh_t
+   use twomem_mesh_spatial_order, only: z_order_key
    implicit none
    private
 
@@ -103,9 +104,8 @@ contains
 
    !> The blocks of make_blocks, n_blocks of them, made of the vertices in the order of the
    !> Z-order (Morton) curve through their positions instead: consecutive runs of that order
-   !> are compact pieces of the domain, whatever the numbering. The key interleaves the bits of
-   !> the coordinates scaled to 15 bits each (a 2^15 × 2^15 grid over the mesh's bounding box:
-   !> far finer than the blocks); the sort is deterministic, so are the blocks.
+   !> are compact pieces of the domain, whatever the numbering (twomem_mesh_spatial_order; its
+   !> grid is far finer than the blocks); the sort is deterministic, so are the blocks.
    subroutine spatial_blocks(mesh, n_blocks, block_of, first, members)
       type(mesh_t), intent(in) :: mesh
       integer(ip), intent(in) :: n_blocks
@@ -115,7 +115,6 @@ contains
       integer(ip), allocatable :: keys(:), order(:), listed(:)
       real(dp) :: low(2), width
       integer(ip) :: a, k, n, per_block, b
-      integer :: cells(2), bit
 
       inside = mesh%in_subdomain()
       low = minval(mesh%vertices, dim=2)
@@ -127,12 +126,7 @@ contains
          if (.not. inside(a)) cycle
          k = k + 1
          listed(k) = a
-         cells = int(min(32767.0_dp, (mesh%vertices(:, a) - low)/width*32768))
-         keys(k) = 0
-         do bit = 0, 14
-            if (btest(cells(1), bit)) keys(k) = ibset(keys(k), 2*bit)
-            if (btest(cells(2), bit)) keys(k) = ibset(keys(k), 2*bit + 1)
-         end do
+         keys(k) = z_order_key(mesh%vertices(:, a), low, width)
       end do
       order = sorting_permutation(keys)
       per_block = max(1_ip, (n + n_blocks - 1)/n_blocks)

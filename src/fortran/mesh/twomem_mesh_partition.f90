@@ -7,6 +7,11 @@
 !> the children), so the hierarchy is nested per rank and no rank ever holds a fine mesh it does
 !> not own. The whole coarse mesh is known on every rank (it is small, and made identically
 !> everywhere or broadcast from rank 0), so the extraction needs no further communication.
+!> A piece may also be numbered along the domain (`spatial`: own triangles, then the ghost
+!> layer, each along a space-filling curve, and the vertices as these triangles first meet
+!> them; twomem_mesh_spatial_order), for a large mesh whose own numbering is a mesher's; on one
+!> rank that piece is the whole mesh renumbered, and its whole-mesh numbers are what the
+!> result is written in.
 module twomem_mesh_partition
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_bad_input
@@ -14,6 +19,7 @@ module twomem_mesh_partition
    use twomem_base_comm, only: comm_t
    use twomem_mesh_triangulation, only: mesh_t, corner_of
    use twomem_mesh_metis, only: metis_partition
+   use twomem_mesh_spatial_order, only: triangles_along_curve, worth_reordering
    implicit none
    private
 
@@ -44,18 +50,25 @@ contains
       if (.not. comm%is_root()) call mesh%init(vertices, triangles, source, err, diameter=diameter(1))
    end subroutine share_mesh
 
-   !> This rank's piece of the whole coarse mesh `whole` (identical on every rank).
-   subroutine distribute_coarse(comm, whole, local, err)
+   !> This rank's piece of the whole coarse mesh `whole` (identical on every rank), numbered
+   !> along the domain when `spatial` and the mesh is large enough to gain by it (default: in
+   !> whole-mesh order).
+   subroutine distribute_coarse(comm, whole, local, err, spatial)
       type(comm_t), intent(in) :: comm
       type(mesh_t), intent(in) :: whole
       type(mesh_t), intent(inout) :: local
       type(error_t), allocatable, intent(out) :: err
+      logical, intent(in), optional :: spatial
 
       integer(ip), allocatable :: part(:), tri_local(:), vert_local(:), triangles(:, :)
       integer, allocatable :: owner(:)
       logical, allocatable :: own_vertex(:), keep(:)
       real(dp), allocatable :: vertices(:, :)
       integer(ip) :: t, a, m, i, nt, nv, nt_own
+      logical :: along
+
+      along = .false.
+      if (present(spatial)) along = spatial .and. worth_reordering(whole%nt)
 
       allocate (part(whole%nt))
       if (comm%is_root()) call metis_partition(whole%nv, whole%triangles, comm%size, part, err)
@@ -104,18 +117,33 @@ contains
             tri_local(i) = t
          end if
       end do
-      ! local vertices in whole-mesh order
       vert_local = 0
-      do i = 1, nt
-         vert_local(whole%triangles(:, tri_local(i))) = 1
-      end do
-      nv = 0
-      do a = 1, whole%nv
-         if (vert_local(a) > 0) then
-            nv = nv + 1
-            vert_local(a) = nv
-         end if
-      end do
+      if (along) then
+         tri_local(1:nt_own) = triangles_along_curve(whole%vertices, whole%triangles, tri_local(1:nt_own))
+         tri_local(nt_own + 1:nt) = triangles_along_curve(whole%vertices, whole%triangles, tri_local(nt_own + 1:nt))
+         ! local vertices in the order the triangles meet them
+         nv = 0
+         do i = 1, nt
+            do m = 1, 3
+               a = whole%triangles(m, tri_local(i))
+               if (vert_local(a) > 0) cycle
+               nv = nv + 1
+               vert_local(a) = nv
+            end do
+         end do
+      else
+         ! local vertices in whole-mesh order
+         do i = 1, nt
+            vert_local(whole%triangles(:, tri_local(i))) = 1
+         end do
+         nv = 0
+         do a = 1, whole%nv
+            if (vert_local(a) > 0) then
+               nv = nv + 1
+               vert_local(a) = nv
+            end if
+         end do
+      end if
       allocate (vertices(2, nv), triangles(3, nt))
       do a = 1, whole%nv
          if (vert_local(a) > 0) vertices(:, vert_local(a)) = whole%vertices(:, a)
@@ -127,7 +155,7 @@ contains
       if (allocated(err)) return
       call attach_partition(whole, tri_local, vert_local, part, owner, nt_own, local)
       ! one rank's piece is the whole mesh, numbered as it is: no numbering need be stored
-      if (comm%size == 1) call local%set_whole()
+      if (comm%size == 1 .and. .not. along) call local%set_whole()
    end subroutine distribute_coarse
 
    !> The partition data of the piece: whole-mesh numbers, owners, and the boundary as the
