@@ -570,9 +570,11 @@ contains
       integer(ip), intent(out) :: dropped
       type(error_t), allocatable, intent(out) :: err
 
-      integer(ip), allocatable :: order(:), new_index(:)
+      integer(ip), allocatable :: order(:), new_index(:), at_tag(:)
       logical, allocatable :: used(:)
       integer(ip) :: k, t, i, lo, hi, mid, dup
+      integer(i8) :: max_node_tag
+      logical :: dense
       real(dp) :: scale
 
       ! CAD transformations can leave round-off in z; anything more is a 3D or tilted mesh.
@@ -585,13 +587,30 @@ contains
          end if
       end do
 
-      order = sort_order(raw%node_tag(1:raw%n_nodes))
+      ! node k of each tag: a table where the tags are dense (Gmsh numbers nodes 1..n), else the
+      ! tags sorted and searched by bisection, which at 10^6 nodes waited on memory for a second
+      max_node_tag = 0
+      if (raw%n_nodes > 0) max_node_tag = maxval(raw%node_tag(1:raw%n_nodes))
+      dense = max_node_tag <= 2_i8*raw%n_nodes + 16
       ! report the repeat that comes first in the file
       dup = huge(dup)
-      do k = 2, raw%n_nodes
-         if (raw%node_tag(order(k)) == raw%node_tag(order(k - 1))) &
-            dup = min(dup, max(order(k), order(k - 1)))
-      end do
+      if (dense) then
+         allocate (at_tag(max_node_tag))
+         at_tag = 0
+         do k = 1, raw%n_nodes
+            if (at_tag(raw%node_tag(k)) /= 0) then
+               dup = k
+               exit
+            end if
+            at_tag(raw%node_tag(k)) = k
+         end do
+      else
+         order = sort_order(raw%node_tag(1:raw%n_nodes))
+         do k = 2, raw%n_nodes
+            if (raw%node_tag(order(k)) == raw%node_tag(order(k - 1))) &
+               dup = min(dup, max(order(k), order(k - 1)))
+         end do
+      end if
       if (dup < huge(dup)) then
          call make_error(err, exit_bad_input, path//':'//int_text(raw%node_line(dup)), &
                          'duplicate node tag '//int_text(raw%node_tag(dup)))
@@ -602,19 +621,21 @@ contains
       used = .false.
       do t = 1, raw%n_triangles
          do i = 1, 3
-            ! binary search for the tag among the sorted node tags
-            lo = 1
-            hi = raw%n_nodes
-            do while (lo < hi)
-               mid = lo + (hi - lo)/2
-               if (raw%node_tag(order(mid)) < raw%triangle_nodes(i, t)) then
-                  lo = mid + 1
-               else
-                  hi = mid
-               end if
-            end do
             k = 0
-            if (raw%n_nodes > 0) then
+            if (dense) then
+               if (raw%triangle_nodes(i, t) <= max_node_tag) k = at_tag(raw%triangle_nodes(i, t))
+            else if (raw%n_nodes > 0) then
+               ! binary search for the tag among the sorted node tags
+               lo = 1
+               hi = raw%n_nodes
+               do while (lo < hi)
+                  mid = lo + (hi - lo)/2
+                  if (raw%node_tag(order(mid)) < raw%triangle_nodes(i, t)) then
+                     lo = mid + 1
+                  else
+                     hi = mid
+                  end if
+               end do
                if (raw%node_tag(order(lo)) == raw%triangle_nodes(i, t)) k = order(lo)
             end if
             if (k == 0) then
