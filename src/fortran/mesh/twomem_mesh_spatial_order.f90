@@ -9,7 +9,6 @@
 !> order: it keeps its own (`worth_reordering`), and with it the paths of small cases.
 module twomem_mesh_spatial_order
    use twomem_base_kinds, only: dp, ip
-   use twomem_base_sort, only: sorting_permutation
    implicit none
    private
 
@@ -49,7 +48,7 @@ contains
       integer(ip), allocatable :: ordered(:)
 
       integer(ip), allocatable :: keys(:)
-      real(dp) :: low(2), width
+      real(dp) :: low(2), width, c(2)
       integer(ip) :: k
 
       if (size(list) == 0) then
@@ -59,11 +58,47 @@ contains
       low = minval(vertices, dim=2)
       width = max(maxval(vertices(1, :)) - low(1), maxval(vertices(2, :)) - low(2), tiny(1.0_dp))
       allocate (keys(size(list)))
-      !$omp parallel do default(none) shared(vertices, triangles, list, keys, low, width) private(k) schedule(static)
+      !$omp parallel do default(none) shared(vertices, triangles, list, keys, low, width) private(k, c) &
+      !$omp schedule(static)
       do k = 1, size(list, kind=ip)
-         keys(k) = z_order_key(sum(vertices(:, triangles(:, list(k))), dim=2)/3, low, width)
+         associate (t => list(k))
+            c = (vertices(:, triangles(1, t)) + vertices(:, triangles(2, t)) + vertices(:, triangles(3, t)))/3
+         end associate
+         keys(k) = z_order_key(c, low, width)
       end do
       !$omp end parallel do
-      ordered = list(sorting_permutation(keys))
+      ordered = list(radix_order(keys))
    end function triangles_along_curve
+
+   !> The stable permutation that sorts keys in [0, 2^30) ascending: three passes of a counting
+   !> sort on 10 bits each, O(n) and sequential in memory, where a comparison sort of 2·10^6
+   !> keys took a second.
+   function radix_order(keys) result(order)
+      integer(ip), intent(in) :: keys(:)
+      integer(ip), allocatable :: order(:)
+
+      integer(ip), allocatable :: next(:), count(:)
+      integer(ip) :: i, digit
+      integer :: pass
+
+      allocate (order(size(keys)), next(size(keys)), count(0:1024))
+      order = [(i, i=1, size(keys, kind=ip))]
+      do pass = 0, 2
+         count = 0
+         do i = 1, size(keys, kind=ip)
+            digit = ibits(keys(order(i)), 10*pass, 10)
+            count(digit + 1) = count(digit + 1) + 1
+         end do
+         ! count(d): where digit d's run starts, less one
+         do i = 1, 1024
+            count(i) = count(i) + count(i - 1)
+         end do
+         do i = 1, size(keys, kind=ip)
+            digit = ibits(keys(order(i)), 10*pass, 10)
+            count(digit) = count(digit) + 1
+            next(count(digit)) = order(i)
+         end do
+         order = next
+      end do
+   end function radix_order
 end module twomem_mesh_spatial_order
