@@ -293,10 +293,9 @@ contains
       real(dp) :: area
 
       worst = -1.0_dp
-      shared = 0
-      do k = 1, w%nstar(u)
-         if (any(w%tri(:, w%star(k, u)) == v)) shared = shared + 1
-      end do
+      ! the triangles of the edge uv: one where v is on the boundary (it moves along it, so uv
+      ! is a boundary edge), else two
+      shared = merge(1, 2, w%boundary(v))
       if (w%nstar(u) + w%nstar(v) - 2*shared > max_star) return
       common = 0
       n_seen = 0
