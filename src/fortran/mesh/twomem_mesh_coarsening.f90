@@ -270,7 +270,7 @@ contains
          u = link(m)
          ! a boundary vertex moves along the boundary only
          if (w%boundary(v) .and. u /= w%bnbr(1, v) .and. u /= w%bnbr(2, v)) cycle
-         q = collapse_quality(w, v, u, mark)
+         q = collapse_quality(w, v, u, mark, best_q)
          if (q > best_q) then
             best_q = q
             best = u
@@ -282,11 +282,14 @@ contains
    !> not allowed: too many triangles at u, the link condition broken (u and v must have in
    !> common exactly the neighbours opposite their edge: two inside, one on the boundary; more
    !> would make the mesh non-manifold), or a triangle turned over or flat. mark(a) = v flags
-   !> v's neighbours a.
-   real(dp) function collapse_quality(w, v, u, mark) result(worst)
+   !> v's neighbours a. A quality at most `floor` is returned without the link condition's
+   !> check (the caller takes only a better one): that check reads u's star, the shapes only
+   !> v's, whose triangles are at hand.
+   real(dp) function collapse_quality(w, v, u, mark, floor) result(worst)
       type(work_mesh_t), intent(in) :: w
       integer(ip), intent(in) :: v, u
       integer(ip), intent(in) :: mark(:)
+      real(dp), intent(in) :: floor
 
       integer(ip) :: t, p(3), a, seen(3*max_star)
       integer :: k, i, shared, common, n_seen
@@ -297,19 +300,6 @@ contains
       ! is a boundary edge), else two
       shared = merge(1, 2, w%boundary(v))
       if (w%nstar(u) + w%nstar(v) - 2*shared > max_star) return
-      common = 0
-      n_seen = 0
-      do k = 1, w%nstar(u)
-         do i = 1, 3
-            a = w%tri(i, w%star(k, u))
-            if (a == u .or. a == v .or. mark(a) /= v) cycle
-            if (any(seen(1:n_seen) == a)) cycle
-            n_seen = n_seen + 1
-            seen(n_seen) = a
-            common = common + 1
-         end do
-      end do
-      if (common /= shared) return
       worst = 1.0_dp
       do k = 1, w%nstar(v)
          t = w%star(k, v)
@@ -323,6 +313,20 @@ contains
          end if
          worst = min(worst, quality(w%x(:, p(1)), w%x(:, p(2)), w%x(:, p(3)), area))
       end do
+      if (worst <= floor) return
+      common = 0
+      n_seen = 0
+      do k = 1, w%nstar(u)
+         do i = 1, 3
+            a = w%tri(i, w%star(k, u))
+            if (a == u .or. a == v .or. mark(a) /= v) cycle
+            if (any(seen(1:n_seen) == a)) cycle
+            n_seen = n_seen + 1
+            seen(n_seen) = a
+            common = common + 1
+         end do
+      end do
+      if (common /= shared) worst = -1.0_dp
    end function collapse_quality
 
    !> 4√3 area / (sum of squared edges): 1 for an equilateral triangle, → 0 when it degenerates.
