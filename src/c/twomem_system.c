@@ -1,6 +1,7 @@
 /* The operating-system calls twomem needs and Fortran lacks, called only from the Fortran module
  * twomem_base_system: creating directory trees, atomic renames, removing files, the process id
- * and the peak resident memory, and exiting with a chosen status. Every fallible call returns 0 or an errno value and writes a
+ * and the peak resident memory, exiting with a chosen status, and the C library's decimal
+ * conversion (a Fortran internal read per number was most of reading a large mesh file). Every fallible call returns 0 or an errno value and writes a
  * one-line reason (with strerror) into the caller's buffer; the Fortran side adds the path. */
 
 #define _POSIX_C_SOURCE 200809L
@@ -235,4 +236,21 @@ int64_t twomem_sys_memory_allowed(char *which, size_t cap)
         }
     }
     return (int64_t)best;
+}
+
+/* The decimal number text[0..len) as a double, rounded by the C library (libgfortran's own reads
+ * convert with strtod too, so the bits are those of a Fortran read); 'd' and 'D' exponents are
+ * read as 'e'. The caller has checked the token against its grammar and range. Returns 0, or 1
+ * where the token is too long for the buffer or does not convert whole. */
+int twomem_sys_parse_double(const char *text, int len, double *value)
+{
+    char buf[64];
+    char *end;
+    int i;
+
+    if (len <= 0 || len >= (int)sizeof buf) return 1;
+    for (i = 0; i < len; i++) buf[i] = (text[i] == 'd' || text[i] == 'D') ? 'e' : text[i];
+    buf[len] = '\0';
+    *value = strtod(buf, &end);
+    return end == buf + len ? 0 : 1;
 }

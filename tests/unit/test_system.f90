@@ -1,9 +1,10 @@
-!> Tests of the operating-system layer: directory trees, atomic rename, removal, path parts.
+!> Tests of the operating-system layer: directory trees, atomic rename, removal, path parts, and
+!> the C library's decimal conversion (the bits of a Fortran read).
 module test_system
    use twomem_base_kinds, only: dp, i8
    use twomem_base_errors, only: exit_io
    use twomem_base_system, only: make_directories, parent_directory, base_name, rename_file, &
-                                 remove_file, file_exists, process_id, peak_memory_kib
+                                 remove_file, file_exists, process_id, peak_memory_kib, decimal_value
    use twomem_base_timer, only: wall_time
    use twomem_testing, only: unittest_t, new_unittest, check, error_t
    implicit none
@@ -20,7 +21,8 @@ contains
                new_unittest('make_directories_under_file', test_mkdir_under_file), &
                new_unittest('rename_and_remove', test_rename), &
                new_unittest('path_parts', test_path_parts), &
-               new_unittest('process_facts', test_process)]
+               new_unittest('process_facts', test_process), &
+               new_unittest('decimal_value', test_decimal_value)]
    end subroutine collect_system
 
    !> `TWOMEM_TEST_TMP/system/`: only ctest says where scratch files may go.
@@ -149,4 +151,33 @@ contains
       call check(err, kib > 0_i8, 'peak memory')
       call check(err, t1 >= t0 .and. t0 > 0.0_dp, 'wall time')
    end subroutine test_process
+
+   !> decimal_value gives the bits of a list-directed read of the same token, whatever its form
+   !> (signs, no integer or no fraction digits, d exponents, subnormals, many digits), and
+   !> declines a token it cannot convert whole or one too long for its buffer.
+   subroutine test_decimal_value(err)
+      type(error_t), allocatable, intent(out) :: err
+
+      character(len=*), parameter :: tokens(12) = [character(len=40) :: '0.1', '-1.2345678901234567e-3', &
+         '3.0d-2', '+2.5E+2', '.5', '5.', '1e-310', '123456789012345678', '0.30000000000000004', &
+         '-0.0', '6.02214076D23', '4.9406564584124654e-324']
+      character(len=40) :: token
+      real(dp) :: value, expected
+      integer :: k, ios
+      logical :: ok
+
+      do k = 1, size(tokens)
+         token = tokens(k)
+         read (token, *, iostat=ios) expected
+         call check(err, ios == 0, 'the test token '//trim(tokens(k))//' reads')
+         if (allocated(err)) return
+         ok = decimal_value(trim(tokens(k)), value)
+         call check(err, ok .and. transfer(value, 1_i8) == transfer(expected, 1_i8), &
+                    trim(tokens(k))//': the bits of a Fortran read')
+         if (allocated(err)) return
+      end do
+      call check(err, .not. decimal_value('1.5x', value), 'a token with a trailing character is declined')
+      if (allocated(err)) return
+      call check(err, .not. decimal_value('0.'//repeat('1', 70), value), 'a 72-character token is declined')
+   end subroutine test_decimal_value
 end module test_system

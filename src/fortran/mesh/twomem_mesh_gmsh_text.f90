@@ -10,6 +10,7 @@ module twomem_mesh_gmsh_text
    use twomem_base_kinds, only: dp, i8
    use twomem_base_errors, only: error_t, make_error, exit_bad_input, excerpt
    use twomem_base_text, only: int_text, to_lower
+   use twomem_base_system, only: decimal_value
    implicit none
    private
 
@@ -457,6 +458,10 @@ contains
          end if
       else if (expo > max_exponent10) then
          status = 2
+         return
+      end if
+      if (decimal_value(lower, value)) then
+         status = 0
          return
       end if
       read (lower, *, iostat=ios) value
