@@ -22,6 +22,7 @@ from __future__ import annotations
 import os
 import subprocess
 
+import h5py
 import numpy as np
 import pytest
 
@@ -34,11 +35,13 @@ TIGHT = ("newton.tol=1e-12", "gmres.rtol=1e-13", "estimate.enabled=.false.")
 MPIEXEC = os.environ.get("TWOMEM_MPIEXEC")
 
 
-def solve(name: str, *args: str) -> dict:
+def solve(name: str, *args: str, last: tuple[str, ...] = ()) -> dict:
+    """The run's result; `last` overrides come after TIGHT's."""
     path = out_file(f"any_mesh/{name}.h5")
-    proc = run(*args, *TIGHT, f"output.file={path}")
+    proc = run(*args, *TIGHT, *last, f"output.file={path}")
     got = result(path)
     got["stdout"] = proc.stdout
+    got["path"] = path
     return got
 
 
@@ -88,20 +91,27 @@ def test_hierarchy_with_a_large_coarse_mesh():
     assert s["newton_iterations"] <= 8
 
 
-@pytest.mark.skipif(not MPIEXEC, reason="no MPI launcher")
-@pytest.mark.parametrize("cfun", ["min", "fb"])
-def test_two_ranks_reach_the_direct_solution(direct_fine, cfun):
-    path = out_file(f"any_mesh/fine_{cfun}_2ranks.h5")
+def solve_on_ranks(name: str, ranks: int, *args: str) -> dict:
+    path = out_file(f"any_mesh/{name}.h5")
     env = dict(os.environ, OMP_NUM_THREADS="1")
     if hasattr(os, "geteuid") and os.geteuid() == 0:
         env.update(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
-    command = [MPIEXEC, "--oversubscribe", "-n", "2", EXE, "run", str(SOURCE / "input" / "default.nml"), *FINE,
-               *TIGHT, f"newton.cfun={cfun}", "newton.linear=gmres", "gmres.precond=mg", f"output.file={path}"]
+    command = [MPIEXEC, "--oversubscribe", "-n", str(ranks), EXE, "run", str(SOURCE / "input" / "default.nml"),
+               *args, *TIGHT, f"output.file={path}"]
     proc = subprocess.run(command, capture_output=True, text=True, cwd=SOURCE, env=env, timeout=600,
                           stdin=subprocess.DEVNULL)
     assert proc.returncode == 0, f"{' '.join(command)} exited {proc.returncode}\n{proc.stdout[-3000:]}\n{proc.stderr}"
     got = result(path)
-    assert got["summary"]["mpi_ranks"] == 2
+    got["stdout"] = proc.stdout
+    assert got["summary"]["mpi_ranks"] == ranks
+    return got
+
+
+@pytest.mark.skipif(not MPIEXEC, reason="no MPI launcher")
+@pytest.mark.parametrize("cfun", ["min", "fb"])
+def test_two_ranks_reach_the_direct_solution(direct_fine, cfun):
+    got = solve_on_ranks(f"fine_{cfun}_2ranks", 2, *FINE, f"newton.cfun={cfun}", "newton.linear=gmres",
+                         "gmres.precond=mg")
     assert_same_solution(got, direct_fine, f"fine mesh, {cfun}, 2 ranks")
     s = got["summary"]
     assert s["gmres_iterations"]/max(1, s["newton_iterations"]) <= 20
@@ -109,14 +119,17 @@ def test_two_ranks_reach_the_direct_solution(direct_fine, cfun):
     assert s["newton_iterations"] <= 8
 
 
-def write_shuffled_msh(path, vertices: np.ndarray, triangles: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray]:
+def write_shuffled_msh(path, vertices: np.ndarray, triangles: np.ndarray,
+                       seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The mesh as an MSH 2.2 file whose nodes and triangles come in random order; returns the
-    file's node order (node k is vertex order[k]) and its triangles in file numbering (0-based)."""
+    file's node order (node k is vertex order[k]), its triangle order (element k is triangle
+    tri_order[k]) and its triangles in file numbering (0-based)."""
     rng = np.random.default_rng(seed)
     order = rng.permutation(len(vertices))
     number = np.empty(len(vertices), dtype=np.int64)
     number[order] = np.arange(len(vertices))
-    shuffled = number[triangles[rng.permutation(len(triangles))]]
+    tri_order = rng.permutation(len(triangles))
+    shuffled = number[triangles[tri_order]]
     with open(path, "w") as f:
         f.write(f"$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n{len(order)}\n")
         for k, v in enumerate(order):
@@ -125,15 +138,31 @@ def write_shuffled_msh(path, vertices: np.ndarray, triangles: np.ndarray, seed: 
         for k, t in enumerate(shuffled):
             f.write(f"{k + 1} 2 2 1 1 {t[0] + 1} {t[1] + 1} {t[2] + 1}\n")
         f.write("$EndElements\n")
-    return order, shuffled
+    return order, tri_order, shuffled
 
 
-def test_a_mesh_file_keeps_its_numbering(direct_fine):
-    path = out_file("any_mesh/shuffled_disk.msh")
-    order, shuffled = write_shuffled_msh(path, direct_fine["vertices"], direct_fine["triangles"], seed=7)
+@pytest.mark.parametrize("ranks", [1, 2])
+def test_a_mesh_file_keeps_its_numbering(direct_fine, ranks):
+    if ranks > 1 and not MPIEXEC:
+        pytest.skip("no MPI launcher")
+    path = out_file(f"any_mesh/shuffled_disk_{ranks}.msh")
+    order, tri_order, shuffled = write_shuffled_msh(path, direct_fine["vertices"], direct_fine["triangles"], seed=7)
     assert len(shuffled) > 10**4
-    got = solve("shuffled_gmres", "mesh.domain=gmsh", f"mesh.file={path}", "mesh.levels=0", *MEMBRANES,
-                "newton.linear=gmres", "gmres.precond=mg", "estimate.enabled=.true.")
+    args = ("mesh.domain=gmsh", f"mesh.file={path}", "mesh.levels=0", *MEMBRANES, "newton.linear=gmres",
+            "gmres.precond=mg")
+    if ranks == 1:
+        got = solve("shuffled_gmres", *args, last=("estimate.enabled=.true.",))
+        # the estimators too, triangle by triangle in the file's order: those of the same disk
+        # built in (the same discrete solution to 1e-12, so the same η_disc,K to round-off)
+        ref = solve("fine_gmres_estimated", *FINE, "newton.linear=gmres", "gmres.precond=mg",
+                    last=("estimate.enabled=.true.",))
+        with h5py.File(got["path"]) as f, h5py.File(ref["path"]) as g:
+            mine, theirs = f["estimators/eta_disc"][()], g["estimators/eta_disc"][()][tri_order]
+        scale = np.sqrt(np.mean(theirs**2))
+        print(f"eta_disc,K: max difference {np.max(np.abs(mine - theirs))/scale:.2e} of their rms")
+        np.testing.assert_allclose(mine, theirs, rtol=1e-8, atol=1e-10*scale)
+    else:
+        got = solve_on_ranks(f"shuffled_gmres_{ranks}ranks", ranks, *args)
     assert "nested: coarsened mesh" in got["stdout"]
     np.testing.assert_array_equal(got["vertices"], direct_fine["vertices"][order])
     np.testing.assert_array_equal(got["triangles"], shuffled)

@@ -77,26 +77,26 @@ contains
       integer(ip), intent(in) :: keys(:)
       integer(ip), allocatable :: order(:)
 
-      integer(ip), allocatable :: next(:), count(:)
+      integer(ip), allocatable :: next(:), starts(:)
       integer(ip) :: i, digit
       integer :: pass
 
-      allocate (order(size(keys)), next(size(keys)), count(0:1024))
+      allocate (order(size(keys)), next(size(keys)), starts(0:1024))
       order = [(i, i=1, size(keys, kind=ip))]
       do pass = 0, 2
-         count = 0
+         starts = 0
          do i = 1, size(keys, kind=ip)
             digit = ibits(keys(order(i)), 10*pass, 10)
-            count(digit + 1) = count(digit + 1) + 1
+            starts(digit + 1) = starts(digit + 1) + 1
          end do
-         ! count(d): where digit d's run starts, less one
+         ! starts(d): where digit d's run starts, less one
          do i = 1, 1024
-            count(i) = count(i) + count(i - 1)
+            starts(i) = starts(i) + starts(i - 1)
          end do
          do i = 1, size(keys, kind=ip)
             digit = ibits(keys(order(i)), 10*pass, 10)
-            count(digit) = count(digit) + 1
-            next(count(digit)) = order(i)
+            starts(digit) = starts(digit) + 1
+            next(starts(digit)) = order(i)
          end do
          order = next
       end do
