@@ -3,9 +3,10 @@
 !> error that names the file and the line. Numbers are checked against a strict grammar before any
 !> internal read sees them, because a list-directed read accepts commas, slashes and repeat counts
 !> as valid input, and converting an overflowing literal such as 1e999 traps under
-!> -ffpe-trap=overflow instead of failing through `iostat`. The file is read as a stream, a
-!> block of bytes at a time, and cut into lines here: a formatted read per line cost about a
-!> microsecond each, 3 s of a 3·10^6-line mesh file.
+!> -ffpe-trap=overflow instead of failing through `iostat`; a checked number is then converted by
+!> the C library (twomem_base_system%decimal_value), the internal read remaining for tokens too
+!> long for it. The file is read as a stream, a block of bytes at a time, and cut into lines
+!> here rather than by a formatted read per line.
 module twomem_mesh_gmsh_text
    use twomem_base_kinds, only: dp, i8
    use twomem_base_errors, only: error_t, make_error, exit_bad_input, excerpt
