@@ -85,12 +85,16 @@ contains
 
       x0 = cold_start(p)
       if (mesh%nv_global <= 2*coarsest_vertices) return
+      ! the coarse solution comes back at the vertices of the mesh coarsened, in its numbering:
+      ! one rank coarsens its own piece, several ranks the gathered whole mesh
+      at = p%interior
       if (comm%size == 1) then
          call coarse_meshes(mesh, levels)
       else
          call whole_mesh(comm, mesh, whole, err)
          if (allocated(err)) return
          call coarse_meshes(whole, levels)
+         at = mesh%global_vertex_of(at)
       end if
       m = size(levels)
       if (m == 0) return
@@ -99,9 +103,6 @@ contains
          if (allocated(err)) return
       end do
       ! the given mesh's start from the finest coarse level's solution, at this rank's vertices
-      ! (one rank coarsened its own piece, in its numbering; several the gathered whole mesh)
-      at = p%interior
-      if (comm%size > 1) at = mesh%global_vertex_of(at)
       x0 = [nodal(at, 1), nodal(at, 2), nodal(at, 3)]
       call settle_contact(p, x0)
    end subroutine coarsened_start

@@ -25,7 +25,7 @@
 module twomem_mesh_coarsening
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_io
-   use twomem_mesh_triangulation, only: mesh_t, signed_area
+   use twomem_mesh_triangulation, only: mesh_t, signed_area, position_of
    implicit none
    private
 
@@ -349,7 +349,7 @@ contains
          if (any(w%tri(:, t) == u)) then
             ! the triangle (u, v, x) dies: the triangles across its edges vx and xu become
             ! neighbours across ux
-            call relink(w, t, w%nbr(slot_of(w, t, u), t), w%nbr(slot_of(w, t, v), t))
+            call relink(w, t, w%nbr(position_of(w%tri(:, t), u), t), w%nbr(position_of(w%tri(:, t), v), t))
             ! and it leaves its other vertices' stars
             do i = 1, 3
                a = w%tri(i, t)
@@ -403,17 +403,6 @@ contains
          end if
       end do
    end subroutine repoint
-
-   !> The local index (1..3) of vertex a in triangle t.
-   pure integer function slot_of(w, t, a) result(i)
-      type(work_mesh_t), intent(in) :: w
-      integer(ip), intent(in) :: t, a
-
-      do i = 1, 2
-         if (w%tri(i, t) == a) return
-      end do
-      i = 3
-   end function slot_of
 
    subroutine remove_from_star(w, a, t)
       type(work_mesh_t), intent(inout) :: w
@@ -497,10 +486,10 @@ contains
 
       integer(ip) :: across_bc, across_ca, across_ad, across_db
 
-      across_bc = w%nbr(slot_of(w, t, a), t)
-      across_ca = w%nbr(slot_of(w, t, b), t)
-      across_ad = w%nbr(slot_of(w, s, b), s)
-      across_db = w%nbr(slot_of(w, s, a), s)
+      across_bc = w%nbr(position_of(w%tri(:, t), a), t)
+      across_ca = w%nbr(position_of(w%tri(:, t), b), t)
+      across_ad = w%nbr(position_of(w%tri(:, s), b), s)
+      across_db = w%nbr(position_of(w%tri(:, s), a), s)
       w%tri(:, t) = [a, d, c]
       w%tri(:, s) = [d, b, c]
       w%nbr(:, t) = [s, across_ca, across_ad]
