@@ -47,6 +47,18 @@ module twomem_app_coarse_meshes
    integer(ip), parameter :: coarsest_vertices = 1500
    !> each coarser mesh keeps about this fraction of the vertices (as red refinement's inverse)
    real(dp), parameter :: fraction = 0.25_dp
+   !> The relative residual to which the coarsened meshes are solved (newton.tol, if looser). A
+   !> coarse solution only starts the next mesh, whose interpolated start has a relative
+   !> residual of 10^-3 or more (the two meshes' discrete solutions differ by that much), so
+   !> solving it further changes nothing downstream. Beyond it, on the other hand, inexact
+   !> Newton-min can flip a vertex whose two min arguments are both below GMRES's algebraic
+   !> error from one side of the free boundary to the other at every step until the forcing has
+   !> tightened to newton.tol: 36 Newton steps on the 2·10^5-vertex mesh coarsened from a
+   !> 10^6-vertex Gmsh mesh, 14 at this tolerance, with the same three steps on the given mesh.
+   !> Every rank solves the same coarse problems alone, so the start stays the same for every
+   !> rank count (a refined hierarchy's coarser levels, which are distributed and converge in a
+   !> few steps, keep newton.tol: there a partial solve would carry the partition's imprint).
+   real(dp), parameter :: coarse_tol = 1.0e-6_dp
 
    type :: coarse_level_t
       type(mesh_t) :: mesh
@@ -159,9 +171,9 @@ contains
       levels(1:m) = made(1:m)
    end subroutine coarse_meshes
 
-   !> Newton on coarse level j from the interpolated solution of level j+1 (from the paper's
-   !> guess on the coarsest), then its nodal fields u1, u2, λ interpolated to the next finer
-   !> mesh, replacing `nodal`.
+   !> Newton on coarse level j (to `coarse_tol`) from the interpolated solution of level j+1
+   !> (from the paper's guess on the coarsest), then its nodal fields u1, u2, λ interpolated to
+   !> the next finer mesh, replacing `nodal`.
    subroutine solve_level(levels, j, data, quiet, report, nodal, work, err)
       type(coarse_level_t), intent(in) :: levels(:)
       integer, intent(in) :: j
@@ -175,11 +187,14 @@ contains
       type(discrete_problem_t), target :: p
       type(multigrid_transfer_t), target :: transfer
       type(newton_result_t) :: step
+      type(newton_options_t) :: options
       real(dp), allocatable :: x0(:), u(:, :)
       real(dp) :: t0
       integer :: k
 
       t0 = wall_time()
+      options = quiet
+      options%tol = max(quiet%tol, coarse_tol)
       call p%init(levels(j)%mesh, data, err)
       if (allocated(err)) return
       if (j == size(levels)) then
@@ -188,9 +203,9 @@ contains
          x0 = [nodal(p%interior, 1), nodal(p%interior, 2), nodal(p%interior, 3)]
          call settle_contact(p, x0)
       end if
-      call mesh_transfer(p, quiet%precond == precond_mg .and. quiet%linear /= method_direct, transfer, err)
+      call mesh_transfer(p, options%precond == precond_mg .and. options%linear /= method_direct, transfer, err)
       if (allocated(err)) return
-      call newton_solve(p, quiet, x0, step, err, transfer=transfer, level=transfer%levels)
+      call newton_solve(p, options, x0, step, err, transfer=transfer, level=transfer%levels)
       if (allocated(err)) return
       work%newton_iterations = work%newton_iterations + step%iterations
       work%gmres_iterations = work%gmres_iterations + step%linear_iterations
