@@ -173,7 +173,7 @@ contains
             end do
          end do
          call check(err, maxval(abs(mass)) <= 1.0e-14_dp*maxval(mesh%area), 'lumped patch masses kept')
-         call multiplier_factors(mesh, iterate%u, iterate%lambda, iterate%lambda_factor)
+         call multiplier_factors(mesh, iterate)
          do order = 0, 1
             call space%init(order)
             call shapes%init(space, h, err)

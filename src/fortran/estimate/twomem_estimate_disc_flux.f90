@@ -233,7 +233,7 @@ contains
                   end if
                   d = mu(alpha)*(grad_u(1)*scratch%hat(1, i, s) + grad_u(2)*scratch%hat(2, i, s))
                   rhs_div(:, k, alpha) = rhs_div(:, k, alpha) + lambda_sign(alpha)*lambda_a* &
-                                         multiplier_weight(mesh, iterate%u, iterate%lambda_factor, a, scratch%triangles(s))* &
+                                         multiplier_weight(iterate, mesh, a, scratch%triangles(s))* &
                                          ops%psi_q(:, i, s) &
                                          - ops%bary_psi_q(:, 1, i, s)*r(1) - ops%bary_psi_q(:, 2, i, s)*r(2) &
                                          - ops%bary_psi_q(:, 3, i, s)*r(3) - d*ops%q_int(:, s)
@@ -282,7 +282,7 @@ contains
          grad_psi = hat_gradients(:, i)
          call gradients_on(iterate, mesh, t, hat_gradients, grad_u)
          call lifting_on(iterate, mesh, t, r)
-         weight = multiplier_weight(mesh, iterate%u, iterate%lambda_factor, a, t)
+         weight = multiplier_weight(iterate, mesh, a, t)
          do alpha = 1, 2
             fgrad(:, k, alpha) = -mu(alpha)*grad_u(:, alpha)
             rhs_div(1:nd, k, alpha) = moment(loads, shapes, i, t, c, area_factor, alpha) + area_factor*( &

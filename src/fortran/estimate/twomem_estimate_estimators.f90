@@ -159,12 +159,6 @@ contains
       if (present(comm)) self%comm = comm
       if (present(bound)) self%bound = bound
       if (self%bound /= bound_paper) self%osc_constant = 1/bessel_j1_first_zero
-      ! the multiplier's weights read u_h at the vertices of ghost triangles, which a rank's
-      ! piece does not hold: one rank only
-      if (self%bound == bound_sharp .and. self%comm%size > 1) then
-         call make_error(err, exit_io, 'estimate', "bound = 'sharp' needs one MPI rank")
-         return
-      end if
       call self%ghosts%init(self%comm, hierarchy%meshes(0))
       associate (mesh => hierarchy%meshes(hierarchy%levels))
          call self%space%init(flux_order)
@@ -283,9 +277,9 @@ contains
          call scatter(p, x(1:n), p%g, it%u(:, 1))
          call scatter(p, x(n + 1:2*n), 0.0_dp, it%u(:, 2))
          call scatter(p, x(2*n + 1:3*n), 0.0_dp, it%lambda)
-         if (self%bound == bound_sharp) call multiplier_factors(mesh, it%u, it%lambda, it%lambda_factor)
          ! a ghost triangle may have vertices outside this rank's unknowns: its owner's values
          call it%share_ghosts(self%ghosts, mesh, hierarchy%levels)
+         if (self%bound == bound_sharp) call multiplier_factors(mesh, it)
 
          call discretization_flux(self%space, self%shapes, self%single, mesh, hierarchy%levels, self%colors, self%mu, &
                                   self%loads, it, self%scratch, self%sigma, ok)
@@ -642,8 +636,7 @@ contains
                uv(k, :) = self%iterate%u(v(k), :)
             end do
             if (self%bound == bound_sharp) then
-               call multiplier_on(hierarchy%meshes(finest), self%iterate%u, self%iterate%lambda, &
-                                  self%iterate%lambda_factor, t, lam)
+               call multiplier_on(self%iterate, hierarchy%meshes(finest), t, lam)
             else
                do k = 1, 3
                   lam(k) = self%iterate%lambda(v(k))

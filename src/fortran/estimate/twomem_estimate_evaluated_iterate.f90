@@ -18,7 +18,12 @@ module twomem_estimate_evaluated_iterate
    implicit none
    private
 
-   public :: evaluated_iterate_t, gradients_on, lifting_on
+   public :: evaluated_iterate_t, gradients_on, lifting_on, in_contact
+
+   !> u1h − u2h at a vertex counts as zero up to this fraction of |u1h| + |u2h|: the contact rows
+   !> of the discrete problem make it zero up to round-off, of either sign. Only the sharpness of
+   !> `estimate.bound = 'sharp'` depends on it: the contact term is integrated with the actual gap.
+   real(dp), parameter :: gap_tolerance = 1.0e-10_dp
 
    type :: evaluated_iterate_t
       !> u(:, α) = u_αh with its boundary values, lambda = λ_h and shares(:, α) = the patch shares
@@ -32,6 +37,9 @@ module twomem_estimate_evaluated_iterate
       !> the owners' ∇u_α (ghost_grad(:, α, t − nt_owned)) and r_α (ghost_lift(:, α, ...)) on
       !> the ghost triangles t > nt_owned of the finest mesh (none on one rank)
       real(dp), allocatable :: ghost_grad(:, :, :), ghost_lift(:, :, :)
+      !> whether the owner finds ghost triangle t in contact (ghost_contact(t − nt_owned), see
+      !> `in_contact`)
+      logical, allocatable :: ghost_contact(:)
       integer(ip) :: nt_owned = 0
    contains
       procedure :: init
@@ -52,7 +60,8 @@ contains
       self%nt_owned = mesh%nt_owned
       n_ghost = mesh%nt - mesh%nt_owned
       allocate (self%u(mesh%nv, 2), self%lambda(mesh%nv), self%shares(mesh%nv, 2), &
-                self%ghost_grad(2, 2, n_ghost), self%ghost_lift(3, 2, n_ghost), self%lambda_factor(mesh%nv))
+                self%ghost_grad(2, 2, n_ghost), self%ghost_lift(3, 2, n_ghost), self%ghost_contact(n_ghost), &
+                self%lambda_factor(mesh%nv))
       self%lambda_factor = 0.0_dp
    end subroutine init
 
@@ -60,7 +69,7 @@ contains
       class(evaluated_iterate_t), intent(inout) :: self
 
       if (allocated(self%u)) deallocate (self%u, self%lambda, self%shares, self%ghost_grad, &
-                                         self%ghost_lift, self%lambda_factor)
+                                         self%ghost_lift, self%ghost_contact, self%lambda_factor)
       self%nt_owned = 0
    end subroutine free
 
@@ -104,6 +113,30 @@ contains
       end if
    end subroutine lifting_on
 
+   !> Whether triangle t is in full contact: u1h ≤ u2h at its three vertices, up to the round-off
+   !> of the contact rows (a ghost triangle: as its owner found it, after `share_ghosts`).
+   pure logical function in_contact(self, mesh, t)
+      type(evaluated_iterate_t), intent(in) :: self
+      type(mesh_t), intent(in) :: mesh
+      integer(ip), intent(in) :: t
+
+      integer :: k
+      integer(ip) :: b
+
+      if (t > self%nt_owned) then
+         in_contact = self%ghost_contact(t - self%nt_owned)
+         return
+      end if
+      in_contact = .true.
+      do k = 1, 3
+         b = mesh%triangles(k, t)
+         if (self%u(b, 1) - self%u(b, 2) > gap_tolerance*(abs(self%u(b, 1)) + abs(self%u(b, 2)))) then
+            in_contact = .false.
+            return
+         end if
+      end do
+   end function in_contact
+
    !> The residuals written into `shares` become their patch shares (before any lifting_on).
    subroutine set_shares(self, mesh)
       class(evaluated_iterate_t), intent(inout) :: self
@@ -112,8 +145,9 @@ contains
       call patch_shares(mesh, self%shares)
    end subroutine set_shares
 
-   !> The ghost triangles' ∇u_α and r_α from their owners, once the nodal fields are set (level:
-   !> the finest mesh's level in the hierarchy). Collective among neighbours; nothing on one rank.
+   !> The ghost triangles' ∇u_α, r_α and contact from their owners, once the nodal fields are set
+   !> (level: the finest mesh's level in the hierarchy). Collective among neighbours; nothing on
+   !> one rank.
    subroutine share_ghosts(self, ghosts, mesh, level)
       class(evaluated_iterate_t), intent(inout) :: self
       type(ghost_cells_t), intent(in) :: ghosts
@@ -127,7 +161,7 @@ contains
 
       if (.not. ghosts%has_neighbours()) return
       sent = ghosts%sent_triangles(level)
-      allocate (values(10, size(sent)), tail(10, mesh%nt - mesh%nt_owned))
+      allocate (values(11, size(sent)), tail(11, mesh%nt - mesh%nt_owned))
       !$omp parallel do default(none) shared(self, mesh, sent, values) private(k, t, grad, r) schedule(static)
       do k = 1, size(sent, kind=ip)
          t = sent(k)
@@ -135,10 +169,12 @@ contains
          call lifting_on(self, mesh, t, r)
          values(1:4, k) = reshape(grad, [4])
          values(5:10, k) = reshape(r, [6])
+         values(11, k) = merge(1.0_dp, 0.0_dp, in_contact(self, mesh, t))
       end do
       !$omp end parallel do
       call ghosts%share(level, values, tail)
       self%ghost_grad = reshape(tail(1:4, :), shape(self%ghost_grad))
       self%ghost_lift = reshape(tail(5:10, :), shape(self%ghost_lift))
+      self%ghost_contact = tail(11, :) > 0.5_dp
    end subroutine share_ghosts
 end module twomem_estimate_evaluated_iterate
