@@ -22,7 +22,7 @@ import h5py
 import numpy as np
 import pytest
 
-from twomem_testlib import DEFAULT_CASE, EXE, SOURCE, out_file, run
+from twomem_testlib import EXE, MPIEXEC, SOURCE, out_file, run, run_on_ranks
 
 DEBUG = os.environ.get("TWOMEM_BUILD_TYPE", "").lower() == "debug"
 #: the debug build (-O0) stops earlier
@@ -175,20 +175,13 @@ def test_nodal_load_files_are_refused(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
-MPIEXEC = os.environ.get("TWOMEM_MPIEXEC")
-
-
 @pytest.mark.skipif(not MPIEXEC, reason="no MPI launcher in this build")
 def test_ranks_reproduce_one_rank():
-    env = dict(os.environ, OMP_NUM_THREADS="1", OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
     runs = {}
     for ranks in (1, 2, 3):
         path = out_file(f"adapt_mpi_{ranks}.h5")
-        cmd = [MPIEXEC, "--oversubscribe", "-n", str(ranks), EXE, "run", str(DEFAULT_CASE), "mesh.levels=0",
-               "mesh.coarse_h=0.25", "mesh.boundary_h=0.02", "newton.linear=direct", "adapt.tol=6e-3",
-               f"output.file={path}"]
-        proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300, stdin=subprocess.DEVNULL)
-        assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr
+        run_on_ranks(ranks, "mesh.levels=0", "mesh.coarse_h=0.25", "mesh.boundary_h=0.02", "newton.linear=direct",
+                     "adapt.tol=6e-3", f"output.file={path}", timeout=300)
         runs[ranks] = adapt_steps(path)
     ref, ref_steps = runs[1][0], runs[1][1]
     assert len(ref["eta"]) >= 3

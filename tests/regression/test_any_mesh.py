@@ -19,20 +19,16 @@ algebraic levels and the estimators.
 """
 from __future__ import annotations
 
-import os
-import subprocess
-
 import h5py
 import numpy as np
 import pytest
 
-from twomem_testlib import EXE, SOURCE, out_file, result, run
+from twomem_testlib import MPIEXEC, out_file, result, run, run_on_ranks
 
 MEMBRANES = ("problem.exact=none", "problem.mu1=2", "problem.mu2=0.5", "problem.f1=-2", "problem.f2=1")
 FINE = ("mesh.coarse_h=0.02", "mesh.boundary_h=0.02", "mesh.levels=0", *MEMBRANES)
 LARGE_COARSE = ("mesh.coarse_h=0.02", "mesh.boundary_h=0.02", "mesh.levels=1", *MEMBRANES)
 TIGHT = ("newton.tol=1e-12", "gmres.rtol=1e-13", "estimate.enabled=.false.")
-MPIEXEC = os.environ.get("TWOMEM_MPIEXEC")
 
 
 def solve(name: str, *args: str, last: tuple[str, ...] = ()) -> dict:
@@ -93,14 +89,7 @@ def test_hierarchy_with_a_large_coarse_mesh():
 
 def solve_on_ranks(name: str, ranks: int, *args: str) -> dict:
     path = out_file(f"any_mesh/{name}.h5")
-    env = dict(os.environ, OMP_NUM_THREADS="1")
-    if hasattr(os, "geteuid") and os.geteuid() == 0:
-        env.update(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
-    command = [MPIEXEC, "--oversubscribe", "-n", str(ranks), EXE, "run", str(SOURCE / "input" / "default.nml"),
-               *args, *TIGHT, f"output.file={path}"]
-    proc = subprocess.run(command, capture_output=True, text=True, cwd=SOURCE, env=env, timeout=600,
-                          stdin=subprocess.DEVNULL)
-    assert proc.returncode == 0, f"{' '.join(command)} exited {proc.returncode}\n{proc.stdout[-3000:]}\n{proc.stderr}"
+    proc = run_on_ranks(ranks, *args, *TIGHT, f"output.file={path}")
     got = result(path)
     got["stdout"] = proc.stdout
     assert got["summary"]["mpi_ranks"] == ranks

@@ -31,17 +31,13 @@ the multilevel algebraic flux, whose coarse Riesz problem lives on the partition
 """
 from __future__ import annotations
 
-import os
-import subprocess
-
 import h5py
 import numpy as np
 import pytest
 
-from twomem_testlib import EXE, SOURCE, out_file
+from twomem_testlib import out_file, run_on_ranks
 
 SQRT_EPS = float(np.sqrt(np.finfo(float).eps))
-MPIEXEC = os.environ.get("TWOMEM_MPIEXEC", "mpirun")
 RANKS = (1, 2, 3, 4)
 SOLUTION_RTOL = 1e-8
 ESTIMATOR_RTOL = 1e-10
@@ -69,15 +65,7 @@ HISTORY_EXACT = ("newton_it", "inner", "gmres_it", "active", "active_changed")
 def mpi_run(case: str, ranks: int) -> str:
     """Run case on `ranks` ranks; the result file's path."""
     path = out_file(f"mpi_{case}_{ranks}.h5")
-    env = dict(os.environ, OMP_NUM_THREADS="1")
-    if hasattr(os, "geteuid") and os.geteuid() == 0:
-        env.update(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
-    command = [MPIEXEC, "--oversubscribe", "-n", str(ranks), EXE, "run", str(SOURCE / "input" / "default.nml"),
-               *CASES[case], f"output.file={path}"]
-    # no stdin: mpirun forwards it to rank 0 and would stop in a background process group
-    proc = subprocess.run(command, capture_output=True, text=True, cwd=SOURCE, env=env, timeout=300,
-                          stdin=subprocess.DEVNULL)
-    assert proc.returncode == 0, f"{' '.join(command)} exited {proc.returncode}\n{proc.stdout[-3000:]}\n{proc.stderr}"
+    proc = run_on_ranks(ranks, *CASES[case], f"output.file={path}", timeout=300)
     assert f"{ranks} MPI ranks" in proc.stdout
     return str(path)
 

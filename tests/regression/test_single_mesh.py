@@ -15,13 +15,12 @@ direct solve until the transfers have coarse levels of their own).
 from __future__ import annotations
 
 import os
-import subprocess
 
 import h5py
 import numpy as np
 import pytest
 
-from twomem_testlib import EXE, SOURCE, out_file, run
+from twomem_testlib import MPIEXEC, out_file, run, run_on_ranks
 
 #: the debug build (-O0, every check) runs a mesh of 4e3 vertices: the generic path, but the
 #: exact coarse solve; the release build one of 1.9e4 (interior spacing; the circle gets a third
@@ -113,21 +112,13 @@ def test_bound_holds_on_a_fine_single_mesh(mesh, method, flux):
 def test_two_ranks_reproduce_one(mesh):
     """The generic path and the one-level flux distributed: 2 MPI ranks give the estimators of
     one, to the conjugate gradients' sums' round-off."""
-    mpiexec = os.environ.get("TWOMEM_MPIEXEC")
-    if not mpiexec:
+    if not MPIEXEC:
         pytest.skip("no MPI launcher")
-    env = dict(os.environ, OMP_NUM_THREADS="1")
-    if hasattr(os, "geteuid") and os.geteuid() == 0:
-        env.update(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
     summaries = []
     for ranks in (1, 2):
         path = out_file(f"single-mesh-mpi-{ranks}.h5")
-        command = [mpiexec, "--oversubscribe", "-n", str(ranks), EXE, "run", str(SOURCE / "input" / "default.nml"),
-                   "mesh.domain=gmsh", f"mesh.file={mesh}", "mesh.levels=0", "problem.exact=radial",
-                   "newton.linear=direct", f"output.file={path}", "output.xdmf=.false."]
-        proc = subprocess.run(command, capture_output=True, text=True, cwd=SOURCE, env=env, timeout=600,
-                              stdin=subprocess.DEVNULL)
-        assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr
+        run_on_ranks(ranks, "mesh.domain=gmsh", f"mesh.file={mesh}", "mesh.levels=0", "problem.exact=radial",
+                     "newton.linear=direct", f"output.file={path}", "output.xdmf=.false.")
         with h5py.File(path, "r") as f:
             summaries.append(dict(f["summary"].attrs))
     one, two = summaries

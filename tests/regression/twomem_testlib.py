@@ -12,6 +12,8 @@ EXE = os.environ.get("TWOMEM_EXE", "twomem")
 SOURCE = Path(os.environ.get("TWOMEM_SOURCE_DIR", Path(__file__).resolve().parents[2]))
 TMP = Path(os.environ.get("TWOMEM_TEST_TMP", "/tmp/twomem-tests"))
 DEFAULT_CASE = SOURCE / "input" / "default.nml"
+#: the MPI launcher CMake found (unset: a build without MPI, or none on the path)
+MPIEXEC = os.environ.get("TWOMEM_MPIEXEC")
 
 
 def run(*args: str, case: Path | str = DEFAULT_CASE, command: str = "run", check_rc: int | None = 0,
@@ -22,6 +24,21 @@ def run(*args: str, case: Path | str = DEFAULT_CASE, command: str = "run", check
     if check_rc is not None and proc.returncode != check_rc:
         raise AssertionError(f"twomem {command} {case} {' '.join(args)} exited {proc.returncode}, "
                              f"expected {check_rc}\nstdout:\n{proc.stdout[-3000:]}\nstderr:\n{proc.stderr}")
+    return proc
+
+
+def run_on_ranks(ranks: int, *args: str, case: Path | str = DEFAULT_CASE,
+                 timeout: int = 600) -> subprocess.CompletedProcess:
+    """Run `twomem run CASE ARGS...` on `ranks` MPI ranks (oversubscribed, one OpenMP thread each,
+    as root too) from the source directory; assert exit code 0."""
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    if hasattr(os, "geteuid") and os.geteuid() == 0:
+        env.update(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
+    command = [MPIEXEC or "mpirun", "--oversubscribe", "-n", str(ranks), EXE, "run", str(case), *args]
+    # no stdin: mpirun forwards it to rank 0 and would stop in a background process group
+    proc = subprocess.run(command, capture_output=True, text=True, cwd=SOURCE, env=env, timeout=timeout,
+                          stdin=subprocess.DEVNULL)
+    assert proc.returncode == 0, f"{' '.join(command)} exited {proc.returncode}\n{proc.stdout[-3000:]}\n{proc.stderr}"
     return proc
 
 
