@@ -1,8 +1,9 @@
 /* The operating-system calls twomem needs and Fortran lacks, called only from the Fortran module
  * twomem_base_system: creating directory trees, atomic renames, removing files, the process id
  * and the peak resident memory, exiting with a chosen status, and the C library's decimal
- * conversion (a Fortran internal read per number was most of reading a large mesh file). Every fallible call returns 0 or an errno value and writes a
- * one-line reason (with strerror) into the caller's buffer; the Fortran side adds the path. */
+ * conversion (a Fortran internal read per number was most of reading a large mesh file).
+ * Every fallible call returns 0 or an errno value and writes a one-line reason (with strerror)
+ * into the caller's buffer; the Fortran side adds the path. */
 
 #define _POSIX_C_SOURCE 200809L
 

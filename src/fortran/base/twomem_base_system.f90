@@ -276,7 +276,6 @@ contains
       end do
    end function strip_slashes
 
-   !> The text of a NUL-terminated C string in a Fortran buffer (the C glue's messages).
    !> The value of the decimal token `text` ([sign] digits [. digits] [(e|E|d|D) [sign] digits],
    !> checked by the caller, within the range of real64); .false. where the C library does not
    !> convert it whole or it is longer than 63 characters (the caller then reads it itself).
@@ -290,6 +289,7 @@ contains
       value = converted
    end function decimal_value
 
+   !> The text of a NUL-terminated C string in a Fortran buffer (the C glue's messages).
    pure function c_text(buffer) result(text)
       character(len=*), intent(in) :: buffer
       character(len=:), allocatable :: text
