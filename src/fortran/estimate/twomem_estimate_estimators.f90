@@ -49,6 +49,7 @@ module twomem_estimate_estimators
    use twomem_estimate_storage, only: storage_tier, max_single_shapes, tier_none, tier_single, tier_all
    use twomem_estimate_element_terms, only: data_oscillation, quadratic_forms, add_in_child_basis
    use twomem_estimate_multiplier, only: multiplier_factors, multiplier_on
+   use twomem_estimate_flux_correction, only: correct_flux
    use twomem_linalg_operators, only: preconditioner_t
    use omp_lib, only: omp_get_max_threads
    implicit none
@@ -93,6 +94,9 @@ module twomem_estimate_estimators
       !> over h_K that goes with it: 1/π, or 1/j_{1,1} for the triangles' Poincaré inequality
       integer :: bound = bound_paper
       real(dp) :: osc_constant = 1/pi
+      !> 'sharp': the last evaluation's conjugate-gradient iterations of the flux's
+      !> divergence-free correction, per membrane (twomem_estimate_flux_correction)
+      integer :: correction_iterations(2) = 0
       !> the ranks (one by default), the copies to the ghost triangles, and a copy of the
       !> discrete problem's halo for the residual's products
       type(comm_t) :: comm
@@ -286,6 +290,11 @@ contains
          if (self%comm%any_true(.not. ok)) then
             call make_error(err, exit_io, 'discretization flux', 'a patch system is singular (degenerate triangles?)')
             return
+         end if
+         ! 'sharp': the divergence-free correction that brings σ_α closer to −μ_α∇u_αh
+         if (self%bound == bound_sharp) then
+            call correct_flux(self%space%order, mesh, p, self%halo, self%sigma, self%correction_iterations, err)
+            if (allocated(err)) return
          end if
       end associate
       if (with_alg) then

@@ -22,9 +22,8 @@ module twomem_estimate_riesz
    use twomem_base_comm, only: comm_t
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_fem_discrete, only: discrete_problem_t
-   use twomem_linalg_csr, only: csr_t
    use twomem_linalg_halo, only: halo_t
-   use twomem_linalg_operators, only: linear_operator_t, preconditioner_t, identity_preconditioner_t, &
+   use twomem_linalg_operators, only: summed_csr_operator_t, preconditioner_t, identity_preconditioner_t, &
       distributed_product_t
    use twomem_linalg_pcg, only: pcg_solve, pcg_options_t, pcg_monitor_t, pcg_test_t
    use twomem_estimate_lifting, only: lifting_on_triangle, patch_shares
@@ -52,13 +51,6 @@ module twomem_estimate_riesz
       procedure :: free
    end type riesz_representer_t
 
-   !> y = K x summed over the ranks at shared unknowns.
-   type, extends(linear_operator_t) :: stiffness_operator_t
-      type(csr_t), pointer :: k => null()
-      type(halo_t), pointer :: halo => null()
-   contains
-      procedure :: apply => stiffness_apply
-   end type stiffness_operator_t
 
    !> The conjugate gradients' stopping test (see the module header).
    type, extends(pcg_test_t) :: remainder_test_t
@@ -93,7 +85,7 @@ contains
       type(error_t), allocatable, intent(out) :: err
       class(preconditioner_t), intent(inout), optional, target :: precond
 
-      type(stiffness_operator_t) :: k_op
+      type(summed_csr_operator_t) :: k_op
       type(distributed_product_t) :: dot
       type(remainder_test_t) :: test
       type(pcg_options_t) :: options
@@ -106,7 +98,7 @@ contains
 
       n = p%n
       if (.not. allocated(self%rho%u)) call self%rho%init(mesh)
-      k_op%k => p%stiffness
+      k_op%a => p%stiffness
       k_op%halo => halo
       dot%comm = halo%comm
       dot%owned = halo%owned
@@ -155,14 +147,6 @@ contains
       call self%rho%free()
    end subroutine free
 
-   subroutine stiffness_apply(self, x, y)
-      class(stiffness_operator_t), intent(in) :: self
-      real(dp), intent(in) :: x(:)
-      real(dp), intent(out) :: y(:)
-
-      call self%k%matvec(x, y)
-      call self%halo%add(y)
-   end subroutine stiffness_apply
 
    !> h_Ω C_PF ‖r'‖ ≤ remainder_fraction ‖∇x‖ with r' the lifting of the residual r and
    !> ‖∇x‖² = xᵀ K x = xᵀ (b − r); or r = 0. Every rank decides alike (global sums).

@@ -8,13 +8,14 @@ module twomem_linalg_operators
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t
    use twomem_linalg_csr, only: csr_t
+   use twomem_linalg_halo, only: halo_t
    use twomem_base_comm, only: comm_t
    use twomem_linalg_vectors, only: threaded_from
    implicit none
    private
 
    public :: linear_operator_t, preconditioner_t, inner_product_t
-   public :: csr_operator_t, identity_preconditioner_t, euclidean_product_t, distributed_product_t
+   public :: csr_operator_t, summed_csr_operator_t, identity_preconditioner_t, euclidean_product_t, distributed_product_t
 
    type, abstract :: linear_operator_t
    contains
@@ -75,6 +76,15 @@ module twomem_linalg_operators
       procedure :: apply => csr_apply
    end type csr_operator_t
 
+   !> y = A x with A each rank's part of a matrix assembled from its own triangles, the products
+   !> summed over the ranks at shared unknowns (`halo`): the finest stiffness of a distributed run.
+   type, extends(linear_operator_t) :: summed_csr_operator_t
+      type(csr_t), pointer :: a => null()
+      type(halo_t), pointer :: halo => null()
+   contains
+      procedure :: apply => summed_csr_apply
+   end type summed_csr_operator_t
+
    !> No preconditioning (M = I).
    type, extends(preconditioner_t) :: identity_preconditioner_t
    contains
@@ -121,6 +131,15 @@ contains
 
       call self%a%matvec(x, y)
    end subroutine csr_apply
+
+   subroutine summed_csr_apply(self, x, y)
+      class(summed_csr_operator_t), intent(in) :: self
+      real(dp), intent(in) :: x(:)
+      real(dp), intent(out) :: y(:)
+
+      call self%a%matvec(x, y)
+      call self%halo%add(y)
+   end subroutine summed_csr_apply
 
    subroutine keep_everything(self)
       class(preconditioner_t), intent(inout) :: self
