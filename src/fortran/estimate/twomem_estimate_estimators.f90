@@ -94,9 +94,6 @@ module twomem_estimate_estimators
       !> over h_K that goes with it: 1/π, or 1/j_{1,1} for the triangles' Poincaré inequality
       integer :: bound = bound_paper
       real(dp) :: osc_constant = 1/pi
-      !> 'sharp': the last evaluation's conjugate-gradient iterations of the flux's
-      !> divergence-free correction, per membrane (twomem_estimate_flux_correction)
-      integer :: correction_iterations(2) = 0
       !> the ranks (one by default), the copies to the ghost triangles, and a copy of the
       !> discrete problem's halo for the residual's products
       type(comm_t) :: comm
@@ -257,6 +254,7 @@ contains
       class(preconditioner_t), intent(inout), optional :: precond
 
       integer(ip) :: n
+      integer :: correction_iterations(2)
       logical :: ok, with_fields, with_alg
 
       call refuse_after_end(self, err)
@@ -293,7 +291,7 @@ contains
          end if
          ! 'sharp': the divergence-free correction that brings σ_α closer to −μ_α∇u_αh
          if (self%bound == bound_sharp) then
-            call correct_flux(self%space%order, mesh, p, self%halo, self%sigma, self%correction_iterations, err)
+            call correct_flux(self%space%order, mesh, p, self%halo, self%sigma, correction_iterations, err)
             if (allocated(err)) return
          end if
       end associate

@@ -12,7 +12,7 @@
 !> (∇u, curl ψ) = 0 for ψ ∈ H¹_0). Conjugate gradients from φ_α = 0 lower that quadratic at
 !> every iteration, and the bound holds after any number of them. The excess they remove sits
 !> on the mesh scale (each patch flux is locally optimal already), so a few unpreconditioned
-!> iterations take nearly all of it (RT0 on a disk of 3·10⁵ triangles: effectivity 2.98 before,
+!> iterations take nearly all of it (RT0 on a disk of 6.7·10⁵ triangles: effectivity 2.98 before,
 !> 1.23 after 5 iterations, 1.190 after 20, 1.188 converged), with the same iterates on any
 !> number of ranks. On RT1 the gain is small (its patch fluxes come near the optimum already);
 !> on RT0 it is most of the flux term's excess.
