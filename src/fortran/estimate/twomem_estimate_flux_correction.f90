@@ -41,7 +41,6 @@ module twomem_estimate_flux_correction
    !> converged, from 1.01773), at a quarter of the iterations' cost
    integer, parameter :: correction_max_it(0:1) = [20, 5]
 
-
 contains
 
    !> sigma(:, t, α) += curl φ_α on this rank's own triangles (order: the RT space's), φ_α from

@@ -51,7 +51,6 @@ module twomem_estimate_riesz
       procedure :: free
    end type riesz_representer_t
 
-
    !> The conjugate gradients' stopping test (see the module header).
    type, extends(pcg_test_t) :: remainder_test_t
       type(mesh_t), pointer :: mesh => null()
@@ -146,7 +145,6 @@ contains
 
       call self%rho%free()
    end subroutine free
-
 
    !> h_Ω C_PF ‖r'‖ ≤ remainder_fraction ‖∇x‖ with r' the lifting of the residual r and
    !> ‖∇x‖² = xᵀ K x = xᵀ (b − r); or r = 0. Every rank decides alike (global sums).
