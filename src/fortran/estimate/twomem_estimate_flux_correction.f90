@@ -28,6 +28,7 @@ module twomem_estimate_flux_correction
    use twomem_linalg_operators, only: summed_csr_operator_t, identity_preconditioner_t, &
       distributed_product_t
    use twomem_linalg_pcg, only: pcg_solve, pcg_options_t, pcg_monitor_t
+   use twomem_estimate_raviart_thomas, only: rt_frame_t, frame_of
    implicit none
    private
 
@@ -95,24 +96,22 @@ contains
       real(dp), intent(out) :: b(:, :)
 
       real(dp), allocatable :: share(:, :, :)
-      real(dp) :: hat(2, 3), q(2, 3), s(2), m20, m11, m02, h, area, centre(2), acc(2)
+      type(rt_frame_t) :: frame
+      real(dp) :: hat(2, 3), q(2, 3), s(2), m20, m11, m02, area, acc(2)
       integer(ip) :: t, i, a, j
       integer :: k, alpha
 
       allocate (share(2, 3, mesh%nt_owned))
       !$omp parallel default(none) shared(order, mesh, p, sigma, b, share) &
-      !$omp private(t, i, a, j, k, alpha, hat, q, s, m20, m11, m02, h, area, centre, acc)
+      !$omp private(t, i, a, j, k, alpha, frame, hat, q, s, m20, m11, m02, area, acc)
       !$omp do schedule(static)
       do t = 1, mesh%nt_owned
          area = mesh%area(t)
          if (order == 1) then
+            ! the vertices in the basis's scaled coordinates ξ
+            frame = frame_of(mesh%vertices, mesh%triangles(:, t))
             do k = 1, 3
-               q(:, k) = mesh%vertices(:, mesh%triangles(k, t))
-            end do
-            centre = (q(:, 1) + q(:, 2) + q(:, 3))/3
-            h = mesh%diameter_of(t)
-            do k = 1, 3
-               q(:, k) = (q(:, k) - centre)/h
+               q(:, k) = (frame%vertices(:, k) - frame%centre)/frame%scale
             end do
             m20 = area/12*(q(1, 1)**2 + q(1, 2)**2 + q(1, 3)**2)
             m11 = area/12*(q(1, 1)*q(2, 1) + q(1, 2)*q(2, 2) + q(1, 3)*q(2, 3))
