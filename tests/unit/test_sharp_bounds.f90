@@ -143,10 +143,7 @@ contains
       type(poly_data_t) :: data
       type(discrete_problem_t) :: p
       type(rt_space_t) :: space
-      type(shape_classes_t) :: shapes
-      type(coloring_t) :: colors
       type(level_flux_t) :: levels(1)
-      type(patch_table_t) :: no_signatures
       type(rt_frame_t) :: frame
       type(load_moments_t) :: loads
       type(evaluated_iterate_t) :: iterate
@@ -155,7 +152,6 @@ contains
       real(dp) :: pt(2), wq, dev, scale, lam_t(3)
       integer(ip) :: t, v(3), n
       integer :: order, alpha, k, moved
-      logical :: ok
 
       call mesh_problem('disk', 0.3_dp, 0, data, h, p, err)
       if (allocated(err)) return
@@ -180,16 +176,10 @@ contains
          call check(err, maxval(abs(mass)) <= 1.0e-14_dp*maxval(mesh%area), 'lumped patch masses kept')
          call multiplier_factors(mesh, iterate)
          do order = 0, 1
-            call space%init(order)
-            call shapes%init(space, h, err)
+            call disc_flux_on_disk(order, h, data, p, iterate, scratch, space, loads, levels(1)%sigma, err)
             if (allocated(err)) return
-            call colors%init(mesh)
-            if (allocated(lhs)) deallocate (lhs, rhs, levels(1)%sigma)
-            allocate (lhs(space%n_div), rhs(space%n_div), levels(1)%sigma(space%n_flux, mesh%nt, 2))
-            call loads%init(space, mesh, data)
-            call discretization_flux(space, shapes, no_signatures, mesh, 0, colors, [p%mu1, p%mu2], loads, iterate, &
-                                     scratch, levels(1)%sigma, ok)
-            call check(err, ok, 'patch systems regular')
+            if (allocated(lhs)) deallocate (lhs, rhs)
+            allocate (lhs(space%n_div), rhs(space%n_div))
             dev = 0.0_dp
             scale = 0.0_dp
             do t = 1, mesh%nt
@@ -289,10 +279,7 @@ contains
       type(poly_data_t) :: data
       type(discrete_problem_t) :: p
       type(rt_space_t) :: space
-      type(shape_classes_t) :: shapes
-      type(coloring_t) :: colors
       type(level_flux_t) :: levels(1)
-      type(patch_table_t) :: no_signatures
       type(rt_frame_t) :: frame
       type(load_moments_t) :: loads
       type(evaluated_iterate_t) :: iterate
@@ -301,7 +288,6 @@ contains
       real(dp) :: pt(2), wq, mu(2), field(2, 2), div(2), dev, scale, flux(2), hat(2, 3), curl(2), capped_flux
       integer(ip) :: t, v(3), n, i
       integer :: order, alpha, k, m, iterations(2), c
-      logical :: ok
 
       call mesh_problem('disk', 0.2_dp, 0, data, h, p, err)
       if (allocated(err)) return
@@ -314,16 +300,8 @@ contains
       associate (mesh => h%meshes(0))
          call multiplier_factors(mesh, iterate)
          do order = 0, 1
-            call space%init(order)
-            call shapes%init(space, h, err)
+            call disc_flux_on_disk(order, h, data, p, iterate, scratch, space, loads, levels(1)%sigma, err)
             if (allocated(err)) return
-            call colors%init(mesh)
-            if (allocated(levels(1)%sigma)) deallocate (levels(1)%sigma)
-            allocate (levels(1)%sigma(space%n_flux, mesh%nt, 2))
-            call loads%init(space, mesh, data)
-            call discretization_flux(space, shapes, no_signatures, mesh, 0, colors, mu, loads, iterate, scratch, &
-                                     levels(1)%sigma, ok)
-            call check(err, ok, 'patch systems regular')
             sigma0 = levels(1)%sigma
             ! the run's own cap first (the flux term must fall), then to the tolerance
             call correct_flux(order, mesh, p, halo, levels(1)%sigma, iterations, err)
@@ -386,4 +364,34 @@ contains
          end do
       end associate
    end subroutine test_correction
+   !> σ_disc of `iterate` on h's mesh (level 0, no stored patch tables: the generic path) in
+   !> RT_order, with the space and load moments it was built from; err if a patch system is
+   !> singular.
+   subroutine disc_flux_on_disk(order, h, data, p, iterate, scratch, space, loads, sigma, err)
+      integer, intent(in) :: order
+      type(mesh_hierarchy_t), intent(in) :: h
+      type(poly_data_t), intent(in) :: data
+      type(discrete_problem_t), intent(in) :: p
+      type(evaluated_iterate_t), intent(in) :: iterate
+      type(generic_scratch_t), intent(inout) :: scratch(0:)
+      type(rt_space_t), intent(out) :: space
+      type(load_moments_t), intent(out) :: loads
+      real(dp), allocatable, intent(out) :: sigma(:, :, :)
+      type(error_t), allocatable, intent(out) :: err
+
+      type(shape_classes_t) :: shapes
+      type(coloring_t) :: colors
+      type(patch_table_t) :: no_signatures
+      logical :: ok
+
+      call space%init(order)
+      call shapes%init(space, h, err)
+      if (allocated(err)) return
+      call colors%init(h%meshes(0))
+      allocate (sigma(space%n_flux, h%meshes(0)%nt, 2))
+      call loads%init(space, h%meshes(0), data)
+      call discretization_flux(space, shapes, no_signatures, h%meshes(0), 0, colors, [p%mu1, p%mu2], loads, iterate, &
+                               scratch, sigma, ok)
+      call check(err, ok, 'patch systems regular')
+   end subroutine disc_flux_on_disk
 end module test_sharp_bounds
