@@ -43,7 +43,8 @@ contains
       tests = [new_unittest('generic_path_equals_class_path', test_generic_equals_classes), &
                new_unittest('bisected_mesh_classes_by_shape', test_bisected_classes), &
                new_unittest('one_level_flux_with_exact_riesz', test_one_level_exact), &
-               new_unittest('one_level_flux_divergence_and_remainder', test_one_level_remainder)]
+               new_unittest('one_level_flux_divergence_and_remainder', test_one_level_remainder), &
+               new_unittest('one_level_flux_in_the_discretization_pass', test_one_pass)]
    end subroutine collect_single_mesh
 
    !> On a twice red-refined disk and square, for a random iterate (algebraic residual far from
@@ -356,6 +357,80 @@ contains
          end associate
       end do
    end subroutine test_one_level_remainder
+
+   !> The one-level algebraic flux computed in the discretization flux's pass (a whole
+   !> evaluation) against its own pass after an evaluation without it (`complete`), for the
+   !> same random iterate: the same discretization and algebraic flux on every triangle and the
+   !> same estimators, to round-off. On a single disk mesh without shape classes (tier_none:
+   !> every patch generic; plain conjugate gradients) and a twice refined square whose finest
+   !> patches have signatures (tier_single, V-cycles), RT0 and RT1.
+   subroutine test_one_pass(err)
+      type(error_t), allocatable, intent(out) :: err
+
+      type(mesh_hierarchy_t) :: h
+      type(poly_data_t) :: data
+      type(discrete_problem_t) :: p
+      type(estimator_t) :: one_pass, two_passes
+      type(estimates_t) :: est1, est2
+      type(multigrid_transfer_t), target :: transfer
+      type(mg_preconditioner_t) :: vcycle
+      type(multigrid_options_t) :: options
+      real(dp), allocatable :: x(:)
+      integer :: order, c
+      character(len=30) :: what
+
+      do c = 1, 2
+         if (c == 1) then
+            call mesh_problem('disk', 0.08_dp, 0, data, h, p, err)
+         else
+            call mesh_problem('square', 0.25_dp, 2, data, h, p, err)
+         end if
+         if (allocated(err)) return
+         if (c == 2) then
+            call transfer%init(interior_prolongations(h, 2), err)
+            if (allocated(err)) return
+            call vcycle%init(p%stiffness, transfer, 2, options, err)
+            if (allocated(err)) return
+         end if
+         x = random_vector(3*p%n, 70)
+         do order = 0, 1
+            write (what, '("RT",i0,", ",a)') order, merge('single mesh ', 'V-cycles    ', c == 1)
+            if (c == 1) then
+               call one_pass%init(h, data, order, 1, 1.0_dp, err, tier=tier_none, exact_max=0_ip)
+               if (allocated(err)) return
+               call two_passes%init(h, data, order, 1, 1.0_dp, err, tier=tier_none, exact_max=0_ip)
+               if (allocated(err)) return
+               call check(err, .not. one_pass%classes, 'no shape classes, '//what)
+               call one_pass%evaluate(h, data, p, x, est1, err)
+               if (allocated(err)) return
+               call two_passes%evaluate(h, data, p, x, est2, err, algebraic=.false.)
+               if (allocated(err)) return
+               call two_passes%complete(h, data, est2, err, .false., p)
+            else
+               call one_pass%init(h, data, order, 3, 1.0_dp, err, tier=tier_single, exact_max=0_ip)
+               if (allocated(err)) return
+               call two_passes%init(h, data, order, 3, 1.0_dp, err, tier=tier_single, exact_max=0_ip)
+               if (allocated(err)) return
+               call check(err, one_pass%classes, 'patch signatures, '//what)
+               call one_pass%evaluate(h, data, p, x, est1, err, precond=vcycle)
+               if (allocated(err)) return
+               call two_passes%evaluate(h, data, p, x, est2, err, algebraic=.false.)
+               if (allocated(err)) return
+               call two_passes%complete(h, data, est2, err, .false., p, vcycle)
+            end if
+            if (allocated(err)) return
+            call check(err, one_pass%alg%one_level, 'one-level construction, '//what)
+            call check(err, all(one_pass%alg%riesz%iterations > 1), 'conjugate gradients iterated, '//what)
+            call check(err, close(one_pass%sigma, two_passes%sigma, 1.0e-12_dp), 'sigma_disc, '//what)
+            call check(err, close(one_pass%alg%levels(1)%sigma, two_passes%alg%levels(1)%sigma, 1.0e-12_dp), &
+                       'sigma_alg, '//what)
+            call check(err, close([est1%disc, est1%alg, est1%alg_remainder, est1%lin, est1%total], &
+                                  [est2%disc, est2%alg, est2%alg_remainder, est2%lin, est2%total], 1.0e-12_dp), &
+                       'the estimators, '//what)
+            if (allocated(err)) return
+         end do
+      end do
+   end subroutine test_one_pass
 
    !> |a − b| ≤ rtol max|b| entrywise.
    logical function close1(a, b, rtol) result(ok)

@@ -97,6 +97,7 @@ module twomem_estimate_alg_flux
       procedure :: init
       procedure :: take_residual
       procedure :: compute
+      procedure :: one_level_source
       procedure :: first
       procedure :: free_levels
       procedure :: drop_solvers
@@ -202,6 +203,32 @@ contains
       n = nint(comm%sum(real(n, dp)), ip)
    end function unknowns
 
+   !> The one-level construction's source for the evaluated iterate (its residual taken): the
+   !> Riesz representer riesz%rho that the patches read (twomem_estimate_riesz, solved on p with
+   !> `halo`, `ghosts` and `precond` as in `compute`), and room for σ_alg in levels(1)%sigma.
+   !> The patches themselves follow: `compute`, or the discretization flux's pass, which solves
+   !> them on its own factorizations (twomem_estimate_disc_flux). Collective.
+   subroutine one_level_source(self, hierarchy, p, halo, ghosts, err, precond)
+      class(algebraic_flux_t), intent(inout) :: self
+      type(mesh_hierarchy_t), intent(in) :: hierarchy
+      type(discrete_problem_t), intent(in) :: p
+      type(halo_t), intent(inout) :: halo
+      type(ghost_cells_t), intent(in) :: ghosts
+      type(error_t), allocatable, intent(out) :: err
+      class(preconditioner_t), intent(inout), optional :: precond
+
+      if (.not. (self%has_residual .and. self%one_level)) then
+         call make_error(err, exit_io, 'algebraic flux', 'internal: no one-level residual to represent')
+         return
+      end if
+      associate (mesh => hierarchy%meshes(self%finest), lev => self%levels(1))
+         call self%riesz%solve(mesh, self%finest, p, halo, ghosts, self%top, self%poincare, self%mu, &
+                               self%space%order, err, precond)
+         if (allocated(err)) return
+         if (.not. allocated(lev%sigma)) allocate (lev%sigma(self%space%n_flux, mesh%nt, 2))
+      end associate
+   end subroutine one_level_source
+
    !> self%levels returns σ_alg level by level (levels b+1..J, or J alone with a single mesh)
    !> for the evaluated iterate: from its nodal algebraic residuals, zero at boundary vertices,
    !> and their lifting r on T_J. The patches use the factors of their signatures
@@ -233,11 +260,9 @@ contains
          return
       end if
       if (self%one_level) then
+         call self%one_level_source(hierarchy, p, halo, ghosts, err, precond)
+         if (allocated(err)) return
          associate (mesh => hierarchy%meshes(self%finest), lev => self%levels(1))
-            call self%riesz%solve(mesh, self%finest, p, halo, ghosts, self%top, self%poincare, self%mu, &
-                                  self%space%order, err, precond)
-            if (allocated(err)) return
-            if (.not. allocated(lev%sigma)) allocate (lev%sigma(self%space%n_flux, mesh%nt, 2))
             call single_mesh_patches(self%space, shapes, single, mesh, self%finest, self%colors(self%finest), scratch, &
                                      self%riesz%rho, .true., none, lev%sigma, ok)
          end associate

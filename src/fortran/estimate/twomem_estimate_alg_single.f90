@@ -22,7 +22,7 @@ module twomem_estimate_alg_single
    implicit none
    private
 
-   public :: single_mesh_patches
+   public :: single_mesh_patches, algebraic_patch_data, factored_patch
 
 contains
 
@@ -68,7 +68,7 @@ contains
                ok = ok .and. patch_ok
                if (.not. patch_ok) cycle
                ! r and, from the nodal representer, ∇ρ on every gathered triangle
-               call scratch(me)%fill(mesh, source)
+               call scratch(me)%fill(mesh, source, 1)
             end if
             g = 0
             do m = colors%block_ptr(ib), colors%block_ptr(ib + 1) - 1
@@ -83,7 +83,7 @@ contains
                   ok = ok .and. patch_ok
                end if
             end do
-            if (size(generic) > 0) call scratch(me)%flush(sigma)
+            if (size(generic) > 0) call scratch(me)%flush(sigma, 1)
          end do
          !$omp end do
       end do
@@ -198,30 +198,47 @@ contains
       real(dp), intent(in) :: grad_rho(:, :, :)
       logical, intent(out) :: ok
 
-      integer :: ne, k, i, alpha, sl
       integer :: links(3, mesh%patch_ptr(a + 1) - mesh%patch_ptr(a)), corner(size(links, 2))
-      real(dp) :: rhs_div(space%n_div, size(links, 2), 2), no_flux(2, size(links, 2), 2), s(2), g(2, 2)
+      real(dp) :: rhs_div(space%n_div, size(links, 2), 2), no_flux(2, size(links, 2), 2)
 
-      ne = size(links, 2)
       call patch_links(scratch, p, a, mesh%boundary_vertex(a), corner, links)
-      associate (slots => scratch%slots(scratch%first(p):scratch%first(p + 1) - 1), ops => scratch%ops)
-         do k = 1, ne
+      associate (slots => scratch%slots(scratch%first(p):scratch%first(p + 1) - 1))
+         call algebraic_patch_data(scratch, slots, corner, 1, from_nodal, grad_rho, rhs_div)
+         call solve_generic(space, scratch, slots, corner, links, no_flux, rhs_div, .false., ok)
+      end associate
+   end subroutine generic_patch
+
+   !> The divergence moments rhs_div(:, k, α) of the algebraic flux's patch problem on the
+   !> gathered patch whose triangle k is slot slots(k) with the patch vertex its local vertex
+   !> corner(k): r from the slots' lifting of data set `set`, ∇ρ from its gradients when
+   !> from_nodal, else from grad_rho.
+   pure subroutine algebraic_patch_data(scratch, slots, corner, set, from_nodal, grad_rho, rhs_div)
+      type(generic_scratch_t), intent(in) :: scratch
+      integer, intent(in) :: slots(:), corner(:), set
+      logical, intent(in) :: from_nodal
+      real(dp), intent(in) :: grad_rho(:, :, :)
+      real(dp), intent(out) :: rhs_div(:, :, :)
+
+      integer :: k, i, alpha, sl
+      real(dp) :: s(2), g(2, 2)
+
+      associate (ops => scratch%ops)
+         do k = 1, size(slots)
             sl = slots(k)
             i = corner(k)
             if (from_nodal) then
-               g = scratch%grad(:, :, sl)
+               g = scratch%grad(:, :, sl, set)
             else
                g = grad_rho(:, scratch%triangles(sl), :)
             end if
             s = [dot_product(scratch%hat(:, i, sl), g(:, 1)), dot_product(scratch%hat(:, i, sl), g(:, 2))]
             do alpha = 1, 2
-               associate (r => scratch%lift(:, alpha, sl))
+               associate (r => scratch%lift(:, alpha, sl, set))
                   rhs_div(:, k, alpha) = ops%bary_psi_q(:, 1, i, sl)*r(1) + ops%bary_psi_q(:, 2, i, sl)*r(2) &
                                          + ops%bary_psi_q(:, 3, i, sl)*r(3) - s(alpha)*ops%q_int(:, sl)
                end associate
             end do
          end do
-         call solve_generic(space, scratch, slots, corner, links, no_flux, rhs_div, .false., ok)
       end associate
-   end subroutine generic_patch
+   end subroutine algebraic_patch_data
 end module twomem_estimate_alg_single

@@ -7,7 +7,9 @@
 !> its triangles' shape classes (twomem_estimate_shapes) where the hierarchy stores them, or on
 !> the generic path, from the triangles' own geometry. Patches are independent: one OpenMP loop per vertex colour
 !> (twomem_estimate_coloring), each patch adding its contribution to its own triangles, which no
-!> other patch of the colour touches.
+!> other patch of the colour touches. On a single mesh the one-level algebraic flux's patches
+!> (twomem_estimate_alg_single) have the same generic systems: given its source, the same pass
+!> solves them too, from the same gathered operators and one factorization per patch.
 module twomem_estimate_disc_flux
    use twomem_base_kinds, only: dp, ip
    use omp_lib, only: omp_get_thread_num
@@ -19,7 +21,8 @@ module twomem_estimate_disc_flux
    use twomem_estimate_coloring, only: coloring_t
    use twomem_estimate_patch_factor, only: solve_condensed_factored
    use twomem_estimate_patch_classes, only: patch_table_t, patch_signature_t, stored_order, max_patch
-   use twomem_estimate_generic_patch, only: generic_scratch_t, solve_generic, patch_links
+   use twomem_estimate_generic_patch, only: generic_scratch_t, factor_generic, solve_factored, patch_links
+   use twomem_estimate_alg_single, only: algebraic_patch_data, algebraic_factored => factored_patch
    use twomem_estimate_evaluated_iterate, only: evaluated_iterate_t, gradients_on, lifting_on
    use twomem_estimate_multiplier, only: multiplier_weight
    implicit none
@@ -109,8 +112,11 @@ contains
    !> vertices (twomem_estimate_patch_classes), whose patches use the signatures' factors and the
    !> operators of `shapes`; every other patch (all of them when the table holds none) takes the
    !> generic path (twomem_estimate_generic_patch) with the scratch of its thread (scratch(0:),
-   !> one per thread). ok is .false. if some patch system is singular.
-   subroutine discretization_flux(space, shapes, table, mesh, level, colors, mu, loads, iterate, scratch, sigma, ok)
+   !> one per thread). ok is .false. if some patch system is singular. With alg_source (the
+   !> one-level Riesz representer, twomem_estimate_riesz) the same pass also returns the
+   !> algebraic flux of twomem_estimate_alg_single in alg_sigma.
+   subroutine discretization_flux(space, shapes, table, mesh, level, colors, mu, loads, iterate, scratch, sigma, ok, &
+                                  alg_source, alg_sigma)
       type(rt_space_t), intent(in) :: space
       type(shape_classes_t), intent(in) :: shapes
       type(patch_table_t), intent(in) :: table
@@ -123,21 +129,31 @@ contains
       type(generic_scratch_t), intent(inout) :: scratch(0:)
       real(dp), intent(inout) :: sigma(:, :, :)
       logical, intent(out) :: ok
+      type(evaluated_iterate_t), intent(in), optional :: alg_source
+      real(dp), intent(inout), optional :: alg_sigma(:, :, :)
 
       integer(ip) :: ib, m, a
       integer :: c, id, me, g
-      logical :: patch_ok, signatures
+      logical :: patch_ok, signatures, with_alg
       integer(ip), allocatable :: generic(:)
+      real(dp) :: none(0, 0, 0)
 
       ok = .true.
       signatures = allocated(table%levels)
+      with_alg = present(alg_source) .and. present(alg_sigma)
       !$omp parallel default(none) &
       !$omp shared(space, shapes, table, mesh, level, colors, mu, loads, iterate, sigma, scratch) &
-      !$omp shared(signatures) private(c, ib, m, a, id, patch_ok, me, g, generic) reduction(.and.:ok)
+      !$omp shared(signatures, with_alg, alg_source, alg_sigma, none) &
+      !$omp private(c, ib, m, a, id, patch_ok, me, g, generic) reduction(.and.:ok)
       me = omp_get_thread_num()
       !$omp workshare
       sigma = 0.0_dp
       !$omp end workshare
+      if (with_alg) then
+         !$omp workshare
+         alg_sigma = 0.0_dp
+         !$omp end workshare
+      end if
       do c = 1, colors%n_colors
          !$omp do schedule(dynamic, 1)
          do ib = colors%ptr(c), colors%ptr(c + 1) - 1
@@ -148,7 +164,8 @@ contains
                call scratch(me)%gather(space, mesh, generic, patch_ok)
                ok = ok .and. patch_ok
                if (.not. patch_ok) cycle
-               call scratch(me)%fill(mesh, iterate)
+               call scratch(me)%fill(mesh, iterate, 1)
+               if (with_alg) call scratch(me)%fill(mesh, alg_source, 2)
             end if
             g = 0
             do m = colors%block_ptr(ib), colors%block_ptr(ib + 1) - 1
@@ -158,13 +175,18 @@ contains
                if (id > 0) then
                   call factored_patch(space, shapes, table%sig(id), table%levels(level)%order(a), mesh, level, a, mu, &
                                       loads, iterate, sigma)
+                  if (with_alg) call algebraic_factored(space, shapes, table, mesh, level, a, id, alg_source, .true., &
+                                                        none, alg_sigma)
                else
                   g = g + 1
-                  call generic_patch(space, scratch(me), g, mesh, a, mu, loads, iterate, patch_ok)
+                  call generic_patch(space, scratch(me), g, mesh, a, mu, loads, iterate, with_alg, patch_ok)
                   ok = ok .and. patch_ok
                end if
             end do
-            if (size(generic) > 0) call scratch(me)%flush(sigma)
+            if (size(generic) > 0) then
+               call scratch(me)%flush(sigma, 1)
+               if (with_alg) call scratch(me)%flush(alg_sigma, 2)
+            end if
          end do
          !$omp end do
       end do
@@ -198,9 +220,10 @@ contains
 
    !> The patch of vertex a on the generic path: p is its position in the list the scratch was
    !> gathered for (generic_vertices), whose slots hold its triangles' operators and the
-   !> iterate's ∇u_α and lifting there. The data as in factored_patch, with the integrals of
-   !> the triangle's own operators; σ goes to the slots' sums.
-   pure subroutine generic_patch(space, scratch, p, mesh, a, mu, loads, iterate, ok)
+   !> iterate's ∇u_α and lifting there (data set 1). The data as in factored_patch, with the
+   !> integrals of the triangle's own operators; σ goes to the slots' sums. With `with_alg`,
+   !> the algebraic flux's patch too, from data set 2, on the same factorization.
+   pure subroutine generic_patch(space, scratch, p, mesh, a, mu, loads, iterate, with_alg, ok)
       type(rt_space_t), intent(in) :: space
       type(generic_scratch_t), intent(inout) :: scratch
       integer, intent(in) :: p
@@ -209,11 +232,13 @@ contains
       real(dp), intent(in) :: mu(2)
       type(load_moments_t), intent(in) :: loads
       type(evaluated_iterate_t), intent(in) :: iterate
+      logical, intent(in) :: with_alg
       logical, intent(out) :: ok
 
       integer :: ne, k, i, alpha, s
       integer :: links(3, mesh%patch_ptr(a + 1) - mesh%patch_ptr(a)), corner(size(links, 2))
       real(dp) :: rhs_div(space%n_div, size(links, 2), 2), fgrad(2, size(links, 2), 2), lambda_a, d
+      real(dp) :: none(0, 0, 0)
       real(dp), parameter :: lambda_sign(2) = [1.0_dp, -1.0_dp]
 
       ne = size(links, 2)
@@ -224,7 +249,7 @@ contains
             s = slots(k)
             i = corner(k)
             do alpha = 1, 2
-               associate (grad_u => scratch%grad(:, alpha, s), r => scratch%lift(:, alpha, s))
+               associate (grad_u => scratch%grad(:, alpha, s, 1), r => scratch%lift(:, alpha, s, 1))
                   fgrad(:, k, alpha) = -mu(alpha)*grad_u
                   if (loads%constant) then
                      rhs_div(:, k, alpha) = loads%f(alpha)*ops%psi_q(:, i, s)
@@ -240,7 +265,14 @@ contains
                end associate
             end do
          end do
-         call solve_generic(space, scratch, slots, corner, links, fgrad, rhs_div, .true., ok)
+         call factor_generic(space, scratch, slots, links, ok)
+         if (.not. ok) return
+         call solve_factored(space, scratch, slots, corner, links, fgrad, rhs_div, .true., 1)
+         if (with_alg) then
+            ! rhs_div's room for the algebraic flux's moments (fgrad is not read without a datum)
+            call algebraic_patch_data(scratch, slots, corner, 2, .true., none, rhs_div)
+            call solve_factored(space, scratch, slots, corner, links, fgrad, rhs_div, .false., 2)
+         end if
       end associate
    end subroutine generic_patch
 

@@ -255,7 +255,7 @@ contains
 
       integer(ip) :: n
       integer :: correction_iterations(2)
-      logical :: ok, with_fields, with_alg
+      logical :: ok, with_fields, with_alg, one_pass
 
       call refuse_after_end(self, err)
       if (allocated(err)) return
@@ -283,8 +283,20 @@ contains
          call it%share_ghosts(self%ghosts, mesh, hierarchy%levels)
          if (self%bound == bound_sharp) call multiplier_factors(mesh, it)
 
-         call discretization_flux(self%space, self%shapes, self%single, mesh, hierarchy%levels, self%colors, self%mu, &
-                                  self%loads, it, self%scratch, self%sigma, ok)
+         ! the one-level algebraic flux's patches are the discretization flux's systems with other
+         ! data: its source first, then one pass for both
+         one_pass = with_alg .and. self%alg%one_level
+         if (one_pass) then
+            call self%alg%one_level_source(hierarchy, p, self%halo, self%ghosts, err, precond)
+            call self%comm%agree(err)
+            if (allocated(err)) return
+            call discretization_flux(self%space, self%shapes, self%single, mesh, hierarchy%levels, self%colors, &
+                                     self%mu, self%loads, it, self%scratch, self%sigma, ok, &
+                                     alg_source=self%alg%riesz%rho, alg_sigma=self%alg%levels(1)%sigma)
+         else
+            call discretization_flux(self%space, self%shapes, self%single, mesh, hierarchy%levels, self%colors, &
+                                     self%mu, self%loads, it, self%scratch, self%sigma, ok)
+         end if
          if (self%comm%any_true(.not. ok)) then
             call make_error(err, exit_io, 'discretization flux', 'a patch system is singular (degenerate triangles?)')
             return
@@ -295,7 +307,9 @@ contains
             if (allocated(err)) return
          end if
       end associate
-      if (with_alg) then
+      if (one_pass) then
+         call element_pass(self, hierarchy, data, est, with_fields, .true.)
+      else if (with_alg) then
          call self%complete(hierarchy, data, est, err, with_fields, p, precond)
       else
          call element_pass(self, hierarchy, data, est, .false., .false.)

@@ -14,7 +14,11 @@
 !> particular solution σ_K = y G + z Φ_iᵀ c and its traces C σ_K, the zero-flux edge's rows
 !> eliminated by their n_trace × n_trace Schur complement, the inner multipliers' SPD system
 !> by Cholesky (its first multiplier pinned when no edge is free), then σ_K − z Cᵀ S μ. The
-!> work arrays grow to the largest patch seen and are kept by the caller's scratch.
+!> factorization depends on the geometry alone (factor_generic), the rest on the data
+!> (solve_factored), so that a block holds two data sets side by side and one factorization
+!> per patch serves both: the discretization flux and the one-level algebraic flux in one pass
+!> (twomem_estimate_disc_flux). The work arrays grow to the largest patch seen and are kept by
+!> the caller's scratch.
 module twomem_estimate_generic_patch
    use twomem_base_kinds, only: dp, ip, i8
    use twomem_mesh_triangulation, only: mesh_t
@@ -27,7 +31,10 @@ module twomem_estimate_generic_patch
    implicit none
    private
 
-   public :: generic_scratch_t, solve_generic, patch_links
+   !> data sets a gathered block holds side by side
+   integer, parameter :: n_sets = 2
+
+   public :: generic_scratch_t, solve_generic, factor_generic, solve_factored, patch_links
 
    !> One thread's scratch: the operators of a block's triangles, where each patch's triangles
    !> sit among them, and the work arrays of a patch solve.
@@ -44,14 +51,19 @@ module twomem_estimate_generic_patch
       integer(ip), allocatable :: vertices(:, :), edges(:, :)
       logical, allocatable :: on_boundary(:, :)
       real(dp), allocatable :: signs(:, :), hat(:, :, :)
-      !> per slot, from `fill`: a gradient per membrane (2, 2) and a lifting's vertex values (3, 2)
-      real(dp), allocatable :: grad(:, :, :), lift(:, :, :)
-      !> per slot: the sum of its patches' σ, both membranes side by side (2, n_flux), for `flush`
-      real(dp), allocatable :: sigma_sum(:, :, :)
+      !> per slot and data set (two: the discretization and the algebraic flux may share a pass),
+      !> from `fill`: a gradient per membrane (2, 2) and a lifting's vertex values (3, 2)
+      real(dp), allocatable :: grad(:, :, :, :), lift(:, :, :, :)
+      !> per slot and data set: the sum of its patches' σ, both membranes side by side
+      !> (2, n_flux), for `flush`
+      real(dp), allocatable :: sigma_sum(:, :, :, :)
       !> work arrays of solve_generic: the multiplier matrix (n_theta², column by column), its
       !> right-hand sides (2, n_theta), per patch triangle its particular solution (2, n_flux),
       !> traces (2, 3 n_trace) and zero-flux block's inverse
       real(dp), allocatable :: h(:), b(:, :), part(:, :, :), c_sigma(:, :, :), inv_n(:, :, :)
+      !> the factorized patch's multiplier count, and whether its first multiplier is pinned
+      integer :: n_theta = 0
+      logical :: pinned = .false.
    contains
       procedure :: gather
       procedure :: fill
@@ -133,7 +145,7 @@ contains
          end do
          call edge_signs(space%n_trace, self%vertices(:, s), self%signs(:, s))
          self%hat(:, :, s) = p1_gradients(mesh, t)
-         self%sigma_sum(:, :, s) = 0.0_dp
+         self%sigma_sum(:, :, s, :) = 0.0_dp
          call self%ops%compute(space, s, v, one_ok)
          ok = ok .and. one_ok
       end do
@@ -151,37 +163,41 @@ contains
                      self%sigma_sum)
       end if
       allocate (self%vertices(3, n), self%edges(3, n), self%on_boundary(3, n), self%signs(3*space%n_trace, n), &
-                self%hat(2, 3, n), self%grad(2, 2, n), self%lift(3, 2, n), self%sigma_sum(2, space%n_flux, n))
+                self%hat(2, 3, n), self%grad(2, 2, n, n_sets), self%lift(3, 2, n, n_sets), &
+                self%sigma_sum(2, space%n_flux, n, n_sets))
    end subroutine reserve_slots
 
-   !> grad(:, :, s) = ∇u_α and lift(:, :, s) = the residual lifting's vertex values of `source`
-   !> on every gathered triangle (its u and shares: an evaluated iterate, or the Riesz
-   !> representer of twomem_estimate_riesz).
-   subroutine fill(self, mesh, source)
+   !> grad(:, :, s, set) = ∇u_α and lift(:, :, s, set) = the residual lifting's vertex values
+   !> of `source` on every gathered triangle (its u and shares: an evaluated iterate, or the
+   !> Riesz representer of twomem_estimate_riesz); set: the data set (1 or 2).
+   subroutine fill(self, mesh, source, set)
       class(generic_scratch_t), intent(inout) :: self
       type(mesh_t), intent(in) :: mesh
       type(evaluated_iterate_t), intent(in) :: source
+      integer, intent(in) :: set
 
       integer :: s
 
       do s = 1, self%n
-         call gradients_on(source, mesh, self%triangles(s), self%hat(:, :, s), self%grad(:, :, s))
-         call lifting_on(source, mesh, self%triangles(s), self%lift(:, :, s))
+         call gradients_on(source, mesh, self%triangles(s), self%hat(:, :, s), self%grad(:, :, s, set))
+         call lifting_on(source, mesh, self%triangles(s), self%lift(:, :, s, set))
       end do
    end subroutine fill
 
-   !> sigma(:, t, α) += the slots' sums: each gathered triangle's share of the block's patches.
-   subroutine flush(self, sigma)
+   !> sigma(:, t, α) += the slots' sums of data set `set`: each gathered triangle's share of the
+   !> block's patches.
+   subroutine flush(self, sigma, set)
       class(generic_scratch_t), intent(in) :: self
       real(dp), intent(inout) :: sigma(:, :, :)
+      integer, intent(in) :: set
 
       integer :: s
       integer(ip) :: t
 
       do s = 1, self%n
          t = self%triangles(s)
-         sigma(:, t, 1) = sigma(:, t, 1) + self%sigma_sum(1, :, s)
-         sigma(:, t, 2) = sigma(:, t, 2) + self%sigma_sum(2, :, s)
+         sigma(:, t, 1) = sigma(:, t, 1) + self%sigma_sum(1, :, s, set)
+         sigma(:, t, 2) = sigma(:, t, 2) + self%sigma_sum(2, :, s, set)
       end do
    end subroutine flush
 
@@ -259,16 +275,8 @@ contains
       self%n = 0
    end subroutine free
 
-   !> One patch from the gathered operators: patch triangle k is slot slots(k), its patch vertex
-   !> is its local vertex corner(k), links(m, k) as in solve_patch (inner edge > 0, edge_free,
-   !> edge_neumann); the slot's trace signs turn its local trace rows into the mesh's
-   !> orientation. For both membranes r: fgrad(:, k, r) the constant c of the flux datum ψ_a c
-   !> (read when flux_data), rhs_div(:, k, r) the divergence moments; σ on triangle k is added to
-   !> its slot's sum. ok is .false. if the multiplier system is singular. Written with explicit
-   !> loops over the rows (no array sections with vector subscripts: each would be a temporary
-   !> per use), the two membranes' values side by side (each operator entry read once for both,
-   !> the pair one vector operation), the multiplier matrix in a contiguous buffer that the
-   !> Cholesky factorization takes as it is.
+   !> One patch from the gathered operators, for one set of data: factor_generic, then
+   !> solve_factored for set 1 (see both).
    pure subroutine solve_generic(space, scratch, slots, corner, links, fgrad, rhs_div, flux_data, ok)
       type(rt_space_t), intent(in) :: space
       type(generic_scratch_t), intent(inout) :: scratch
@@ -277,22 +285,125 @@ contains
       logical, intent(in) :: flux_data
       logical, intent(out) :: ok
 
+      call factor_generic(space, scratch, slots, links, ok)
+      if (ok) call solve_factored(space, scratch, slots, corner, links, fgrad, rhs_div, flux_data, 1)
+   end subroutine solve_generic
+
+   !> The multiplier system of one patch from the gathered operators, factorized: patch
+   !> triangle k is slot slots(k), links(m, k) as in solve_patch (inner edge > 0, edge_free,
+   !> edge_neumann); the slot's trace signs turn its local trace rows into the mesh's
+   !> orientation. It depends on the geometry alone, so that every data set of the patch
+   !> (solve_factored) shares it. ok is .false. if it is singular. Written with explicit loops
+   !> over the rows (no array sections with vector subscripts: each would be a temporary per
+   !> use), the matrix in a contiguous buffer that the Cholesky factorization takes as it is.
+   pure subroutine factor_generic(space, scratch, slots, links, ok)
+      type(rt_space_t), intent(in) :: space
+      type(generic_scratch_t), intent(inout) :: scratch
+      integer, intent(in) :: slots(:), links(:, :)
+      logical, intent(out) :: ok
+
       integer, parameter :: mc = 6, mt = 2
-      integer :: nt, nf, nd, nc, ne, n, k, s, i, j, q, nn, ni, l, m, c0, ci
+      integer :: nt, nc, ne, n, k, s, i, j, q, nn, ni, l, c0
       integer :: rows_n(mt), rows_i(mc), glob(mc)
-      real(dp) :: czc(mc, mc), sg(mc), acc, acc2(2), x(mt, mc), xr(2, mt), mu(2, mc), part(2, 8), g2(2, 3), f2(2, 2)
+      real(dp) :: czc(mc, mc), sg(mc), acc, x(mt, mc)
+
+      nt = space%n_trace
+      nc = 3*nt
+      ne = size(slots)
+      n = nt*max(0, maxval(links))
+      call scratch%ensure(space, ne, n)
+      scratch%n_theta = n
+      associate (ops => scratch%ops, h => scratch%h, inv_n => scratch%inv_n)
+         h(1:n*n) = 0.0_dp
+         ok = .true.
+         do k = 1, ne
+            s = slots(k)
+            do i = 1, nc
+               sg(i) = scratch%signs(i, s)
+            end do
+            do j = 1, nc
+               do i = 1, nc
+                  czc(i, j) = sg(i)*sg(j)*ops%czc(i, j, s)
+               end do
+            end do
+            call split_rows(links(:, k), nt, nn, rows_n, ni, rows_i, glob)
+            if (nn > 0) then
+               ! zero flux through the patch boundary: the edge's rows by their Schur complement
+               call small_inverse(nt, czc, rows_n, inv_n(:, :, k), ok)
+               if (.not. ok) return
+               ! x = N⁻¹ czc(n, inner)
+               do j = 1, ni
+                  do l = 1, nn
+                     acc = 0.0_dp
+                     do q = 1, nn
+                        acc = acc + inv_n(l, q, k)*czc(rows_n(q), rows_i(j))
+                     end do
+                     x(l, j) = acc
+                  end do
+               end do
+               do j = 1, ni
+                  c0 = (glob(j) - 1)*n
+                  do i = 1, ni
+                     acc = czc(rows_i(i), rows_i(j))
+                     do q = 1, nn
+                        acc = acc - czc(rows_i(i), rows_n(q))*x(q, j)
+                     end do
+                     h(c0 + glob(i)) = h(c0 + glob(i)) + acc
+                  end do
+               end do
+            else
+               do j = 1, ni
+                  c0 = (glob(j) - 1)*n
+                  do i = 1, ni
+                     h(c0 + glob(i)) = h(c0 + glob(i)) + czc(rows_i(i), rows_i(j))
+                  end do
+               end do
+            end if
+         end do
+         if (n > 0) then
+            scratch%pinned = .not. any(links == edge_free)
+            if (scratch%pinned) then
+               ! only zero-flux boundary: θ is defined up to a constant, pin the first multiplier
+               do i = 1, n
+                  h(i) = 0.0_dp
+                  h((i - 1)*n + 1) = 0.0_dp
+               end do
+               h(1) = 1.0_dp
+            end if
+            call chol_factor(n, h(1:n*n), ok)
+         end if
+      end associate
+   end subroutine factor_generic
+
+   !> One data set of the patch whose system factor_generic has just factorized (the same
+   !> slots and links): for both membranes r, fgrad(:, k, r) the constant c of the flux datum
+   !> ψ_a c (read when flux_data), rhs_div(:, k, r) the divergence moments, corner(k) the patch
+   !> vertex's local vertex in triangle k; σ on triangle k is added to its slot's sum of data
+   !> set `set`. The particular solution σ_K = y G + z Φ_iᵀ c of each triangle and its traces
+   !> S C σ_K, the zero-flux edge's rows eliminated as in the factorization, the multipliers
+   !> from the factor, then σ_K − z Cᵀ S μ. The two membranes' values side by side (each
+   !> operator entry read once for both, the pair one vector operation).
+   pure subroutine solve_factored(space, scratch, slots, corner, links, fgrad, rhs_div, flux_data, set)
+      type(rt_space_t), intent(in) :: space
+      type(generic_scratch_t), intent(inout) :: scratch
+      integer, intent(in) :: slots(:), corner(:), links(:, :)
+      real(dp), intent(in) :: fgrad(:, :, :), rhs_div(:, :, :)
+      logical, intent(in) :: flux_data
+      integer, intent(in) :: set
+
+      integer, parameter :: mc = 6, mt = 2
+      integer :: nt, nf, nd, nc, ne, n, k, s, i, q, nn, ni, l, m, ci
+      integer :: rows_n(mt), rows_i(mc), glob(mc)
+      real(dp) :: sg(mc), acc2(2), xr(2, mt), mu(2, mc), part(2, 8), g2(2, 3), f2(2, 2)
 
       nt = space%n_trace
       nf = space%n_flux
       nd = space%n_div
       nc = 3*nt
       ne = size(slots)
-      n = nt*max(0, maxval(links))
-      call scratch%ensure(space, ne, n)
+      n = scratch%n_theta
       associate (ops => scratch%ops, h => scratch%h, b => scratch%b, c_sigma => scratch%c_sigma, inv_n => scratch%inv_n)
-         h(1:n*n) = 0.0_dp
          b(:, 1:n) = 0.0_dp
-         ok = .true.
          do k = 1, ne
             s = slots(k)
             ci = corner(k)
@@ -330,26 +441,9 @@ contains
                end do
                c_sigma(:, i, k) = sg(i)*acc2
             end do
-            do j = 1, nc
-               do i = 1, nc
-                  czc(i, j) = sg(i)*sg(j)*ops%czc(i, j, s)
-               end do
-            end do
             call split_rows(links(:, k), nt, nn, rows_n, ni, rows_i, glob)
             if (nn > 0) then
-               ! zero flux through the patch boundary: the edge's rows by their Schur complement
-               call small_inverse(nt, czc, rows_n, inv_n(:, :, k), ok)
-               if (.not. ok) return
-               ! x = N⁻¹ czc(n, inner), xr = N⁻¹ S C σ(n)
-               do j = 1, ni
-                  do l = 1, nn
-                     acc = 0.0_dp
-                     do q = 1, nn
-                        acc = acc + inv_n(l, q, k)*czc(rows_n(q), rows_i(j))
-                     end do
-                     x(l, j) = acc
-                  end do
-               end do
+               ! xr = N⁻¹ S C σ(n), then the Schur complement's right-hand side
                do l = 1, nn
                   acc2 = 0.0_dp
                   do q = 1, nn
@@ -357,47 +451,21 @@ contains
                   end do
                   xr(:, l) = acc2
                end do
-               do j = 1, ni
-                  c0 = (glob(j) - 1)*n
-                  do i = 1, ni
-                     acc = czc(rows_i(i), rows_i(j))
-                     do q = 1, nn
-                        acc = acc - czc(rows_i(i), rows_n(q))*x(q, j)
-                     end do
-                     h(c0 + glob(i)) = h(c0 + glob(i)) + acc
-                  end do
-               end do
                do i = 1, ni
                   acc2 = c_sigma(:, rows_i(i), k)
                   do q = 1, nn
-                     acc2 = acc2 - czc(rows_i(i), rows_n(q))*xr(:, q)
+                     acc2 = acc2 - (sg(rows_i(i))*sg(rows_n(q))*ops%czc(rows_i(i), rows_n(q), s))*xr(:, q)
                   end do
                   b(:, glob(i)) = b(:, glob(i)) + acc2
                end do
             else
-               do j = 1, ni
-                  c0 = (glob(j) - 1)*n
-                  do i = 1, ni
-                     h(c0 + glob(i)) = h(c0 + glob(i)) + czc(rows_i(i), rows_i(j))
-                  end do
-               end do
                do i = 1, ni
                   b(:, glob(i)) = b(:, glob(i)) + c_sigma(:, rows_i(i), k)
                end do
             end if
          end do
          if (n > 0) then
-            if (.not. any(links == edge_free)) then
-               ! only zero-flux boundary: θ is defined up to a constant, pin the first multiplier
-               do i = 1, n
-                  h(i) = 0.0_dp
-                  h((i - 1)*n + 1) = 0.0_dp
-               end do
-               h(1) = 1.0_dp
-               b(:, 1) = 0.0_dp
-            end if
-            call chol_factor(n, h(1:n*n), ok)
-            if (.not. ok) return
+            if (scratch%pinned) b(:, 1) = 0.0_dp
             call paired_solve(n, h(1:n*n), b(:, 1:n))
          end if
          ! σ_K = particular − z Cᵀ S μ, μ: θ on inner rows, the solved zero-flux rows, 0 on free rows
@@ -435,11 +503,11 @@ contains
                do m = 1, nc
                   acc2 = acc2 - ops%zc(i, m, s)*mu(:, m)
                end do
-               scratch%sigma_sum(:, i, s) = scratch%sigma_sum(:, i, s) + acc2
+               scratch%sigma_sum(:, i, s, set) = scratch%sigma_sum(:, i, s, set) + acc2
             end do
          end do
       end associate
-   end subroutine solve_generic
+   end subroutine solve_factored
 
    !> b = (L Lᵀ)⁻¹ b for two right-hand sides side by side (b(r, i): right-hand side r, unknown
    !> i), with the factor of chol_factor: each entry of L read once for both.
