@@ -50,6 +50,8 @@ module twomem_app_observer
       !> `estimator_t%holds`, so no copy of it is kept here)
       type(estimates_t) :: last
       logical :: held = .false.
+      !> set by `expect_whole` for the next `discretization_estimate`
+      logical :: whole_expected = .false.
       !> the first failure of an evaluation (its estimators stay NaN, which no stopping test
       !> accepts); the run reports it after Newton
       type(error_t), allocatable :: err
@@ -68,6 +70,7 @@ module twomem_app_observer
       procedure :: estimate
       procedure :: free_workspaces
       procedure :: drop_partial
+      procedure :: expect_whole
       procedure :: free_riesz
       procedure, private :: refresh
       procedure, private :: riesz_preconditioner
@@ -167,9 +170,23 @@ contains
 
       eta_disc = ieee_value(1.0_dp, ieee_quiet_nan)
       if (.not. self%with_estimates .or. allocated(self%err)) return
-      call self%refresh(x, algebraic=.false.)
+      call self%refresh(x, algebraic=self%whole_expected)
+      self%whole_expected = .false.
       if (.not. allocated(self%err)) eta_disc = self%last%disc
    end function discretization_estimate
+
+   !> The next `discretization_estimate` is likely to be completed: with the one-level algebraic
+   !> flux, whose patch systems are the discretization flux's, it computes both in one pass
+   !> (twomem_estimate_disc_flux), which saves the second pass's operators and factorizations;
+   !> with a coarse solve there is nothing to share, and the algebraic flux waits for the
+   !> completion. Returns whether the next evaluation will be whole.
+   logical function expect_whole(self)
+      class(run_observer_t), intent(inout) :: self
+
+      self%whole_expected = .false.
+      if (associated(self%estimator)) self%whole_expected = self%estimator%alg%one_level
+      expect_whole = self%whole_expected
+   end function expect_whole
 
    !> The run's last evaluation, at x: one timed evaluation, or the previous one if it saw this
    !> very x. What only evaluations need then goes (estimator_t%end_evaluations), and none

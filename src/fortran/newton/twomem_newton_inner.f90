@@ -46,13 +46,17 @@ module twomem_newton_inner
    !> `linearization_estimate`, and one that can compute η_disc without the algebraic part
    !> through `discretization_estimate` (NaN: it cannot, and the adaptive method evaluates
    !> everything). `drop_partial` tells it that the last `discretization_estimate` will not be
-   !> completed: what it kept for that may go.
+   !> completed: what it kept for that may go. `expect_whole` announces that the next
+   !> `discretization_estimate` is likely to be completed (the Newton test held at the last η_disc
+   !> known): one whose algebraic part shares work with η_disc may compute both at once, and
+   !> answers whether it will.
    type, abstract :: newton_observer_t
    contains
       procedure(observe_interface), deferred :: observe
       procedure :: linearization_estimate => no_partial_estimate
       procedure :: discretization_estimate => no_partial_estimate
       procedure :: drop_partial => nothing_to_drop
+      procedure :: expect_whole => never_whole
    end type newton_observer_t
 
    abstract interface
@@ -163,7 +167,7 @@ contains
          if (forced) then
             ! the basis's memory goes back before the flux's arrays are made, which it cannot hold
             call return_freed_memory()
-            estimates = self%schedule%decide(self%user, x, row, last, screened=self%pending_eta_lin)
+            estimates = self%schedule%decide(self%user, x, row, last, screened=self%pending_eta_lin, prec=self%prec)
          else
             estimates = .true.
             last = .true.
@@ -262,14 +266,18 @@ contains
    !> the same on every rank); a check that does not keeps η_lin, and η_disc if it computed it,
    !> in its row. `last`: a whole evaluation that the Newton test predicts to be the last, before
    !> which the caller makes room (the preconditioner's hierarchies, the Krylov basis).
-   !> `screened`: η_lin of x, which `screen` found worth going on with.
-   logical function decide(self, user, x, row, last, screened) result(evaluates)
+   !> `screened`: η_lin of x, which `screen` found worth going on with. `prec`: present when the
+   !> Krylov basis is freed, so that the check may take the algebraic flux at once
+   !> (`expect_whole`): the running solve's preconditioner (or a null pointer), released before
+   !> such an evaluation.
+   logical function decide(self, user, x, row, last, screened, prec) result(evaluates)
       class(check_schedule_t), intent(inout) :: self
       class(newton_observer_t), intent(inout) :: user
       real(dp), intent(in) :: x(:)
       type(history_row_t), intent(inout) :: row
       logical, intent(out) :: last
       real(dp), intent(in), optional :: screened
+      class(preconditioner_t), pointer, intent(in), optional :: prec
 
       real(dp) :: eta_lin, eta_disc
 
@@ -283,6 +291,14 @@ contains
          return
       end if
       if (ieee_is_nan(eta_lin)) return
+      ! η_lin passed the Newton test against the last η_disc, which changes little between
+      ! Newton steps: this check will most likely evaluate everything; if the observer does so
+      ! at once, the preconditioner makes room as for an evaluation expected to end the run
+      if (self%eta_disc >= 0 .and. present(prec)) then
+         if (user%expect_whole()) then
+            if (associated(prec)) call prec%release()
+         end if
+      end if
       eta_disc = user%discretization_estimate(x)
       if (ieee_is_nan(eta_disc)) return
       self%eta_disc = eta_disc
@@ -397,10 +413,17 @@ contains
       if (ieee_is_finite(row%eta_disc)) self%eta_disc = row%eta_disc
    end subroutine remember
 
-   !> The default keeps nothing for a completion.
+   !> The default keeps nothing for a completion and prepares nothing for one.
    subroutine nothing_to_drop(self)
       class(newton_observer_t), intent(inout) :: self
    end subroutine nothing_to_drop
+
+   !> The default: nothing computed at once.
+   logical function never_whole(self)
+      class(newton_observer_t), intent(inout) :: self
+
+      never_whole = .false.
+   end function never_whole
 
    !> The default: no part of the estimators without a whole evaluation.
    function no_partial_estimate(self, x) result(eta)

@@ -364,7 +364,7 @@ contains
       ! η_disc at least: the idle linear workspace makes room for the evaluation's arrays
       call self%free_linear_workspace()
       call return_freed_memory()
-      estimates = self%inner%schedule%decide(self%observer, self%x, row, last, screened=eta_lin)
+      estimates = self%inner%schedule%decide(self%observer, self%x, row, last, screened=eta_lin, prec=self%inner%prec)
       ! a whole evaluation expected to end the run: the preconditioner's hierarchies make room
       ! for its algebraic flux too (the next solve, if any, builds them again)
       if (estimates .and. last .and. associated(self%inner%prec)) call self%inner%prec%release()
