@@ -85,22 +85,29 @@ contains
       call comm%agree(err)
       if (allocated(err)) return
 
-      ! owner of a vertex: the lowest rank owning a triangle at it
       allocate (owner(whole%nv), own_vertex(whole%nv), keep(whole%nt))
-      do a = 1, whole%nv
-         owner(a) = huge(1)
-         do m = whole%patch_ptr(a), whole%patch_ptr(a + 1) - 1
-            owner(a) = min(owner(a), part(whole%patch_triangles(m)))
+      if (comm%size == 1) then
+         ! one rank owns everything (a search over the patches costs a third of a second at 10⁶
+         ! vertices in a mesher's numbering)
+         owner = 0
+         keep = .true.
+      else
+         ! owner of a vertex: the lowest rank owning a triangle at it
+         do a = 1, whole%nv
+            owner(a) = huge(1)
+            do m = whole%patch_ptr(a), whole%patch_ptr(a + 1) - 1
+               owner(a) = min(owner(a), part(whole%patch_triangles(m)))
+            end do
          end do
-      end do
-      own_vertex = .false.
-      do t = 1, whole%nt
-         if (part(t) == comm%rank) own_vertex(whole%triangles(:, t)) = .true.
-      end do
-      ! own triangles, then the ghost layer: other triangles at a vertex of an own one
-      do t = 1, whole%nt
-         keep(t) = part(t) == comm%rank .or. any(own_vertex(whole%triangles(:, t)))
-      end do
+         own_vertex = .false.
+         do t = 1, whole%nt
+            if (part(t) == comm%rank) own_vertex(whole%triangles(:, t)) = .true.
+         end do
+         ! own triangles, then the ghost layer: other triangles at a vertex of an own one
+         do t = 1, whole%nt
+            keep(t) = part(t) == comm%rank .or. any(own_vertex(whole%triangles(:, t)))
+         end do
+      end if
       nt_own = count(part == comm%rank, kind=ip)
       nt = count(keep, kind=ip)
       allocate (tri_local(nt), vert_local(whole%nv))
@@ -118,17 +125,21 @@ contains
          end if
       end do
       vert_local = 0
+      allocate (triangles(3, nt))
       if (along) then
          tri_local(1:nt_own) = triangles_along_curve(whole%vertices, whole%triangles, tri_local(1:nt_own))
          tri_local(nt_own + 1:nt) = triangles_along_curve(whole%vertices, whole%triangles, tri_local(nt_own + 1:nt))
-         ! local vertices in the order the triangles meet them
+         ! local vertices in the order the triangles meet them, and the triangles in their
+         ! numbers, in one pass over the whole mesh's triangles in the new order
          nv = 0
          do i = 1, nt
             do m = 1, 3
                a = whole%triangles(m, tri_local(i))
-               if (vert_local(a) > 0) cycle
-               nv = nv + 1
-               vert_local(a) = nv
+               if (vert_local(a) == 0) then
+                  nv = nv + 1
+                  vert_local(a) = nv
+               end if
+               triangles(m, i) = vert_local(a)
             end do
          end do
       else
@@ -143,13 +154,13 @@ contains
                vert_local(a) = nv
             end if
          end do
+         do i = 1, nt
+            triangles(:, i) = vert_local(whole%triangles(:, tri_local(i)))
+         end do
       end if
-      allocate (vertices(2, nv), triangles(3, nt))
+      allocate (vertices(2, nv))
       do a = 1, whole%nv
          if (vert_local(a) > 0) vertices(:, vert_local(a)) = whole%vertices(:, a)
-      end do
-      do i = 1, nt
-         triangles(:, i) = vert_local(whole%triangles(:, tri_local(i)))
       end do
       call local%init(vertices, triangles, 'partition', err, diameter=whole%diameter)
       if (allocated(err)) return
@@ -167,7 +178,7 @@ contains
       integer(ip), intent(in) :: nt_own
       type(mesh_t), intent(inout) :: local
 
-      integer(ip) :: a, e, i, ga, gb, t
+      integer(ip) :: e, i, a
       integer :: j
 
       local%nt_owned = nt_own
@@ -184,18 +195,15 @@ contains
             local%boundary_vertex(vert_local(a)) = whole%boundary_vertex(a)
          end if
       end do
-      ! a local edge is found in the whole mesh from a triangle holding both its ends
-      do e = 1, local%ne
-         ga = local%global_vertex(local%edges(1, e))
-         gb = local%global_vertex(local%edges(2, e))
-         t = local%global_triangle(local%edge_triangles(1, e))
+      ! a local triangle has its whole triangle's vertices in the same order (the whole mesh's
+      ! triangles are counter-clockwise already, so mesh_t%init flipped none), so the edge opposite
+      ! its local vertex j is the whole triangle's: one pass over the triangles, not a search per edge
+      do i = 1, local%nt
          do j = 1, 3
-            i = whole%triangles(j, t)
-            if (i /= ga .and. i /= gb) then
-               local%global_edge(e) = whole%triangle_edges(j, t)
-               exit
-            end if
+            local%global_edge(local%triangle_edges(j, i)) = whole%triangle_edges(j, tri_local(i))
          end do
+      end do
+      do e = 1, local%ne
          local%boundary_edge(e) = whole%boundary_edge(local%global_edge(e))
       end do
    end subroutine attach_partition

@@ -120,7 +120,7 @@ contains
       real(dp), intent(in), optional :: diameter
 
       integer(ip) :: t, i, swap
-      real(dp) :: a, hmax
+      real(dp) :: a, h2
       character(len=160) :: msg
 
       call self%free()
@@ -158,10 +158,13 @@ contains
                call make_error(err, exit_bad_input, source, msg)
                return
             end if
-            hmax = self%diameter_of(t)
+            ! the squared diameter without norm2's scaling: coordinates below 1e150 keep it finite
+            h2 = max(sum((self%vertices(:, v(2)) - self%vertices(:, v(1)))**2), &
+                     sum((self%vertices(:, v(3)) - self%vertices(:, v(2)))**2), &
+                     sum((self%vertices(:, v(1)) - self%vertices(:, v(3)))**2))
             a = signed_area(self%vertices(:, v(1)), self%vertices(:, v(2)), self%vertices(:, v(3)))
             ! A sliver this thin has no usable gradient: its stiffness would be round-off.
-            if (abs(a) <= 1.0e3_dp*epsilon(1.0_dp)*hmax**2) then
+            if (abs(a) <= 1.0e3_dp*epsilon(1.0_dp)*h2) then
                write (msg, '(a,i0,a)') 'triangle ', t, ' has zero area (degenerate)'
                call make_error(err, exit_bad_input, source, msg)
                return
