@@ -32,7 +32,8 @@ contains
                new_unittest('drops_unused_nodes', test_unused_nodes), &
                new_unittest('rejects_broken_files', test_broken), &
                new_unittest('rejects_missing_file', test_missing), &
-               new_unittest('huge_coordinates', test_huge)]
+               new_unittest('huge_coordinates', test_huge), &
+               new_unittest('number_forms', test_number_forms)]
    end subroutine collect_gmsh
 
    !> Path of a file under tests/data/meshes.
@@ -222,14 +223,14 @@ contains
    subroutine test_broken(err)
       type(error_t), allocatable, intent(out) :: err
 
-      integer, parameter :: n = 24
+      integer, parameter :: n = 25
       character(len=*), parameter :: files(n) = [character(len=24) :: &
          'absent_node', 'bad_version', 'binary', 'count_mismatch', 'degenerate', &
          'duplicate_node', 'empty', 'extra_nodes', 'missing_nodes', 'nan_coordinate', &
          'no_triangles', 'non_numeric', 'nonmanifold', 'nonplanar', 'overflow_coordinate', &
          'quad', 'second_order', 'tetrahedron', 'truncated_nodes', 'unclosed_section', &
          'long_token', 'control_character', 'huge_node_count', &
-         'huge_element_count']
+         'huge_element_count', 'inf_coordinate']
       character(len=*), parameter :: expected(n) = [character(len=40) :: &
          ':14: triangle 2 refers to node tag 9', ':2: MSH version 4 is not supported', &
          ':2: binary', ':5: the header announces 5 nodes', 'zero area', &
@@ -241,7 +242,8 @@ contains
          ':18: element type 4 (3D', &
          ':9: the $Nodes section is truncated', ':4: section $PhysicalNames', &
          ':5: "3333333333', ':5: "3<0x7F>" is not an integer', &
-         ':7: the $Nodes section is truncated', ':18: the $Elements section is truncated']
+         ':7: the $Nodes section is truncated', ':18: the $Elements section is truncated', &
+         ':7: x coordinate "-Infinity" is not fini']
       type(mesh_t) :: mesh
       type(error_t), allocatable :: got
       character(len=:), allocatable :: path, name
@@ -284,6 +286,22 @@ contains
       call check(err, mesh%nv == 4 .and. mesh%nt == 2 .and. mesh%ne == 5, 'four nodes, two triangles')
       call check_close(err, mesh%total_area(), 1.0e300_dp, 8*epsilon(1.0_dp), 0.0_dp, 'area')
    end subroutine test_huge
+
+   !> Coordinates in every form a writer may use (sign, no integer or fraction digits, E or D
+   !> exponent in either case, exponent sign, -0) read as the values they denote, exactly.
+   subroutine test_number_forms(err)
+      type(error_t), allocatable, intent(out) :: err
+
+      type(mesh_t) :: mesh
+      real(dp), parameter :: expected(2, 5) = reshape([-1.0_dp, -1.0_dp, 1.0_dp, -1.0_dp, 1.0_dp, 1.0_dp, &
+                                                      -1.0_dp, 1.0_dp, 0.25_dp, -0.125_dp], [2, 5])
+
+      call read_data('number_forms.msh', mesh, err)
+      if (allocated(err)) return
+      call check(err, mesh%nv == 5 .and. mesh%nt == 4, 'five nodes, four triangles')
+      if (allocated(err)) return
+      call check(err, all(mesh%vertices == expected), 'every coordinate exact')
+   end subroutine test_number_forms
 
    subroutine test_missing(err)
       type(error_t), allocatable, intent(out) :: err
