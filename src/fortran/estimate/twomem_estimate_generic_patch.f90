@@ -57,9 +57,9 @@ module twomem_estimate_generic_patch
       !> per slot and data set: the sum of its patches' σ, both membranes side by side
       !> (2, n_flux), for `flush`
       real(dp), allocatable :: sigma_sum(:, :, :, :)
-      !> work arrays of solve_generic: the multiplier matrix (n_theta², column by column), its
-      !> right-hand sides (2, n_theta), per patch triangle its particular solution (2, n_flux),
-      !> traces (2, 3 n_trace) and zero-flux block's inverse
+      !> work arrays of factor_generic and solve_factored: the multiplier matrix (n_theta², column
+      !> by column; its Cholesky factor), its right-hand sides (2, n_theta), per patch triangle
+      !> its particular solution (2, n_flux), traces (2, 3 n_trace) and zero-flux block's inverse
       real(dp), allocatable :: h(:), b(:, :), part(:, :, :), c_sigma(:, :, :), inv_n(:, :, :)
       !> the factorized patch's multiplier count, and whether its first multiplier is pinned
       integer :: n_theta = 0
