@@ -244,7 +244,7 @@ contains
 
       type(mesh_hierarchy_t) :: h
       type(poly_data_t) :: data
-      type(discrete_problem_t) :: p
+      type(discrete_problem_t), target :: p
       type(estimator_t) :: estimator
       type(estimates_t) :: est
       type(rt_space_t) :: space
@@ -256,22 +256,11 @@ contains
       character(len=30) :: what
       type(multigrid_transfer_t), target :: transfer
       type(mg_preconditioner_t) :: vcycle
-      type(multigrid_options_t) :: options
 
       do c = 1, 2
          finest = merge(0, 2, c == 1)
-         if (c == 1) then
-            call mesh_problem('disk', 0.08_dp, 0, data, h, p, err)
-         else
-            call mesh_problem('square', 0.25_dp, 2, data, h, p, err)
-         end if
+         call one_level_case(c, data, h, p, transfer, vcycle, err)
          if (allocated(err)) return
-         if (c == 2) then
-            call transfer%init(interior_prolongations(h, 2), err)
-            if (allocated(err)) return
-            call vcycle%init(p%stiffness, transfer, 2, options, err)
-            if (allocated(err)) return
-         end if
          n = p%n
          mu = [p%mu1, p%mu2]
          poincare = poincare_constant(merge(domain_disk, domain_square, c == 1), 2.0_dp)
@@ -369,29 +358,18 @@ contains
 
       type(mesh_hierarchy_t) :: h
       type(poly_data_t) :: data
-      type(discrete_problem_t) :: p
+      type(discrete_problem_t), target :: p
       type(estimator_t) :: one_pass, two_passes
       type(estimates_t) :: est1, est2
       type(multigrid_transfer_t), target :: transfer
       type(mg_preconditioner_t) :: vcycle
-      type(multigrid_options_t) :: options
       real(dp), allocatable :: x(:)
       integer :: order, c
       character(len=30) :: what
 
       do c = 1, 2
-         if (c == 1) then
-            call mesh_problem('disk', 0.08_dp, 0, data, h, p, err)
-         else
-            call mesh_problem('square', 0.25_dp, 2, data, h, p, err)
-         end if
+         call one_level_case(c, data, h, p, transfer, vcycle, err)
          if (allocated(err)) return
-         if (c == 2) then
-            call transfer%init(interior_prolongations(h, 2), err)
-            if (allocated(err)) return
-            call vcycle%init(p%stiffness, transfer, 2, options, err)
-            if (allocated(err)) return
-         end if
          x = random_vector(3*p%n, 70)
          do order = 0, 1
             write (what, '("RT",i0,", ",a)') order, merge('single mesh ', 'V-cycles    ', c == 1)
@@ -431,6 +409,30 @@ contains
          end do
       end do
    end subroutine test_one_pass
+
+   !> Case c of the one-level tests: 1 a single disk mesh (no preconditioner), 2 a twice refined
+   !> square with `vcycle`, V-cycles on its three levels through `transfer`.
+   subroutine one_level_case(c, data, h, p, transfer, vcycle, err)
+      integer, intent(in) :: c
+      type(poly_data_t), intent(inout) :: data
+      type(mesh_hierarchy_t), intent(inout) :: h
+      type(discrete_problem_t), target, intent(inout) :: p
+      type(multigrid_transfer_t), target, intent(inout) :: transfer
+      type(mg_preconditioner_t), intent(inout) :: vcycle
+      type(error_t), allocatable, intent(out) :: err
+
+      type(multigrid_options_t) :: options
+
+      if (c == 1) then
+         call mesh_problem('disk', 0.08_dp, 0, data, h, p, err)
+         return
+      end if
+      call mesh_problem('square', 0.25_dp, 2, data, h, p, err)
+      if (allocated(err)) return
+      call transfer%init(interior_prolongations(h, 2), err)
+      if (allocated(err)) return
+      call vcycle%init(p%stiffness, transfer, 2, options, err)
+   end subroutine one_level_case
 
    !> |a − b| ≤ rtol max|b| entrywise.
    logical function close1(a, b, rtol) result(ok)
