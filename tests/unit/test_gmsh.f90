@@ -7,6 +7,7 @@ module test_gmsh
    use twomem_base_errors, only: exit_bad_input
    use twomem_mesh_triangulation, only: mesh_t
    use twomem_mesh_gmsh, only: read_gmsh
+   use twomem_base_text, only: int_text
    use twomem_testing, only: unittest_t, new_unittest, check, check_close, error_t
    implicit none
    private
@@ -33,7 +34,8 @@ contains
                new_unittest('rejects_broken_files', test_broken), &
                new_unittest('rejects_missing_file', test_missing), &
                new_unittest('huge_coordinates', test_huge), &
-               new_unittest('number_forms', test_number_forms)]
+               new_unittest('number_forms', test_number_forms), &
+               new_unittest('renumbers_a_large_mesh', test_renumbered)]
    end subroutine collect_gmsh
 
    !> Path of a file under tests/data/meshes.
@@ -318,4 +320,112 @@ contains
       call check(err, got%code == exit_bad_input, 'a missing mesh file is bad input')
       call check(err, index(got%message, 'does_not_exist.msh') > 0, 'message names the file')
    end subroutine test_missing
+   !> A file of more than 10^4 triangles in scattered order (a grid's nodes and triangles
+   !> shuffled): asked for the file's numbers, the reader numbers the mesh along the domain, and
+   !> every vertex and triangle maps back to the file's with its coordinates and corners; a
+   !> defect in such a file is named by the file's triangle number, not the renumbered one.
+   subroutine test_renumbered(err)
+      type(error_t), allocatable, intent(out) :: err
+
+      integer, parameter :: n = 75, nv = (n + 1)**2, nt = 2*n*n
+      !> file triangle `broken` gets a repeated vertex in the second file
+      integer, parameter :: broken = 5001
+      real(dp) :: x(2, nv)
+      integer(ip) :: tri(3, nt), node_of(nv), file_tri(nt)
+      integer(ip), allocatable :: file_vertex(:), file_triangle(:)
+      type(mesh_t) :: mesh
+      type(error_t), allocatable :: got
+      character(len=:), allocatable :: path
+      integer :: i, j, k, t
+
+      ! grid point k is node node_of(k) of the file; cell triangle t is element file_tri(t)
+      do k = 1, nv
+         node_of(k) = int(modulo(int(k - 1, 8)*4099_8, int(nv, 8)), ip) + 1
+      end do
+      do t = 1, nt
+         file_tri(t) = int(modulo(int(t - 1, 8)*7919_8, int(nt, 8)), ip) + 1
+      end do
+      do j = 0, n
+         do i = 0, n
+            x(:, node_of(j*(n + 1) + i + 1)) = [real(i, dp)/n, real(j, dp)/n]
+         end do
+      end do
+      t = 0
+      do j = 0, n - 1
+         do i = 0, n - 1
+            k = j*(n + 1) + i + 1
+            tri(:, file_tri(t + 1)) = node_of([k, k + 1, k + n + 2])
+            tri(:, file_tri(t + 2)) = node_of([k, k + n + 2, k + n + 1])
+            t = t + 2
+         end do
+      end do
+      call write_msh22('large_grid.msh', x, tri, path)
+      call read_gmsh(path, mesh, err, file_vertex=file_vertex, file_triangle=file_triangle)
+      if (allocated(err)) return
+      call check(err, size(file_vertex) == nv .and. size(file_triangle) == nt, 'file numbers of every vertex and triangle')
+      if (allocated(err)) return
+      call check(err, any(file_vertex /= [(k, k=1, nv)]) .and. any(file_triangle /= [(t, t=1, nt)]), &
+                 'the mesh is renumbered')
+      call check(err, all(mesh%vertices == x(:, file_vertex)), 'every vertex where the file has it')
+      do t = 1, nt
+         if (any(file_vertex(mesh%triangles(:, t)) /= cshift(tri(:, file_triangle(t)), corner_shift(t)))) then
+            call check(err, .false., 'triangle '//int_text(t)//' has not the corners of its file triangle')
+            return
+         end if
+      end do
+      call check(err, mesh%n_flipped == 0 .and. mesh%n_boundary_vertices() == 4*n, 'orientation and boundary kept')
+      if (allocated(err)) return
+      ! without the file's numbers asked for, the file's order
+      call read_gmsh(path, mesh, err)
+      if (allocated(err)) return
+      call check(err, all(mesh%vertices == x), 'file order without file numbers')
+      if (allocated(err)) return
+
+      tri(2, broken) = tri(1, broken)
+      call write_msh22('large_grid_broken.msh', x, tri, path)
+      call read_gmsh(path, mesh, got, file_vertex=file_vertex, file_triangle=file_triangle)
+      call check(err, allocated(got), 'a repeated vertex is accepted')
+      if (allocated(err)) return
+      call check(err, index(got%message, 'triangle '//int_text(broken)//' repeats a vertex') > 0, &
+                 'message "'//got%message//'" does not name file triangle '//int_text(broken))
+   contains
+      !> the rotation that takes triangle t's corners to its file triangle's (the same cycle)
+      integer function corner_shift(t)
+         integer, intent(in) :: t
+
+         do corner_shift = 0, 2
+            if (file_vertex(mesh%triangles(1, t)) == tri(1 + corner_shift, file_triangle(t))) return
+         end do
+         corner_shift = 0
+      end function corner_shift
+   end subroutine test_renumbered
+
+   !> A MSH 2.2 file `name` in the test scratch directory, nodes tagged 1..n and triangles in
+   !> the columns' order; path: where it is.
+   subroutine write_msh22(name, x, tri, path)
+      character(len=*), intent(in) :: name
+      real(dp), intent(in) :: x(:, :)
+      integer(ip), intent(in) :: tri(:, :)
+      character(len=:), allocatable, intent(out) :: path
+
+      character(len=1024) :: dir
+      integer :: unit, length, stat, k
+
+      call get_environment_variable('TWOMEM_TEST_TMP', dir, length, stat)
+      if (stat /= 0 .or. length == 0) error stop 'TWOMEM_TEST_TMP is not set (run through ctest)'
+      path = trim(dir)//'/'//name
+      open (newunit=unit, file=path, status='replace', action='write')
+      write (unit, '(a)') '$MeshFormat', '2.2 0 8', '$EndMeshFormat', '$Nodes'
+      write (unit, '(i0)') size(x, 2)
+      do k = 1, size(x, 2)
+         write (unit, '(i0,2(1x,es24.17),a)') k, x(:, k), ' 0'
+      end do
+      write (unit, '(a)') '$EndNodes', '$Elements'
+      write (unit, '(i0)') size(tri, 2)
+      do k = 1, size(tri, 2)
+         write (unit, '(i0,a,3(1x,i0))') k, ' 2 0', tri(:, k)
+      end do
+      write (unit, '(a)') '$EndElements'
+      close (unit)
+   end subroutine write_msh22
 end module test_gmsh

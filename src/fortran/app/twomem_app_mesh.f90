@@ -16,7 +16,7 @@ module twomem_app_mesh
    use twomem_mesh_hierarchy, only: mesh_hierarchy_t
    use twomem_mesh_generators, only: make_disk, make_square, disk_boundary_spacing
    use twomem_mesh_gmsh, only: read_gmsh
-   use twomem_mesh_partition, only: share_mesh, distribute_coarse
+   use twomem_mesh_partition, only: share_mesh, distribute_coarse, number_as_file
    use twomem_app_memory, only: check_memory
    use twomem_base_text, only: int_text
    implicit none
@@ -34,21 +34,26 @@ contains
       type(error_t), allocatable, intent(out) :: err
 
       type(mesh_t) :: whole, piece
+      integer(ip), allocatable :: file_vertex(:), file_triangle(:)
       integer :: l
 
-      if (comm%is_root()) call coarse_mesh(cfg, whole, err)
+      if (comm%is_root()) call coarse_mesh(cfg, whole, file_vertex, file_triangle, err)
       if (comm%is_root() .and. .not. allocated(err)) call check_memory(cfg, whole, comm%size, err)
       call comm%agree(err)
       if (allocated(err)) return
       call share_mesh(comm, whole, 'coarse mesh', err)
       call comm%agree(err)
       if (allocated(err)) return
-      ! a file's mesh is numbered as its mesher made it: along the domain instead (the result
-      ! keeps the file's numbering)
-      call distribute_coarse(comm, whole, piece, err, spatial=cfg%mesh%domain == domain_gmsh)
+      call comm%bcast(file_vertex)
+      call comm%bcast(file_triangle)
+      ! a file's mesh is numbered as its mesher made it: along the domain instead, by the reader
+      ! where it could (the result keeps the file's numbering)
+      call distribute_coarse(comm, whole, piece, err, &
+                             spatial=cfg%mesh%domain == domain_gmsh .and. size(file_vertex) == 0)
       call comm%agree(err)
       if (allocated(err)) return
       call whole%free()
+      if (size(file_vertex) > 0) call number_as_file(piece, file_vertex, file_triangle)
       call hierarchy%init(piece, cfg%mesh%levels, err)
       call comm%agree(err)
       if (allocated(err)) return
@@ -62,15 +67,18 @@ contains
       end do
    end subroutine build_hierarchy
 
-   !> The whole coarse mesh (rank 0 only).
-   subroutine coarse_mesh(cfg, coarse, err)
+   !> The whole coarse mesh (rank 0 only); for a Gmsh file numbered along the domain, the file's
+   !> numbers of its vertices and triangles (read_gmsh; empty otherwise).
+   subroutine coarse_mesh(cfg, coarse, file_vertex, file_triangle, err)
       type(config_t), intent(in) :: cfg
       type(mesh_t), intent(inout) :: coarse
+      integer(ip), allocatable, intent(out) :: file_vertex(:), file_triangle(:)
       type(error_t), allocatable, intent(out) :: err
 
       real(dp) :: boundary_h
       integer(ip) :: n_unused
 
+      allocate (file_vertex(0), file_triangle(0))
       select case (cfg%mesh%domain)
       case (domain_disk)
          boundary_h = cfg%mesh%boundary_h
@@ -84,12 +92,13 @@ contains
          call make_square(cfg%mesh%coarse_h, coarse, err)
       case (domain_gmsh)
          write (output_unit, '("mesh: ",a,", ",i0," levels")') trim(cfg%mesh%file), cfg%mesh%levels
-         call read_gmsh(trim(cfg%mesh%file), coarse, err, n_unused)
+         deallocate (file_vertex, file_triangle)
+         call read_gmsh(trim(cfg%mesh%file), coarse, err, n_unused, file_vertex, file_triangle)
          if (allocated(err)) return
          if (n_unused > 0) write (output_unit, '("  note: ",i0," nodes used by no triangle dropped")') n_unused
          if (coarse%n_flipped > 0) write (output_unit, &
             '("  note: ",i0," clockwise triangles reoriented")') coarse%n_flipped
-         if (cfg%problem%exact /= exact_none) call check_unit_disk(coarse, trim(cfg%mesh%file), &
+         if (cfg%problem%exact /= exact_none) call check_unit_disk(coarse, file_vertex, trim(cfg%mesh%file), &
                                                                   word_of_kind(k_exact, cfg%problem%exact), err)
       end select
    end subroutine coarse_mesh
@@ -98,23 +107,27 @@ contains
    !> vertices on the unit circle (to 1e-6, ample for any mesh generator's output) and lie
    !> inside it. Red refinement keeps boundary vertices on the coarse chords, so the check of
    !> the coarse mesh is the one that matters.
-   subroutine check_unit_disk(mesh, path, exact, err)
+   subroutine check_unit_disk(mesh, file_vertex, path, exact, err)
       type(mesh_t), intent(in) :: mesh
+      !> the file's numbers of the vertices (empty: their own)
+      integer(ip), intent(in) :: file_vertex(:)
       character(len=*), intent(in) :: path, exact
       type(error_t), allocatable, intent(out) :: err
 
       real(dp), parameter :: tol = 1.0e-6_dp
       real(dp) :: r
       character(len=80) :: text
-      integer(ip) :: a
+      integer(ip) :: a, named
 
       do a = 1, mesh%nv
          r = norm2(mesh%vertices(:, a))
          if ((mesh%boundary_vertex(a) .and. abs(r - 1) > tol) .or. r > 1 + tol) then
             write (text, '("(",g0.8,", ",g0.8,"), |x| = ",g0.10)') mesh%vertices(:, a), r
+            named = a
+            if (size(file_vertex) > 0) named = file_vertex(a)
             call make_error(err, exit_bad_input, path, "problem.exact='"//exact//"' needs a mesh of the unit disk: "// &
-                            merge('boundary', 'interior', mesh%boundary_vertex(a))//' vertex '//int_text(a)//' at '// &
-                            trim(text)//' is not on the unit circle (tolerance 1e-6)')
+                            merge('boundary', 'interior', mesh%boundary_vertex(a))//' vertex '//int_text(named)// &
+                            ' at '//trim(text)//' is not on the unit circle (tolerance 1e-6)')
             return
          end if
       end do

@@ -11,7 +11,8 @@
 !> layer, each along a space-filling curve, and the vertices as these triangles first meet
 !> them; twomem_mesh_spatial_order), for a large mesh whose own numbering is a mesher's; on one
 !> rank that piece is the whole mesh renumbered, and its whole-mesh numbers are what the
-!> result is written in.
+!> result is written in. A file's mesh that the reader already numbered along the domain keeps
+!> its order here and gets the file's numbers afterwards (`number_as_file`).
 module twomem_mesh_partition
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_bad_input
@@ -23,7 +24,7 @@ module twomem_mesh_partition
    implicit none
    private
 
-   public :: distribute_coarse, share_mesh
+   public :: distribute_coarse, share_mesh, number_as_file
 
 contains
 
@@ -69,6 +70,13 @@ contains
 
       along = .false.
       if (present(spatial)) along = spatial .and. worth_reordering(whole%nt)
+      if (comm%size == 1 .and. .not. along) then
+         ! one rank's piece is the whole mesh as it is (made again from its arrays, a mesh of 10⁶
+         ! vertices took half a second)
+         local = whole
+         call local%set_whole()
+         return
+      end if
 
       allocate (part(whole%nt))
       if (comm%is_root()) call metis_partition(whole%nv, whole%triangles, comm%size, part, err)
@@ -165,9 +173,31 @@ contains
       call local%init(vertices, triangles, 'partition', err, diameter=whole%diameter)
       if (allocated(err)) return
       call attach_partition(whole, tri_local, vert_local, part, owner, nt_own, local)
-      ! one rank's piece is the whole mesh, numbered as it is: no numbering need be stored
-      if (comm%size == 1 .and. .not. along) call local%set_whole()
    end subroutine distribute_coarse
+
+   !> The whole-mesh numbers of `piece` (distribute_coarse's) made those of a file whose mesh
+   !> was renumbered before it became the whole mesh: file_vertex(a) and file_triangle(t) are
+   !> the file's numbers of the whole mesh's vertex a and triangle t. A whole mesh (one rank's
+   !> piece) becomes a piece of itself that owns everything, so that the result and the loads
+   !> keep the file's numbering.
+   subroutine number_as_file(piece, file_vertex, file_triangle)
+      type(mesh_t), intent(inout) :: piece
+      integer(ip), intent(in) :: file_vertex(:), file_triangle(:)
+
+      integer(ip) :: e
+
+      if (piece%whole()) then
+         piece%global_vertex = file_vertex
+         piece%global_triangle = file_triangle
+         piece%global_edge = [(e, e=1, piece%ne)]
+         allocate (piece%vertex_owner(piece%nv), piece%triangle_owner(piece%nt))
+         piece%vertex_owner = 0
+         piece%triangle_owner = 0
+      else
+         piece%global_vertex = file_vertex(piece%global_vertex)
+         piece%global_triangle = file_triangle(piece%global_triangle)
+      end if
+   end subroutine number_as_file
 
    !> The partition data of the piece: whole-mesh numbers, owners, and the boundary as the
    !> whole mesh has it (the piece's own outline is not the domain's boundary).

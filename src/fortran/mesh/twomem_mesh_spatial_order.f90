@@ -12,7 +12,7 @@ module twomem_mesh_spatial_order
    implicit none
    private
 
-   public :: z_order_key, triangles_along_curve, worth_reordering
+   public :: z_order_key, triangles_along_curve, renumber_along_curve, worth_reordering
 
    !> meshes of more triangles than this are worth numbering along the curve
    integer(ip), parameter :: reorder_above = 10000
@@ -69,6 +69,42 @@ contains
       !$omp end parallel do
       ordered = list(radix_order(keys))
    end function triangles_along_curve
+
+   !> A whole mesh numbered along the curve, in place: the triangles by their centroids and the
+   !> vertices as these triangles first meet them (any vertex of no triangle last).
+   !> triangle_order(k) and vertex_order(k) are the old numbers of triangle and vertex k.
+   subroutine renumber_along_curve(vertices, triangles, vertex_order, triangle_order)
+      real(dp), intent(inout) :: vertices(:, :)
+      integer(ip), intent(inout) :: triangles(:, :)
+      integer(ip), allocatable, intent(out) :: vertex_order(:), triangle_order(:)
+
+      integer(ip), allocatable :: new_number(:), renumbered(:, :)
+      integer(ip) :: k, a, n
+      integer :: m
+
+      triangle_order = triangles_along_curve(vertices, triangles, [(k, k=1, size(triangles, 2, kind=ip))])
+      allocate (new_number(size(vertices, 2)), vertex_order(size(vertices, 2)), renumbered(3, size(triangles, 2)))
+      new_number = 0
+      n = 0
+      do k = 1, size(triangles, 2, kind=ip)
+         do m = 1, 3
+            a = triangles(m, triangle_order(k))
+            if (new_number(a) == 0) then
+               n = n + 1
+               new_number(a) = n
+               vertex_order(n) = a
+            end if
+            renumbered(m, k) = new_number(a)
+         end do
+      end do
+      do a = 1, size(vertices, 2, kind=ip)
+         if (new_number(a) /= 0) cycle
+         n = n + 1
+         vertex_order(n) = a
+      end do
+      triangles = renumbered
+      vertices = vertices(:, vertex_order)
+   end subroutine renumber_along_curve
 
    !> The stable permutation that sorts keys in [0, 2^30) ascending: three passes of a counting
    !> sort on 10 bits each, O(n), where a comparison sort of 2·10^6 keys took a second. The keys

@@ -111,13 +111,16 @@ contains
    !> Build a mesh from coordinates and connectivity. `source` names the origin in messages
    !> (a file name, 'disk generator', ...). A caller that knows the domain's diameter (the
    !> refinement of a mesh covers the same domain) passes it to skip the O(n_b²) search.
-   subroutine mesh_init(self, vertices, triangles, source, err, diameter)
+   !> vertex_names(a) and triangle_names(t) are the numbers messages give them, where the caller
+   !> renumbered a file's mesh (default: a and t).
+   subroutine mesh_init(self, vertices, triangles, source, err, diameter, vertex_names, triangle_names)
       class(mesh_t), intent(inout) :: self
       real(dp), intent(in) :: vertices(:, :)
       integer(ip), intent(in) :: triangles(:, :)
       character(len=*), intent(in) :: source
       type(error_t), allocatable, intent(out) :: err
       real(dp), intent(in), optional :: diameter
+      integer(ip), intent(in), optional :: vertex_names(:), triangle_names(:)
 
       integer(ip) :: t, i, swap
       real(dp) :: a, h2
@@ -154,7 +157,7 @@ contains
       do t = 1, self%nt
          associate (v => self%triangles(:, t))
             if (v(1) == v(2) .or. v(2) == v(3) .or. v(1) == v(3)) then
-               write (msg, '(a,i0,a)') 'triangle ', t, ' repeats a vertex'
+               write (msg, '(a,i0,a)') 'triangle ', named(t, triangle_names), ' repeats a vertex'
                call make_error(err, exit_bad_input, source, msg)
                return
             end if
@@ -165,7 +168,7 @@ contains
             a = signed_area(self%vertices(:, v(1)), self%vertices(:, v(2)), self%vertices(:, v(3)))
             ! A sliver this thin has no usable gradient: its stiffness would be round-off.
             if (abs(a) <= 1.0e3_dp*epsilon(1.0_dp)*h2) then
-               write (msg, '(a,i0,a)') 'triangle ', t, ' has zero area (degenerate)'
+               write (msg, '(a,i0,a)') 'triangle ', named(t, triangle_names), ' has zero area (degenerate)'
                call make_error(err, exit_bad_input, source, msg)
                return
             end if
@@ -182,12 +185,12 @@ contains
       call build_patches(self)
       do i = 1, self%nv
          if (self%patch_ptr(i + 1) == self%patch_ptr(i)) then
-            write (msg, '(a,i0,a)') 'vertex ', i, ' belongs to no triangle (unused node)'
+            write (msg, '(a,i0,a)') 'vertex ', named(i, vertex_names), ' belongs to no triangle (unused node)'
             call make_error(err, exit_bad_input, source, msg)
             return
          end if
       end do
-      call build_edges(self, source, err)
+      call build_edges(self, source, err, vertex_names, triangle_names)
       if (allocated(err)) return
       if (present(diameter)) then
          self%diameter = diameter
@@ -383,10 +386,11 @@ contains
 
    !> Edges are found vertex by vertex: each edge is owned by its smaller end point, so it is
    !> discovered from that vertex's patch only, without a global sort.
-   subroutine build_edges(self, source, err)
+   subroutine build_edges(self, source, err, vertex_names, triangle_names)
       type(mesh_t), intent(inout) :: self
       character(len=*), intent(in) :: source
       type(error_t), allocatable, intent(out) :: err
+      integer(ip), intent(in), optional :: vertex_names(:), triangle_names(:)
 
       integer(ip) :: a, k, t, i, j, b, e, n_local, max_edges
       integer(ip), allocatable :: local_b(:), local_e(:)
@@ -425,7 +429,8 @@ contains
                else if (edge_tris(2, e) == 0) then
                   edge_tris(2, e) = t
                else
-                  write (msg, '(a,i0,a,i0,a)') 'edge between vertices ', a, ' and ', b, &
+                  write (msg, '(a,i0,a,i0,a)') 'edge between vertices ', named(a, vertex_names), ' and ', &
+                     named(b, vertex_names), &
                      ' belongs to more than two triangles (non-manifold or duplicate triangles)'
                   call make_error(err, exit_bad_input, source, msg)
                   return
@@ -452,13 +457,22 @@ contains
       do e = 1, self%ne
          if (self%boundary_edge(e)) cycle
          if (same_side(self, e)) then
-            write (msg, '(a,i0,a,i0,a)') 'triangles ', self%edge_triangles(1, e), ' and ', &
-               self%edge_triangles(2, e), ' overlap (folded mesh)'
+            write (msg, '(a,i0,a,i0,a)') 'triangles ', named(self%edge_triangles(1, e), triangle_names), ' and ', &
+               named(self%edge_triangles(2, e), triangle_names), ' overlap (folded mesh)'
             call make_error(err, exit_bad_input, source, msg)
             return
          end if
       end do
    end subroutine build_edges
+
+   !> The number by which messages name entity k: names(k), or k itself without names.
+   pure integer(ip) function named(k, names)
+      integer(ip), intent(in) :: k
+      integer(ip), intent(in), optional :: names(:)
+
+      named = k
+      if (present(names)) named = names(k)
+   end function named
 
    logical function same_side(self, e)
       type(mesh_t), intent(in) :: self
