@@ -6,7 +6,8 @@
 !> it never moves them, and a partial refresh of such a hierarchy has the bits of a whole one.
 !> Mesh coarsening (twomem_mesh_coarsening): the coarse mesh is a valid triangulation of a
 !> subset of the vertices, with the shape bound, the corners of a polygonal domain kept and its
-!> area unchanged; the interpolation injects at kept vertices and reproduces linear functions.
+!> area unchanged; the interpolation injects at kept vertices and reproduces linear functions;
+!> the two halves coarsened side by side give the bits of one thread's coarsening.
 module test_coarse_levels
    use twomem_base_kinds, only: dp, ip, i8
    use twomem_base_errors, only: error_t
@@ -21,6 +22,7 @@ module test_coarse_levels
    use twomem_linalg_aggregation, only: aggregation_options_t, aggregation_levels, aggregate
    use twomem_linalg_multigrid, only: multigrid_t, multigrid_options_t, multigrid_transfer_t
    use twomem_testing, only: unittest_t, new_unittest, check, check_close
+   use omp_lib, only: omp_get_max_threads, omp_set_num_threads
    implicit none
    private
 
@@ -37,7 +39,8 @@ contains
                new_unittest('algebraic_vcycle_never_moves_fixed_unknowns', test_fixed), &
                new_unittest('algebraic_partial_refresh_matches_whole', test_partial), &
                new_unittest('coarse_mesh_is_valid_and_keeps_the_domain', test_coarse_mesh), &
-               new_unittest('interpolation_reproduces_linear_functions', test_interpolation)]
+               new_unittest('interpolation_reproduces_linear_functions', test_interpolation), &
+               new_unittest('coarsening_is_the_same_on_any_thread_count', test_thread_count)]
    end subroutine collect_coarse_levels
 
    !> The P1 problem of the built-in disk meshed with size h, no refinement.
@@ -385,4 +388,35 @@ contains
       call check(err, all(abs(sum(interpolation(2)%weight, dim=1) - 1.0_dp) < 1.0e-14_dp), 'weights sum to one')
       call check(err, all(interpolation(2)%weight >= 0.0_dp), 'weights are non-negative')
    end subroutine test_interpolation
+   !> The built-in disk (3.6·10^4 vertices) coarsened on one thread and on two, where the two
+   !> halves of the vertices go side by side: the same coarse meshes and interpolation, bit for
+   !> bit, and a valid mesh of the same polygon.
+   subroutine test_thread_count(err)
+      type(error_t), allocatable, intent(out) :: err
+
+      type(mesh_t) :: fine, coarse(2)
+      type(vertex_interpolation_t) :: interpolation(2)
+      integer :: threads, run
+
+      call make_disk(0.01_dp, 0.01_dp, fine, err)
+      if (allocated(err)) return
+      threads = omp_get_max_threads()
+      do run = 1, 2
+         call omp_set_num_threads(run)
+         call coarsen(fine, 0.25_dp, coarse(run), interpolation(run), err)
+         if (allocated(err)) exit
+      end do
+      call omp_set_num_threads(threads)
+      if (allocated(err)) return
+      call check(err, coarse(1)%nv < fine%nv/3 .and. coarse(1)%nv > fine%nv/10, 'about a quarter of the vertices kept')
+      call check(err, coarse(1)%nv == coarse(2)%nv .and. coarse(1)%nt == coarse(2)%nt, 'the same sizes')
+      if (allocated(err)) return
+      call check(err, all(coarse(1)%vertices == coarse(2)%vertices) .and. all(coarse(1)%triangles == coarse(2)%triangles), &
+                 'the same coarse mesh on one and two threads')
+      call check(err, all(interpolation(1)%vertex == interpolation(2)%vertex) .and. &
+                 all(interpolation(1)%weight == interpolation(2)%weight), 'the same interpolation')
+      call check_close(err, coarse(2)%total_area(), fine%total_area(), 1.0e-2_dp, 0.0_dp, &
+                       'the coarse mesh covers the disk polygon (its boundary loses vertices)')
+      call check(err, coarse(2)%n_flipped == 0, 'every coarse triangle is counter-clockwise')
+   end subroutine test_thread_count
 end module test_coarse_levels

@@ -17,8 +17,13 @@
 !> re-entrant one, are kept). Each round visits the vertices in order and locks the neighbours
 !> of a removed vertex, so that removals spread evenly; after each round, Lawson edge flips make
 !> the triangulation Delaunay within its boundary again. Rounds go on until the mesh has the
-!> asked fraction of the vertices or stops shrinking. The result is deterministic (one thread,
-!> fixed order). Every fine vertex then reads a coarse P1 function through the coarse triangle
+!> asked fraction of the vertices or stops shrinking. Two threads share a round: the vertices are
+!> split into two halves of their numbering (compact pieces of the domain for a mesh numbered
+!> along it), and each half's collapses and flips are made by one thread where everything they
+!> read or change lies in that half (a vertex's neighbours' neighbours, a flip's quadrilateral
+!> and the triangles around it); the rest follows in order on one thread. The halves never share
+!> a triangle or a vertex's data, so the result is the same on any number of threads, and
+!> deterministic. Every fine vertex then reads a coarse P1 function through the coarse triangle
 !> that contains it (a walk from the triangles of the vertex it was merged into), with its
 !> barycentric weights; a fine vertex outside the coarse polygon (next to a curved boundary
 !> that lost a vertex) takes those of the nearest triangle, clipped to it.
@@ -62,6 +67,8 @@ module twomem_mesh_coarsening
       !> triangles changed since the last Delaunay pass looked at them
       logical, allocatable :: dirty(:)
       integer(ip) :: n_alive = 0
+      !> the last vertex of the first half (the second: the others)
+      integer(ip) :: split = 0
    end type work_mesh_t
 
 contains
@@ -102,6 +109,7 @@ contains
       do while (w%n_alive > goal)
          before = w%n_alive
          call collapse_round(w)
+         call flip_halves(w)
          call flip_to_delaunay(w)
          if (real(before - w%n_alive, dp) < stall*real(before, dp)) exit
       end do
@@ -130,6 +138,7 @@ contains
       w%alive = .true.
       w%merged_into = 0
       w%n_alive = fine%nv
+      w%split = fine%nv/2
       do t = 1, fine%nt
          do i = 1, 3
             v = w%tri(i, t)
@@ -213,30 +222,116 @@ contains
    end function turn_at
 
    !> One pass of collapses over the vertices in order; a removed vertex's neighbours wait for
-   !> the next round.
+   !> the next round. Each half first takes its vertices whose neighbours' neighbours all lie in
+   !> it (collapse_half, the halves side by side), then every vertex not yet visited in order.
    subroutine collapse_round(w)
       type(work_mesh_t), intent(inout) :: w
 
-      logical, allocatable :: locked(:)
+      logical, allocatable :: locked(:), visited(:)
       integer(ip), allocatable :: mark(:)
-      integer(ip) :: v, u
-      integer :: k, i
+      integer(ip) :: v, u, removed
+      integer :: h
 
-      allocate (locked(size(w%alive)), mark(size(w%alive)))
+      allocate (locked(size(w%alive)), visited(size(w%alive)), mark(size(w%alive)))
       locked = .false.
+      visited = .false.
       mark = 0
+      removed = 0
+      !$omp parallel do default(none) shared(w, locked, visited, mark) private(h) reduction(+:removed) &
+      !$omp schedule(static, 1)
+      do h = 1, 2
+         call collapse_half(w, h, locked, visited, mark, removed)
+      end do
+      !$omp end parallel do
       do v = 1, size(w%alive, kind=ip)
-         if (.not. w%alive(v) .or. w%corner(v) .or. locked(v)) cycle
+         if (visited(v) .or. .not. w%alive(v) .or. w%corner(v) .or. locked(v)) cycle
          u = best_target(w, v, mark)
          if (u == 0) cycle
-         do k = 1, w%nstar(v)
-            do i = 1, 3
-               locked(w%tri(i, w%star(k, v))) = .true.
+         call lock_and_collapse(w, v, u, locked)
+         removed = removed + 1
+      end do
+      w%n_alive = w%n_alive - removed
+   end subroutine collapse_round
+
+   !> The collapses of half h's vertices whose neighbours' neighbours all lie in half h, in
+   !> order: all that best_target reads and collapse changes is then in half h (the stars of v
+   !> and of its neighbours, the triangles across their edges, boundary neighbours), so the
+   !> other half's thread never touches it. removed counts the collapses.
+   subroutine collapse_half(w, h, locked, visited, mark, removed)
+      type(work_mesh_t), intent(inout) :: w
+      integer, intent(in) :: h
+      logical, intent(inout) :: locked(:), visited(:)
+      integer(ip), intent(inout) :: mark(:), removed
+
+      integer(ip) :: v, u, first, last
+
+      first = merge(1_ip, w%split + 1, h == 1)
+      last = merge(w%split, size(w%alive, kind=ip), h == 1)
+      do v = first, last
+         if (.not. w%alive(v) .or. w%corner(v) .or. locked(v)) cycle
+         if (.not. two_rings_in_half(w, v, h)) cycle
+         visited(v) = .true.
+         u = best_target(w, v, mark)
+         if (u == 0) cycle
+         call lock_and_collapse(w, v, u, locked)
+         removed = removed + 1
+      end do
+   end subroutine collapse_half
+
+   !> Whether every vertex within two edges of v lies in half h. (It reads the stars of v and
+   !> of its neighbours only once these are known to lie in half h: triangles of the other half
+   !> may be changing meanwhile.)
+   logical function two_rings_in_half(w, v, h) result(inside)
+      type(work_mesh_t), intent(in) :: w
+      integer(ip), intent(in) :: v
+      integer, intent(in) :: h
+
+      integer :: k, i, m, n
+      integer(ip) :: a
+
+      inside = .false.
+      do k = 1, w%nstar(v)
+         do i = 1, 3
+            if (half(w, w%tri(i, w%star(k, v))) /= h) return
+         end do
+      end do
+      do k = 1, w%nstar(v)
+         do i = 1, 3
+            a = w%tri(i, w%star(k, v))
+            if (a == v) cycle
+            do m = 1, w%nstar(a)
+               do n = 1, 3
+                  if (half(w, w%tri(n, w%star(m, a))) /= h) return
+               end do
             end do
          end do
-         call collapse(w, v, u)
       end do
-   end subroutine collapse_round
+      inside = .true.
+   end function two_rings_in_half
+
+   !> The half (1 or 2) of vertex v.
+   pure integer function half(w, v)
+      type(work_mesh_t), intent(in) :: w
+      integer(ip), intent(in) :: v
+
+      half = merge(1, 2, v <= w%split)
+   end function half
+
+   !> v merges into u, and its neighbours wait for the next round.
+   subroutine lock_and_collapse(w, v, u, locked)
+      type(work_mesh_t), intent(inout) :: w
+      integer(ip), intent(in) :: v, u
+      logical, intent(inout) :: locked(:)
+
+      integer :: k, i
+
+      do k = 1, w%nstar(v)
+         do i = 1, 3
+            locked(w%tri(i, w%star(k, v))) = .true.
+         end do
+      end do
+      call collapse(w, v, u)
+   end subroutine lock_and_collapse
 
    !> The neighbour u into which v collapses best (the highest worst quality of the triangles
    !> that change), 0 if no collapse of v is allowed. mark(a) = v flags v's neighbours a.
@@ -336,7 +431,8 @@ contains
       q = 4.0_dp*sqrt(3.0_dp)*area/(sum((p2 - p1)**2) + sum((p3 - p2)**2) + sum((p1 - p3)**2))
    end function quality
 
-   !> v merges into u: the triangles of the edge uv die, v's others take u.
+   !> v merges into u: the triangles of the edge uv die, v's others take u (the caller counts
+   !> the vertex removed).
    subroutine collapse(w, v, u)
       type(work_mesh_t), intent(inout) :: w
       integer(ip), intent(in) :: v, u
@@ -376,7 +472,6 @@ contains
       w%nstar(v) = 0
       w%alive(v) = .false.
       w%merged_into(v) = u
-      w%n_alive = w%n_alive - 1
    end subroutine collapse
 
    !> Triangles p and q, the neighbours of a dying triangle t across two of its edges, become
@@ -418,6 +513,86 @@ contains
          end if
       end do
    end subroutine remove_from_star
+
+   !> Lawson flips in each half side by side (flip_half) on the triangles whose vertices all lie
+   !> in it, before flip_to_delaunay takes the rest in order.
+   subroutine flip_halves(w)
+      type(work_mesh_t), intent(inout) :: w
+
+      integer, allocatable :: owner(:)
+      integer(ip) :: t
+      integer :: h
+
+      allocate (owner(size(w%tri, 2)))
+      !$omp parallel do default(none) shared(w, owner) private(t, h) schedule(static)
+      do t = 1, size(w%tri, 2, kind=ip)
+         owner(t) = 0
+         if (w%tri(1, t) == 0) cycle
+         h = half(w, w%tri(1, t))
+         if (half(w, w%tri(2, t)) == h .and. half(w, w%tri(3, t)) == h) owner(t) = h
+      end do
+      !$omp end parallel do
+      !$omp parallel do default(none) shared(w, owner) private(h) schedule(static, 1)
+      do h = 1, 2
+         call flip_half(w, h, owner)
+      end do
+      !$omp end parallel do
+   end subroutine flip_halves
+
+   !> flip_to_delaunay's passes over the triangles of half h (owner(t) = h: all three vertices
+   !> in it, which a flip keeps), taking a flip only where the two triangles and the two
+   !> triangles across the edges that change sides are the half's; an edge it may not flip keeps
+   !> its triangle marked for flip_to_delaunay.
+   subroutine flip_half(w, h, owner)
+      type(work_mesh_t), intent(inout) :: w
+      integer, intent(in) :: h, owner(:)
+
+      integer(ip) :: t, s, a, b, c, d, across_bc, across_ad
+      integer :: i, pass
+      logical :: any_flip
+
+      do pass = 1, 50
+         any_flip = .false.
+         do t = 1, size(w%tri, 2, kind=ip)
+            if (owner(t) /= h) cycle
+            if (.not. w%dirty(t)) cycle
+            w%dirty(t) = .false.
+            do i = 1, 3
+               s = w%nbr(mod(i + 1, 3) + 1, t)
+               if (s == 0) cycle
+               if (owner(s) /= h) then
+                  w%dirty(t) = .true.
+                  cycle
+               end if
+               a = w%tri(i, t)
+               b = w%tri(mod(i, 3) + 1, t)
+               c = w%tri(mod(i + 1, 3) + 1, t)
+               d = sum(w%tri(:, s)) - a - b
+               if (.not. should_flip(w, a, b, c, d)) cycle
+               if (w%nstar(c) == max_star .or. w%nstar(d) == max_star) cycle
+               across_bc = w%nbr(position_of(w%tri(:, t), a), t)
+               across_ad = w%nbr(position_of(w%tri(:, s), b), s)
+               if (.not. owned_or_none(across_bc) .or. .not. owned_or_none(across_ad)) then
+                  w%dirty(t) = .true.
+                  cycle
+               end if
+               call flip(w, t, s, a, b, c, d)
+               w%dirty(t) = .true.
+               w%dirty(s) = .true.
+               any_flip = .true.
+               exit
+            end do
+         end do
+         if (.not. any_flip) exit
+      end do
+   contains
+      logical function owned_or_none(r)
+         integer(ip), intent(in) :: r
+
+         owned_or_none = r == 0
+         if (r /= 0) owned_or_none = owner(r) == h
+      end function owned_or_none
+   end subroutine flip_half
 
    !> Lawson flips until every interior edge is locally Delaunay. Only triangles that changed
    !> (a collapse, or a flip, marks them) are examined again; each flip raises the smallest angle
