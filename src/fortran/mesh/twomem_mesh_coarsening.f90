@@ -109,7 +109,6 @@ contains
       do while (w%n_alive > goal)
          before = w%n_alive
          call collapse_round(w)
-         call flip_halves(w)
          call flip_to_delaunay(w)
          if (real(before - w%n_alive, dp) < stall*real(before, dp)) exit
       end do
@@ -223,13 +222,13 @@ contains
 
    !> One pass of collapses over the vertices in order; a removed vertex's neighbours wait for
    !> the next round. Each half first takes its vertices whose neighbours' neighbours all lie in
-   !> it (collapse_half, the halves side by side), then every vertex not yet visited in order.
+   !> it (the halves side by side), then every vertex not yet visited in order (collapse_pass).
    subroutine collapse_round(w)
       type(work_mesh_t), intent(inout) :: w
 
       logical, allocatable :: locked(:), visited(:)
       integer(ip), allocatable :: mark(:)
-      integer(ip) :: v, u, removed
+      integer(ip) :: removed
       integer :: h
 
       allocate (locked(size(w%alive)), visited(size(w%alive)), mark(size(w%alive)))
@@ -240,43 +239,46 @@ contains
       !$omp parallel do default(none) shared(w, locked, visited, mark) private(h) reduction(+:removed) &
       !$omp schedule(static, 1)
       do h = 1, 2
-         call collapse_half(w, h, locked, visited, mark, removed)
+         call collapse_pass(w, h, locked, visited, mark, removed)
       end do
       !$omp end parallel do
-      do v = 1, size(w%alive, kind=ip)
-         if (visited(v) .or. .not. w%alive(v) .or. w%corner(v) .or. locked(v)) cycle
-         u = best_target(w, v, mark)
-         if (u == 0) cycle
-         call lock_and_collapse(w, v, u, locked)
-         removed = removed + 1
-      end do
+      call collapse_pass(w, 0, locked, visited, mark, removed)
       w%n_alive = w%n_alive - removed
    end subroutine collapse_round
 
-   !> The collapses of half h's vertices whose neighbours' neighbours all lie in half h, in
-   !> order: all that best_target reads and collapse changes is then in half h (the stars of v
-   !> and of its neighbours, the triangles across their edges, boundary neighbours), so the
-   !> other half's thread never touches it. removed counts the collapses.
-   subroutine collapse_half(w, h, locked, visited, mark, removed)
+   !> The collapses of one pass, in order; removed counts them. h = 1, 2: half h's vertices whose
+   !> neighbours' neighbours all lie in half h: all that best_target reads and collapse changes
+   !> is then in half h (the stars of v and of its neighbours, the triangles across their edges,
+   !> boundary neighbours), so the other half's thread never touches it. h = 0: every vertex
+   !> that no such pass visited.
+   subroutine collapse_pass(w, h, locked, visited, mark, removed)
       type(work_mesh_t), intent(inout) :: w
       integer, intent(in) :: h
       logical, intent(inout) :: locked(:), visited(:)
       integer(ip), intent(inout) :: mark(:), removed
 
       integer(ip) :: v, u, first, last
+      integer :: k, i
 
-      first = merge(1_ip, w%split + 1, h == 1)
+      first = merge(w%split + 1, 1_ip, h == 2)
       last = merge(w%split, size(w%alive, kind=ip), h == 1)
       do v = first, last
-         if (.not. w%alive(v) .or. w%corner(v) .or. locked(v)) cycle
-         if (.not. two_rings_in_half(w, v, h)) cycle
-         visited(v) = .true.
+         if (visited(v) .or. .not. w%alive(v) .or. w%corner(v) .or. locked(v)) cycle
+         if (h > 0) then
+            if (.not. two_rings_in_half(w, v, h)) cycle
+            visited(v) = .true.
+         end if
          u = best_target(w, v, mark)
          if (u == 0) cycle
-         call lock_and_collapse(w, v, u, locked)
+         do k = 1, w%nstar(v)
+            do i = 1, 3
+               locked(w%tri(i, w%star(k, v))) = .true.
+            end do
+         end do
+         call collapse(w, v, u)
          removed = removed + 1
       end do
-   end subroutine collapse_half
+   end subroutine collapse_pass
 
    !> Whether every vertex within two edges of v lies in half h. (It reads the stars of v and
    !> of its neighbours only once these are known to lie in half h: triangles of the other half
@@ -316,22 +318,6 @@ contains
 
       half = merge(1, 2, v <= w%split)
    end function half
-
-   !> v merges into u, and its neighbours wait for the next round.
-   subroutine lock_and_collapse(w, v, u, locked)
-      type(work_mesh_t), intent(inout) :: w
-      integer(ip), intent(in) :: v, u
-      logical, intent(inout) :: locked(:)
-
-      integer :: k, i
-
-      do k = 1, w%nstar(v)
-         do i = 1, 3
-            locked(w%tri(i, w%star(k, v))) = .true.
-         end do
-      end do
-      call collapse(w, v, u)
-   end subroutine lock_and_collapse
 
    !> The neighbour u into which v collapses best (the highest worst quality of the triangles
    !> that change), 0 if no collapse of v is allowed. mark(a) = v flags v's neighbours a.
@@ -514,9 +500,9 @@ contains
       end do
    end subroutine remove_from_star
 
-   !> Lawson flips in each half side by side (flip_half) on the triangles whose vertices all lie
-   !> in it, before flip_to_delaunay takes the rest in order.
-   subroutine flip_halves(w)
+   !> Lawson flips in each half side by side on the triangles whose vertices all lie in it
+   !> (owner(t) = h), then in order on every triangle (flip_passes).
+   subroutine flip_to_delaunay(w)
       type(work_mesh_t), intent(inout) :: w
 
       integer, allocatable :: owner(:)
@@ -534,33 +520,37 @@ contains
       !$omp end parallel do
       !$omp parallel do default(none) shared(w, owner) private(h) schedule(static, 1)
       do h = 1, 2
-         call flip_half(w, h, owner)
+         call flip_passes(w, h, owner)
       end do
       !$omp end parallel do
-   end subroutine flip_halves
+      call flip_passes(w, 0, owner)
+   end subroutine flip_to_delaunay
 
-   !> flip_to_delaunay's passes over the triangles of half h (owner(t) = h: all three vertices
-   !> in it, which a flip keeps), taking a flip only where the two triangles and the two
-   !> triangles across the edges that change sides are the half's; an edge it may not flip keeps
-   !> its triangle marked for flip_to_delaunay.
-   subroutine flip_half(w, h, owner)
+   !> Lawson flips until every interior edge is locally Delaunay. Only triangles that changed
+   !> (a collapse, or a flip, marks them) are examined again; each flip raises the smallest angle
+   !> of its quadrilateral, so the passes end. h = 1, 2: the triangles of half h only (a flip
+   !> keeps them in it), and a flip only where the two triangles and the two across the edges
+   !> that change sides are the half's; an edge it may not flip keeps its triangle marked for
+   !> the pass with h = 0, which takes every triangle.
+   subroutine flip_passes(w, h, owner)
       type(work_mesh_t), intent(inout) :: w
       integer, intent(in) :: h, owner(:)
 
-      integer(ip) :: t, s, a, b, c, d, across_bc, across_ad
+      integer(ip) :: t, s, a, b, c, d
       integer :: i, pass
       logical :: any_flip
 
       do pass = 1, 50
          any_flip = .false.
          do t = 1, size(w%tri, 2, kind=ip)
-            if (owner(t) /= h) cycle
+            if (.not. mine(t)) cycle
             if (.not. w%dirty(t)) cycle
             w%dirty(t) = .false.
+            if (w%tri(1, t) == 0) cycle
             do i = 1, 3
                s = w%nbr(mod(i + 1, 3) + 1, t)
                if (s == 0) cycle
-               if (owner(s) /= h) then
+               if (.not. mine(s)) then
                   w%dirty(t) = .true.
                   cycle
                end if
@@ -570,9 +560,9 @@ contains
                d = sum(w%tri(:, s)) - a - b
                if (.not. should_flip(w, a, b, c, d)) cycle
                if (w%nstar(c) == max_star .or. w%nstar(d) == max_star) cycle
-               across_bc = w%nbr(position_of(w%tri(:, t), a), t)
-               across_ad = w%nbr(position_of(w%tri(:, s), b), s)
-               if (.not. owned_or_none(across_bc) .or. .not. owned_or_none(across_ad)) then
+               ! (the triangles across bc and ad get a new neighbour: flip)
+               if (.not. mine(w%nbr(position_of(w%tri(:, t), a), t)) .or. &
+                   .not. mine(w%nbr(position_of(w%tri(:, s), b), s))) then
                   w%dirty(t) = .true.
                   cycle
                end if
@@ -586,49 +576,14 @@ contains
          if (.not. any_flip) exit
       end do
    contains
-      logical function owned_or_none(r)
+      !> whether this pass may change triangle r (0: none, across the boundary)
+      logical function mine(r)
          integer(ip), intent(in) :: r
 
-         owned_or_none = r == 0
-         if (r /= 0) owned_or_none = owner(r) == h
-      end function owned_or_none
-   end subroutine flip_half
-
-   !> Lawson flips until every interior edge is locally Delaunay. Only triangles that changed
-   !> (a collapse, or a flip, marks them) are examined again; each flip raises the smallest angle
-   !> of its quadrilateral, so the passes end.
-   subroutine flip_to_delaunay(w)
-      type(work_mesh_t), intent(inout) :: w
-
-      integer(ip) :: t, s, a, b, c, d
-      integer :: i, pass
-      logical :: any_dirty
-
-      do pass = 1, 50
-         any_dirty = .false.
-         do t = 1, size(w%tri, 2, kind=ip)
-            if (.not. w%dirty(t)) cycle
-            w%dirty(t) = .false.
-            if (w%tri(1, t) == 0) cycle
-            do i = 1, 3
-               a = w%tri(i, t)
-               b = w%tri(mod(i, 3) + 1, t)
-               c = w%tri(mod(i + 1, 3) + 1, t)
-               s = w%nbr(mod(i + 1, 3) + 1, t)
-               if (s == 0) cycle
-               d = sum(w%tri(:, s)) - a - b
-               if (.not. should_flip(w, a, b, c, d)) cycle
-               if (w%nstar(c) == max_star .or. w%nstar(d) == max_star) cycle
-               call flip(w, t, s, a, b, c, d)
-               w%dirty(t) = .true.
-               w%dirty(s) = .true.
-               any_dirty = .true.
-               exit
-            end do
-         end do
-         if (.not. any_dirty) exit
-      end do
-   end subroutine flip_to_delaunay
+         mine = h == 0 .or. r == 0
+         if (.not. mine) mine = owner(r) == h
+      end function mine
+   end subroutine flip_passes
 
    !> Triangles (a, b, c) and (b, a, d), both counter-clockwise: whether d lies inside the
    !> circumcircle of (a, b, c) and the quadrilateral is convex (the flip to c–d is valid).
