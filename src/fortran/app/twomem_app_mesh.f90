@@ -46,13 +46,11 @@ contains
       if (allocated(err)) return
       call comm%bcast(file_vertex)
       call comm%bcast(file_triangle)
-      ! a file's mesh is numbered as its mesher made it: along the domain instead, by the reader
-      ! where it could (the result keeps the file's numbering)
-      call distribute_coarse(comm, whole, piece, err, &
-                             spatial=cfg%mesh%domain == domain_gmsh .and. size(file_vertex) == 0)
+      call distribute_coarse(comm, whole, piece, err)
       call comm%agree(err)
       if (allocated(err)) return
       call whole%free()
+      ! the reader numbered a large file's mesh along the domain: the result keeps the file's numbering
       if (size(file_vertex) > 0) call number_as_file(piece, file_vertex, file_triangle)
       call hierarchy%init(piece, cfg%mesh%levels, err)
       call comm%agree(err)
@@ -92,7 +90,6 @@ contains
          call make_square(cfg%mesh%coarse_h, coarse, err)
       case (domain_gmsh)
          write (output_unit, '("mesh: ",a,", ",i0," levels")') trim(cfg%mesh%file), cfg%mesh%levels
-         deallocate (file_vertex, file_triangle)
          call read_gmsh(trim(cfg%mesh%file), coarse, err, n_unused, file_vertex, file_triangle)
          if (allocated(err)) return
          if (n_unused > 0) write (output_unit, '("  note: ",i0," nodes used by no triangle dropped")') n_unused

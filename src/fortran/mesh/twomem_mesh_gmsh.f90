@@ -80,14 +80,11 @@ contains
          ! (the coordinates are finite and below max_coordinate: the curve's keys need them so)
          if (worth_reordering(size(triangles, 2, kind=ip))) then
             call renumber_along_curve(vertices, triangles, file_vertex, file_triangle)
-            call mesh%init(vertices, triangles, path, err, vertex_names=file_vertex, triangle_names=file_triangle)
          else
             allocate (file_vertex(0), file_triangle(0))
-            call mesh%init(vertices, triangles, path, err)
          end if
-      else
-         call mesh%init(vertices, triangles, path, err)
       end if
+      call mesh%init(vertices, triangles, path, err, vertex_names=file_vertex, triangle_names=file_triangle)
       if (allocated(err)) call mesh%free()
    end subroutine read_gmsh
 

@@ -7,12 +7,9 @@
 !> the children), so the hierarchy is nested per rank and no rank ever holds a fine mesh it does
 !> not own. The whole coarse mesh is known on every rank (it is small, and made identically
 !> everywhere or broadcast from rank 0), so the extraction needs no further communication.
-!> A piece may also be numbered along the domain (`spatial`: own triangles, then the ghost
-!> layer, each along a space-filling curve, and the vertices as these triangles first meet
-!> them; twomem_mesh_spatial_order), for a large mesh whose own numbering is a mesher's; on one
-!> rank that piece is the whole mesh renumbered, and its whole-mesh numbers are what the
-!> result is written in. A file's mesh that the reader already numbered along the domain keeps
-!> its order here and gets the file's numbers afterwards (`number_as_file`).
+!> One rank's piece is the whole mesh itself. A file's mesh that the reader numbered along the
+!> domain (twomem_mesh_gmsh) gets the file's numbers as its pieces' whole-mesh numbers
+!> (`number_as_file`), so that the result is written in them.
 module twomem_mesh_partition
    use twomem_base_kinds, only: dp, ip
    use twomem_base_errors, only: error_t, make_error, exit_bad_input
@@ -20,7 +17,6 @@ module twomem_mesh_partition
    use twomem_base_comm, only: comm_t
    use twomem_mesh_triangulation, only: mesh_t, corner_of
    use twomem_mesh_metis, only: metis_partition
-   use twomem_mesh_spatial_order, only: triangles_along_curve, worth_reordering
    implicit none
    private
 
@@ -51,26 +47,21 @@ contains
       if (.not. comm%is_root()) call mesh%init(vertices, triangles, source, err, diameter=diameter(1))
    end subroutine share_mesh
 
-   !> This rank's piece of the whole coarse mesh `whole` (identical on every rank), numbered
-   !> along the domain when `spatial` and the mesh is large enough to gain by it (default: in
-   !> whole-mesh order).
-   subroutine distribute_coarse(comm, whole, local, err, spatial)
+   !> This rank's piece of the whole coarse mesh `whole` (identical on every rank), in
+   !> whole-mesh order.
+   subroutine distribute_coarse(comm, whole, local, err)
       type(comm_t), intent(in) :: comm
       type(mesh_t), intent(in) :: whole
       type(mesh_t), intent(inout) :: local
       type(error_t), allocatable, intent(out) :: err
-      logical, intent(in), optional :: spatial
 
       integer(ip), allocatable :: part(:), tri_local(:), vert_local(:), triangles(:, :)
       integer, allocatable :: owner(:)
       logical, allocatable :: own_vertex(:), keep(:)
       real(dp), allocatable :: vertices(:, :)
       integer(ip) :: t, a, m, i, nt, nv, nt_own
-      logical :: along
 
-      along = .false.
-      if (present(spatial)) along = spatial .and. worth_reordering(whole%nt)
-      if (comm%size == 1 .and. .not. along) then
+      if (comm%size == 1) then
          ! one rank's piece is the whole mesh as it is (made again from its arrays, a mesh of 10⁶
          ! vertices took half a second)
          local = whole
@@ -94,28 +85,21 @@ contains
       if (allocated(err)) return
 
       allocate (owner(whole%nv), own_vertex(whole%nv), keep(whole%nt))
-      if (comm%size == 1) then
-         ! one rank owns everything (a search over the patches costs a third of a second at 10⁶
-         ! vertices in a mesher's numbering)
-         owner = 0
-         keep = .true.
-      else
-         ! owner of a vertex: the lowest rank owning a triangle at it
-         do a = 1, whole%nv
-            owner(a) = huge(1)
-            do m = whole%patch_ptr(a), whole%patch_ptr(a + 1) - 1
-               owner(a) = min(owner(a), part(whole%patch_triangles(m)))
-            end do
+      ! owner of a vertex: the lowest rank owning a triangle at it
+      do a = 1, whole%nv
+         owner(a) = huge(1)
+         do m = whole%patch_ptr(a), whole%patch_ptr(a + 1) - 1
+            owner(a) = min(owner(a), part(whole%patch_triangles(m)))
          end do
-         own_vertex = .false.
-         do t = 1, whole%nt
-            if (part(t) == comm%rank) own_vertex(whole%triangles(:, t)) = .true.
-         end do
-         ! own triangles, then the ghost layer: other triangles at a vertex of an own one
-         do t = 1, whole%nt
-            keep(t) = part(t) == comm%rank .or. any(own_vertex(whole%triangles(:, t)))
-         end do
-      end if
+      end do
+      own_vertex = .false.
+      do t = 1, whole%nt
+         if (part(t) == comm%rank) own_vertex(whole%triangles(:, t)) = .true.
+      end do
+      ! own triangles, then the ghost layer: other triangles at a vertex of an own one
+      do t = 1, whole%nt
+         keep(t) = part(t) == comm%rank .or. any(own_vertex(whole%triangles(:, t)))
+      end do
       nt_own = count(part == comm%rank, kind=ip)
       nt = count(keep, kind=ip)
       allocate (tri_local(nt), vert_local(whole%nv))
@@ -132,40 +116,22 @@ contains
             tri_local(i) = t
          end if
       end do
+      ! local vertices in whole-mesh order
       vert_local = 0
+      do i = 1, nt
+         vert_local(whole%triangles(:, tri_local(i))) = 1
+      end do
+      nv = 0
+      do a = 1, whole%nv
+         if (vert_local(a) > 0) then
+            nv = nv + 1
+            vert_local(a) = nv
+         end if
+      end do
       allocate (triangles(3, nt))
-      if (along) then
-         tri_local(1:nt_own) = triangles_along_curve(whole%vertices, whole%triangles, tri_local(1:nt_own))
-         tri_local(nt_own + 1:nt) = triangles_along_curve(whole%vertices, whole%triangles, tri_local(nt_own + 1:nt))
-         ! local vertices in the order the triangles meet them, and the triangles in their
-         ! numbers, in one pass over the whole mesh's triangles in the new order
-         nv = 0
-         do i = 1, nt
-            do m = 1, 3
-               a = whole%triangles(m, tri_local(i))
-               if (vert_local(a) == 0) then
-                  nv = nv + 1
-                  vert_local(a) = nv
-               end if
-               triangles(m, i) = vert_local(a)
-            end do
-         end do
-      else
-         ! local vertices in whole-mesh order
-         do i = 1, nt
-            vert_local(whole%triangles(:, tri_local(i))) = 1
-         end do
-         nv = 0
-         do a = 1, whole%nv
-            if (vert_local(a) > 0) then
-               nv = nv + 1
-               vert_local(a) = nv
-            end if
-         end do
-         do i = 1, nt
-            triangles(:, i) = vert_local(whole%triangles(:, tri_local(i)))
-         end do
-      end if
+      do i = 1, nt
+         triangles(:, i) = vert_local(whole%triangles(:, tri_local(i)))
+      end do
       allocate (vertices(2, nv))
       do a = 1, whole%nv
          if (vert_local(a) > 0) vertices(:, vert_local(a)) = whole%vertices(:, a)

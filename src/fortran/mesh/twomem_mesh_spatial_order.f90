@@ -12,7 +12,7 @@ module twomem_mesh_spatial_order
    implicit none
    private
 
-   public :: z_order_key, triangles_along_curve, renumber_along_curve, worth_reordering
+   public :: z_order_key, renumber_along_curve, worth_reordering
 
    !> meshes of more triangles than this are worth numbering along the curve
    integer(ip), parameter :: reorder_above = 10000

@@ -112,7 +112,7 @@ contains
    !> (a file name, 'disk generator', ...). A caller that knows the domain's diameter (the
    !> refinement of a mesh covers the same domain) passes it to skip the O(n_b²) search.
    !> vertex_names(a) and triangle_names(t) are the numbers messages give them, where the caller
-   !> renumbered a file's mesh (default: a and t).
+   !> renumbered a file's mesh (absent or empty: a and t).
    subroutine mesh_init(self, vertices, triangles, source, err, diameter, vertex_names, triangle_names)
       class(mesh_t), intent(inout) :: self
       real(dp), intent(in) :: vertices(:, :)
@@ -465,13 +465,16 @@ contains
       end do
    end subroutine build_edges
 
-   !> The number by which messages name entity k: names(k), or k itself without names.
+   !> The number by which messages name entity k: names(k), or k itself without names (absent
+   !> or empty).
    pure integer(ip) function named(k, names)
       integer(ip), intent(in) :: k
       integer(ip), intent(in), optional :: names(:)
 
       named = k
-      if (present(names)) named = names(k)
+      if (present(names)) then
+         if (size(names) > 0) named = names(k)
+      end if
    end function named
 
    logical function same_side(self, e)
